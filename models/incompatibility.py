@@ -1,0 +1,329 @@
+"""Reachability and the incompatibility matrix (thesis 5.4).
+
+For a set of FOV targets, every *assignment* (arm, target, IK branch) plus each arm's
+park location (and optionally its current location, or a fixed location for an arm out
+of service); then every incompatible pair: two assignments of different arms whose bodies
+are closer than the collision buffer, or two arms on the same target. Both allocators
+consume this structure; nothing downstream calls geometry again.
+
+The bulk pair test is vectorised (capsule fast path of :mod:`models.collision`) with a
+static broad phase (body pairs that can never meet, whatever the configuration, are
+skipped per arm pair) and a per-pair bounding-box prefilter; FCL is the oracle in tests.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from scipy import sparse
+
+from models.collision import body_segments_mm, segment_distance_mm, segment_distance_xy
+from models.instrument import Instrument
+from models.kinematics import inverse_fov, tip_fov
+
+FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV scale
+PARK = -1  # target index of a park assignment
+FIXED = -2  # target index of a current/fixed (out-of-service) location
+
+
+@dataclass(frozen=True)
+class Assignments:
+    """All candidate locations of every arm, as parallel arrays of length n_assignments.
+
+    ``target`` is the target index, ``PARK`` (-1) or ``FIXED`` (-2). Sorted by arm, then
+    target; ``arm_start[k]:arm_start[k+1]`` slices the assignments of arm k.
+    """
+
+    arm: np.ndarray
+    target: np.ndarray
+    branch: np.ndarray
+    theta1_rad: np.ndarray
+    theta2_rad: np.ndarray
+    x_mm: np.ndarray
+    y_mm: np.ndarray
+    arm_start: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.arm)
+
+    @property
+    def q(self) -> np.ndarray:
+        return np.column_stack([self.theta1_rad, self.theta2_rad])
+
+    def of_arm(self, arm: int) -> slice:
+        return slice(int(self.arm_start[arm]), int(self.arm_start[arm + 1]))
+
+
+@dataclass(frozen=True)
+class Reachability:
+    """Which arms reach which targets."""
+
+    n_targets: int
+    arms_per_target: np.ndarray  # (n_targets,) number of distinct enabled arms reaching it
+    assignments: Assignments
+
+    @property
+    def unreachable(self) -> np.ndarray:
+        """Indices of targets no enabled arm can reach."""
+        return np.flatnonzero(self.arms_per_target == 0)
+
+
+@dataclass(frozen=True)
+class Incompatibility:
+    """Incompatible assignment pairs (i < j), also as a symmetric CSR adjacency.
+
+    ``same_target[p]`` marks pairs incompatible only because both arms take the same target.
+    """
+
+    reachability: Reachability
+    pairs: np.ndarray  # (n_pairs, 2) int32, i < j
+    same_target: np.ndarray  # (n_pairs,) bool
+    indptr: np.ndarray
+    indices: np.ndarray
+    buffer_mm: float
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def assignments(self) -> Assignments:
+        return self.reachability.assignments
+
+    def neighbours(self, a: int) -> np.ndarray:
+        """All assignments incompatible with assignment ``a``."""
+        return self.indices[self.indptr[a]:self.indptr[a + 1]]
+
+    def conflicts(self, a: int, arm: int) -> np.ndarray:
+        """Assignments of ``arm`` incompatible with assignment ``a`` (thesis eq. 5.15, aggregated)."""
+        nb = self.neighbours(a)
+        return nb[self.assignments.arm[nb] == arm]
+
+    def compatible(self, a: int, b: int) -> bool:
+        nb = self.neighbours(a)
+        i = np.searchsorted(nb, b)
+        return not (i < len(nb) and nb[i] == b)
+
+    def counts(self) -> dict[str, int]:
+        return {
+            "targets": int(self.reachability.n_targets),
+            "assignments": int(len(self.assignments)),
+            "incompatible_pairs": int(len(self.pairs)),
+            "geometric_pairs": int((~self.same_target).sum()),
+            "same_target_pairs": int(self.same_target.sum()),
+            "unreachable_targets": int(len(self.reachability.unreachable)),
+        }
+
+
+def build_assignments(
+    instrument: Instrument,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
+    *,
+    include_park: bool = True,
+    current: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None,
+) -> Reachability:
+    """Every (arm, target, IK branch) assignment plus park/current locations (thesis 5.4).
+
+    ``current``: optional (n_arms, 2) joint angles added as an extra location per arm (when
+    it differs from park). ``fixed``: arm -> (theta1, theta2) for arms out of service; such
+    an arm gets that single location and no targets. Disabled arms in the instrument
+    without a fixed location stay parked.
+    """
+    x = np.asarray(x_mm, float).ravel()
+    y = np.asarray(y_mm, float).ravel()
+    n_t = len(x)
+    fixed = dict(fixed or {})
+    for k, a in enumerate(instrument.arms):
+        if not a.enabled and k not in fixed:
+            fixed[k] = a.park
+    arms = np.arange(instrument.n_arms)
+    active = np.array([k not in fixed for k in arms])
+    if n_t:
+        sol = inverse_fov(instrument, arms[:, None], x[None, :], y[None, :])  # (n_arms, n_t, 4)
+        valid = sol.valid & active[:, None, None]
+        k_idx, t_idx, b_idx = np.nonzero(valid)
+        t1 = sol.theta1_rad[valid]
+        t2 = sol.theta2_rad[valid]
+    else:
+        valid = np.zeros((instrument.n_arms, 0, 4), bool)
+        k_idx = t_idx = b_idx = np.zeros(0, int)
+        t1 = t2 = np.zeros(0)
+    ex_k, ex_t, ex_q = [], [], []
+    park = instrument.park_configuration
+    for k in arms:
+        if k in fixed:
+            ex_k.append(k)
+            ex_t.append(FIXED)
+            ex_q.append(fixed[k])
+            continue
+        if include_park:
+            ex_k.append(k)
+            ex_t.append(PARK)
+            ex_q.append(park[k])
+        if current is not None:
+            c = np.asarray(current[k], float)
+            if not include_park or not np.allclose(c, park[k]):
+                ex_k.append(k)
+                ex_t.append(FIXED)
+                ex_q.append(c)
+    ex_q = np.asarray(ex_q, float).reshape(-1, 2)
+    arm = np.concatenate([k_idx, np.asarray(ex_k, int)])
+    target = np.concatenate([t_idx, np.asarray(ex_t, int)])
+    branch = np.concatenate([b_idx, np.full(len(ex_k), -1)])
+    th1 = np.concatenate([t1, ex_q[:, 0]])
+    th2 = np.concatenate([t2, ex_q[:, 1]])
+    order = np.lexsort((branch, target, arm))
+    arm, target, branch, th1, th2 = arm[order], target[order], branch[order], th1[order], th2[order]
+    tip = tip_fov(instrument, arm, th1, th2) if len(arm) else np.zeros((0, 2))
+    arm_start = np.searchsorted(arm, np.arange(instrument.n_arms + 1))
+    assignments = Assignments(arm.astype(np.int32), target.astype(np.int32), branch.astype(np.int8),
+                              th1, th2, tip[:, 0], tip[:, 1], arm_start)
+    arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
+    return Reachability(n_t, arms_per_target, assignments)
+
+
+def _joint_bounds(instrument: Instrument, k: int) -> dict[str, tuple[np.ndarray, float]]:
+    """For each joint of arm k, a disc (centre, radius) holding it in every configuration."""
+    a = instrument.arms[k]
+    base = np.array([a.base_x_mm, a.base_y_mm])
+    ex = np.array([np.cos(a.orientation_rad), np.sin(a.orientation_rad)])
+    j2 = base + a.d12_mm * ex
+    return {"J1": (base, 0.0), "J2": (j2, 0.0), "J3": (base, a.d13_mm), "J4": (j2, a.d24_mm),
+            "tip": (base, a.d13_mm + a.d3tip_mm)}
+
+
+@lru_cache(maxsize=4096)
+def _body_pairs_that_can_meet(instrument: Instrument, k: int, kk: int, buffer_mm: float) -> list[tuple[int, int]]:
+    """Body pairs of arms k, kk whose swept regions come within the buffer (static broad phase).
+
+    Each body lies in the convex hull of its two joints' bounding discs, i.e. within a
+    capsule of radius max(r1, r2) + half-width between the disc centres.
+    """
+    jb, jbb = _joint_bounds(instrument, k), _joint_bounds(instrument, kk)
+    out = []
+    for i, b in enumerate(instrument.arms[k].bodies):
+        (c0, r0), (c1, r1) = jb[b.joint_from], jb[b.joint_to]
+        for j, bb in enumerate(instrument.arms[kk].bodies):
+            (d0, s0), (d1, s1) = jbb[bb.joint_from], jbb[bb.joint_to]
+            dist = float(segment_distance_mm(c0, c1, d0, d1))
+            reach = max(r0, r1) + b.half_width_mm + max(s0, s1) + bb.half_width_mm
+            if dist - reach < buffer_mm:
+                out.append((i, j))
+    # most conflicts are between the long bodies that reach into the FOV: test those
+    # first so later body pairs only see the still-undecided assignment pairs
+    out.sort(key=lambda ij: -(instrument.arms[k].bodies[ij[0]].joint_to == "tip")
+             - (instrument.arms[kk].bodies[ij[1]].joint_to == "tip"))
+    return out
+
+
+def compute_incompatibility(
+    instrument: Instrument,
+    reachability: Reachability,
+    buffer_mm: float | None = None,
+    chunk_pairs: int = 1_000_000,
+) -> Incompatibility:
+    """Every incompatible pair of assignments of different arms (thesis 5.4, set H of eq. 5.15).
+
+    Per arm pair, the statically possible body pairs are tested on the whole block of
+    assignment pairs: a bounding-box prefilter, then the exact capsule distance on the
+    survivors. Pairs on the same target are marked first and never re-tested.
+    """
+    t0 = time.perf_counter()
+    buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
+    asg = reachability.assignments
+    seg_s, seg_e, seg_r = body_segments_mm(instrument, asg.arm, asg.theta1_rad, asg.theta2_rad)
+    n_b = seg_s.shape[1]
+    # per body, contiguous coordinate arrays (assignment axis last) for cheap slicing
+    sx, sy = np.ascontiguousarray(seg_s[..., 0].T), np.ascontiguousarray(seg_s[..., 1].T)
+    ex, ey = np.ascontiguousarray(seg_e[..., 0].T), np.ascontiguousarray(seg_e[..., 1].T)
+    rad = np.ascontiguousarray(seg_r.T)
+    # float32 for the bulk test (3x faster); pairs within FLOAT32_BAND_MM of the buffer
+    # are re-decided in float64 so the answer equals the exact computation
+    sx32, sy32, ex32, ey32, rad32 = (v.astype(np.float32) for v in (sx, sy, ex, ey, rad))
+    lox = (np.minimum(sx, ex) - rad).astype(np.float32)
+    hix = (np.maximum(sx, ex) + rad + buffer_mm).astype(np.float32)
+    loy = (np.minimum(sy, ey) - rad).astype(np.float32)
+    hiy = (np.maximum(sy, ey) + rad + buffer_mm).astype(np.float32)
+    target = asg.target
+    t_geom = time.perf_counter()
+    found_i, found_j, found_same = [], [], []
+    n_arms = instrument.n_arms
+    starts = asg.arm_start
+    for k in range(n_arms):
+        a0, a1 = int(starts[k]), int(starts[k + 1])
+        if a1 == a0:
+            continue
+        for kk in range(k + 1, n_arms):
+            b0, b1 = int(starts[kk]), int(starts[kk + 1])
+            if b1 == b0:
+                continue
+            body_pairs = _body_pairs_that_can_meet(instrument, k, kk, buffer_mm)
+            step = max(1, chunk_pairs // (b1 - b0))
+            for r0 in range(a0, a1, step):
+                r1 = min(a1, r0 + step)
+                ta = target[r0:r1]
+                same = (ta[:, None] == target[None, b0:b1]) & (ta[:, None] >= 0)
+                hit = same.copy()
+                for bi, bj in body_pairs:
+                    cand = lox[bi, r0:r1, None] < hix[bj, None, b0:b1]
+                    cand &= hix[bi, r0:r1, None] > lox[bj, None, b0:b1]
+                    cand &= loy[bi, r0:r1, None] < hiy[bj, None, b0:b1]
+                    cand &= hiy[bi, r0:r1, None] > loy[bj, None, b0:b1]
+                    cand &= ~hit
+                    ci, cj = np.nonzero(cand)
+                    if not len(ci):
+                        continue
+                    ai, bk = ci + r0, cj + b0
+                    gap = segment_distance_xy(sx32[bi, ai], sy32[bi, ai], ex32[bi, ai], ey32[bi, ai],
+                                              sx32[bj, bk], sy32[bj, bk], ex32[bj, bk], ey32[bj, bk])
+                    gap -= rad32[bi, ai] + rad32[bj, bk] + np.float32(buffer_mm)
+                    close = gap < 0
+                    unsure = np.flatnonzero(np.abs(gap) < FLOAT32_BAND_MM)
+                    if len(unsure):
+                        ua, ub = ai[unsure], bk[unsure]
+                        d64 = segment_distance_xy(sx[bi, ua], sy[bi, ua], ex[bi, ua], ey[bi, ua],
+                                                  sx[bj, ub], sy[bj, ub], ex[bj, ub], ey[bj, ub])
+                        close[unsure] = d64 - rad[bi, ua] - rad[bj, ub] < buffer_mm
+                    hit[ci[close], cj[close]] = True
+                hi_, hj_ = np.nonzero(hit)
+                found_i.append(hi_ + r0)
+                found_j.append(hj_ + b0)
+                found_same.append(same[hi_, hj_])
+    t_pairs = time.perf_counter()
+    # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
+    gi = np.concatenate(found_i).astype(np.int32) if found_i else np.zeros(0, np.int32)
+    gj = np.concatenate(found_j).astype(np.int32) if found_j else np.zeros(0, np.int32)
+    same_target = np.concatenate(found_same) if found_same else np.zeros(0, bool)
+    pairs = np.column_stack([gi, gj])
+    n = len(asg)
+    adj = sparse.coo_matrix((np.ones(2 * len(gi), np.int8), (np.concatenate([gi, gj]), np.concatenate([gj, gi]))),
+                            shape=(n, n)).tocsr()
+    adj.sort_indices()
+    t_end = time.perf_counter()
+    del n_b
+    return Incompatibility(
+        reachability=reachability, pairs=pairs, same_target=same_target,
+        indptr=adj.indptr.astype(np.int64), indices=adj.indices.astype(np.int32), buffer_mm=buffer_mm,
+        timings_s={"bodies": t_geom - t0, "pairs": t_pairs - t_geom, "assemble": t_end - t_pairs},
+    )
+
+
+def incompatibility_for_targets(
+    instrument: Instrument,
+    x_mm: np.ndarray,
+    y_mm: np.ndarray,
+    *,
+    buffer_mm: float | None = None,
+    include_park: bool = True,
+    current: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None,
+) -> Incompatibility:
+    """Reachability plus incompatibility for FOV targets, with per-phase timings."""
+    t0 = time.perf_counter()
+    reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed)
+    t1 = time.perf_counter()
+    inc = compute_incompatibility(instrument, reach, buffer_mm)
+    inc.timings_s["reachability"] = t1 - t0
+    return inc
