@@ -1,0 +1,431 @@
+"""Request and response schemas of the v1 HTTP contract (pydantic v2).
+
+Units are in the field names. Every float is finite (NaN and infinities are rejected),
+so invalid input fails validation with HTTP 422 naming the field. Limits that depend on
+the deployment (max targets per request, max time limit) are checked in ``app.py``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+PRIORITY_MAX = 2**32 - 1
+N_ARMS = 12
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+ArmIndex = Annotated[int, Field(strict=True, ge=0, le=N_ARMS - 1, description="Arm number 0..11.")]
+Priority = Annotated[
+    int, Field(strict=True, ge=1, le=PRIORITY_MAX, description="Integer priority 1..2^32-1.")
+]
+TargetId = Annotated[str, Field(min_length=1, max_length=128, description="Unique target id.")]
+RaDeg = Annotated[
+    float, Field(ge=0.0, lt=360.0, allow_inf_nan=False, description="Right ascension, deg.")
+]
+DecDeg = Annotated[
+    float, Field(ge=-90.0, le=90.0, allow_inf_nan=False, description="Declination, deg.")
+]
+AngleRad = Annotated[
+    float, Field(ge=-1000.0, le=1000.0, allow_inf_nan=False, description="Joint angle, rad.")
+]
+PositionAngleDeg = Annotated[
+    float, Field(ge=-360.0, le=360.0, allow_inf_nan=False, description="Position angle, deg.")
+]
+FocalMm = Annotated[
+    float, Field(ge=-1e5, le=1e5, allow_inf_nan=False, description="FOV-frame coordinate, mm.")
+]
+Seed = Annotated[int, Field(strict=True, ge=0, le=2**31 - 1, description="Random seed.")]
+TimeLimitS = Annotated[
+    float, Field(gt=0.0, le=86400.0, allow_inf_nan=False, description="Solver time limit, s.")
+]
+BufferMm = Annotated[
+    float, Field(ge=0.0, le=100.0, allow_inf_nan=False, description="Collision buffer, mm.")
+]
+Method = Literal["ilp", "semigreedy"]
+Solver = Literal["highs", "cpsat"]
+Stats = dict[str, Any]
+
+
+class Request(BaseModel):
+    """Base of request bodies: unknown fields are an error (they are usually typos)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Response(BaseModel):
+    model_config = ConfigDict(extra="allow")
+
+
+def _unique_ids(targets: list[Any]) -> list[Any]:
+    seen: dict[str, int] = {}
+    for i, t in enumerate(targets):
+        if t.id in seen:
+            raise ValueError(f"targets[{i}].id: duplicate target id {t.id!r} (also targets[{seen[t.id]}])")
+        seen[t.id] = i
+    return targets
+
+
+def _unique_arms(states: list[ArmState] | None, field: str) -> list[ArmState] | None:
+    if states is None:
+        return None
+    seen: set[int] = set()
+    for i, s in enumerate(states):
+        if s.arm in seen:
+            raise ValueError(f"{field}[{i}].arm: arm {s.arm} listed twice")
+        seen.add(s.arm)
+    return states
+
+
+# ------------------------------------------------------------------------ shared parts
+
+
+class ArmState(Request):
+    """Joint configuration of one arm."""
+
+    arm: ArmIndex
+    theta1_rad: AngleRad
+    theta2_rad: AngleRad
+
+
+class SkyTarget(Request):
+    id: TargetId
+    ra_deg: RaDeg
+    dec_deg: DecDeg
+    priority: Priority
+
+
+class PlaneTarget(Request):
+    """A target already on the focal plane (FOV frame, mm)."""
+
+    id: TargetId
+    x_mm: FocalMm
+    y_mm: FocalMm
+    priority: Priority
+
+
+class SkyPoint(Request):
+    ra_deg: RaDeg
+    dec_deg: DecDeg
+
+
+class TelescopePointing(Request):
+    ra_deg: RaDeg
+    dec_deg: DecDeg
+    position_angle_deg: PositionAngleDeg = 0.0
+
+
+# ------------------------------------------------------------------------- requests
+
+
+class SegmentationRequest(Request):
+    targets: list[SkyTarget] = Field(min_length=1)
+    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, allow_inf_nan=False)] | None = Field(
+        None, description="Complete-linkage threshold, mm; default sqrt(3) * FOV radius."
+    )
+    tangent_point: SkyPoint | None = Field(
+        None, description="Tangent point of the projection; default the field's centre."
+    )
+
+    @field_validator("targets")
+    @classmethod
+    def _ids_unique(cls, v: list[Any]) -> list[Any]:
+        return _unique_ids(v)
+
+
+class AllocationRequest(Request):
+    targets: list[PlaneTarget] | list[SkyTarget] = Field(
+        min_length=1,
+        description="Focal-plane targets, or sky targets (then `pointing` is required).",
+    )
+    pointing: TelescopePointing | None = Field(
+        None, description="Telescope pointing; required when `targets` are sky targets."
+    )
+    method: Method = "ilp"
+    solver: Solver = "highs"
+    configurations: Literal["one", "all"] = "one"
+    time_limit_s: TimeLimitS | None = None
+    seed: Seed | None = None
+    collision_buffer_mm: BufferMm | None = None
+    start: list[ArmState] | None = Field(
+        None, max_length=N_ARMS, description="Current configuration of some or all arms."
+    )
+    disabled_arms: list[ArmState] | None = Field(
+        None, max_length=N_ARMS, description="Arms out of service, fixed at these angles."
+    )
+
+    @field_validator("targets")
+    @classmethod
+    def _ids_unique(cls, v: list[Any]) -> list[Any]:
+        return _unique_ids(v)
+
+    @field_validator("start")
+    @classmethod
+    def _start_unique(cls, v: list[ArmState] | None) -> list[ArmState] | None:
+        return _unique_arms(v, "start")
+
+    @field_validator("disabled_arms")
+    @classmethod
+    def _disabled_unique(cls, v: list[ArmState] | None) -> list[ArmState] | None:
+        return _unique_arms(v, "disabled_arms")
+
+    @model_validator(mode="after")
+    def _pointing_for_sky(self) -> AllocationRequest:
+        if self.targets and isinstance(self.targets[0], SkyTarget) and self.pointing is None:
+            raise ValueError("pointing: required when targets are sky targets (ra_deg/dec_deg)")
+        return self
+
+    @property
+    def sky(self) -> bool:
+        return bool(self.targets) and isinstance(self.targets[0], SkyTarget)
+
+
+class MotionPlanRequest(Request):
+    start: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
+    goal: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
+    dt_s: Annotated[float, Field(gt=0.0, le=600.0, allow_inf_nan=False)] | None = Field(
+        None, description="Planning time step, s (default 6)."
+    )
+    dt_col_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] | None = Field(
+        None, description="Collision-check time step, s (default 0.1)."
+    )
+    max_start_stop: Annotated[int, Field(strict=True, ge=0, le=20)] | None = Field(
+        None, description="Most intermediate stops per arm (default 1)."
+    )
+    collision_buffer_mm: BufferMm | None = None
+    seed: Seed | None = None
+    time_limit_s: TimeLimitS | None = None
+
+    @field_validator("start")
+    @classmethod
+    def _start_unique(cls, v: list[ArmState]) -> list[ArmState]:
+        return _unique_arms(v, "start") or []
+
+    @field_validator("goal")
+    @classmethod
+    def _goal_unique(cls, v: list[ArmState]) -> list[ArmState]:
+        return _unique_arms(v, "goal") or []
+
+
+class PlanRequest(Request):
+    targets: list[SkyTarget] = Field(min_length=1)
+    method: Method = "ilp"
+    solver: Solver = "highs"
+    position_angle_deg: PositionAngleDeg = 0.0
+    time_limit_s: TimeLimitS | None = None
+    seed: Seed | None = None
+    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, allow_inf_nan=False)] | None = Field(
+        None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
+    )
+
+    @field_validator("targets")
+    @classmethod
+    def _ids_unique(cls, v: list[Any]) -> list[Any]:
+        return _unique_ids(v)
+
+
+class SegmentationJob(Request):
+    kind: Literal["segmentation"]
+    request: SegmentationRequest
+
+
+class AllocationJob(Request):
+    kind: Literal["allocation"]
+    request: AllocationRequest
+
+
+class MotionPlanJob(Request):
+    kind: Literal["motion-plan"]
+    request: MotionPlanRequest
+
+
+class PlanJob(Request):
+    kind: Literal["plan"]
+    request: PlanRequest
+
+
+JobRequest = Annotated[
+    SegmentationJob | AllocationJob | MotionPlanJob | PlanJob, Field(discriminator="kind")
+]
+JobKind = Literal["segmentation", "allocation", "motion-plan", "plan"]
+JobState = Literal["queued", "running", "done", "failed"]
+
+# ------------------------------------------------------------------------ responses
+
+
+class Health(Response):
+    status: Literal["ok"] = "ok"
+    version: str
+
+
+class ErrorResponse(Response):
+    """Every non-validation error: a machine code and a human message."""
+
+    error: str
+    detail: str
+
+
+class JointPair(Response):
+    theta1_rad: float
+    theta2_rad: float
+
+
+class BodyInfo(Response):
+    name: str
+    shape: str
+    joint_from: str
+    joint_to: str
+    radius_mm: float
+    width_mm: float
+    height_mm: float
+
+
+class ArmInfo(Response):
+    arm: int
+    enabled: bool
+    base_x_mm: float
+    base_y_mm: float
+    orientation_rad: float
+    d12_mm: float
+    d13_mm: float
+    d24_mm: float
+    d3tip_mm: float
+    stop_min_mm: float
+    stop_max_mm: float
+    theta1_min_rad: float
+    theta1_max_rad: float
+    joint1_speed_rad_s: float
+    joint2_speed_rad_s: float
+    park: JointPair
+    bodies: list[BodyInfo]
+
+
+class InstrumentInfo(Response):
+    name: str
+    source: str
+    fov_diameter_mm: float
+    plate_scale_arcsec_per_mm: float
+    collision_buffer_mm: float
+    joint_speed_rad_s: float
+    arms: list[ArmInfo]
+
+
+class PointingOut(Response):
+    id: int
+    ra_deg: float
+    dec_deg: float
+    x_mm: float
+    y_mm: float
+    radius_mm: float
+    target_ids: list[str]
+
+
+class TangentPoint(Response):
+    ra_deg: float
+    dec_deg: float
+
+
+class SegmentationResponse(Response):
+    tangent_point: TangentPoint
+    pointings: list[PointingOut]
+    stats: Stats = Field(default_factory=dict)
+
+
+class AssignmentOut(Response):
+    arm: int
+    target_id: str | None = Field(description="Allocated target; null = parked / blank sky.")
+    theta1_rad: float
+    theta2_rad: float
+    x_mm: float
+    y_mm: float
+
+
+class ConfigurationOut(Response):
+    index: int
+    status: Literal["optimal", "feasible"]
+    total_priority: int
+    arm_yield: int
+    assignments: list[AssignmentOut]
+
+
+class Unallocated(Response):
+    target_id: str
+    reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', ...")
+
+
+class AllocationResponse(Response):
+    configurations: list[ConfigurationOut]
+    unallocated: list[Unallocated]
+    stats: Stats = Field(default_factory=dict)
+
+
+class Waypoint(Response):
+    t_s: float
+    theta1_rad: float
+    theta2_rad: float
+
+
+class Command(Response):
+    joint: Literal[1, 2]
+    t_start_s: float
+    from_rad: float
+    to_rad: float
+    speed_rad_s: float
+
+
+class Trajectory(Response):
+    arm: int
+    waypoints: list[Waypoint]
+    commands: list[Command]
+
+
+class MotionPlanResponse(Response):
+    status: Literal["ok", "failed"]
+    makespan_s: float | None = Field(description="Time until every arm is at rest at its goal, s.")
+    trajectories: list[Trajectory]
+    failed_arms: list[int]
+    stats: Stats = Field(default_factory=dict)
+
+
+class PlanPointing(PointingOut):
+    configurations: list[ConfigurationOut]
+    motions: list[MotionPlanResponse] = Field(
+        description="Motion plans park -> c1 -> ... -> park (len(configurations) + 1)."
+    )
+    unallocated: list[Unallocated]
+
+
+class PlanResponse(Response):
+    tangent_point: TangentPoint | None = None
+    pointings: list[PlanPointing]
+    stats: Stats = Field(default_factory=dict)
+
+
+class JobCreated(Response):
+    job_id: str
+    status: JobState
+
+
+class JobStatus(Response):
+    job_id: str
+    kind: JobKind
+    status: JobState
+    progress: float = Field(ge=0.0, le=1.0)
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    created_at: float = Field(description="Unix time the job was accepted.")
+    updated_at: float = Field(description="Unix time of the last state change.")
+
+
+REQUEST_TYPES: dict[str, type[Request]] = {
+    "segmentation": SegmentationRequest,
+    "allocation": AllocationRequest,
+    "motion-plan": MotionPlanRequest,
+    "plan": PlanRequest,
+}
+RESPONSE_TYPES: dict[str, type[Response]] = {
+    "segmentation": SegmentationResponse,
+    "allocation": AllocationResponse,
+    "motion-plan": MotionPlanResponse,
+    "plan": PlanResponse,
+}

@@ -1,0 +1,41 @@
+"""Service settings, read from ``MXS_*`` environment variables (pydantic-settings)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, field_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    """Every knob of the service. ``MXS_<NAME>`` sets ``<name>`` (case-insensitive)."""
+
+    model_config = SettingsConfigDict(env_prefix="MXS_", extra="ignore")
+
+    instrument_file: Path | None = Field(
+        None, description="Instrument TOML file; unset = the packaged default geometry."
+    )
+    workers: int = Field(2, ge=1, le=64, description="Processes in the job pool.")
+    job_db: Path = Field(Path("mxs-jobs.sqlite3"), description="SQLite file holding jobs.")
+    cors_origins: str = Field(
+        "", description="Comma-separated origins allowed by CORS ('*' for any); empty = none."
+    )
+    api_token: str | None = Field(
+        None, description="When set, POST endpoints require 'Authorization: Bearer <token>'."
+    )
+    max_targets: int = Field(5000, ge=1, description="Most targets accepted in one request.")
+    max_body_bytes: int = Field(10_000_000, ge=1024, description="Largest request body.")
+    default_time_limit_s: float = Field(
+        30.0, gt=0, description="Solver time limit when a request gives none."
+    )
+    max_time_limit_s: float = Field(600.0, gt=0, description="Largest time limit a request may ask.")
+
+    @field_validator("api_token")
+    @classmethod
+    def _empty_token_is_none(cls, v: str | None) -> str | None:
+        return v or None
+
+    @property
+    def cors_origin_list(self) -> list[str]:
+        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
