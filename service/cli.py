@@ -1,0 +1,215 @@
+"""Command line: ``mxs-planner serve`` (the HTTP API) and ``mxs-planner plan`` (a target file
+through the whole pipeline, with a JSON result and one picture per configuration)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "target_id", "name", "target", "source_id", "objid", "obj_id", "designation"),
+    "ra_deg": ("ra_deg", "ra", "raj2000", "ra_j2000", "ra_icrs", "radeg", "alpha"),
+    "dec_deg": ("dec_deg", "dec", "dej2000", "decj2000", "dec_j2000", "de_icrs", "dec_icrs",
+                "decdeg", "delta"),
+    "priority": ("priority", "prio", "pri", "weight", "rank_priority"),
+}
+FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml": "votable",
+           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
+
+
+class TargetFileError(ValueError):
+    pass
+
+
+def _find(names: Sequence[str], wanted: str) -> str | None:
+    lower = {n.lower(): n for n in names}
+    for alias in ALIASES[wanted]:
+        if alias in lower:
+            return lower[alias]
+    return None
+
+
+def read_targets(path: str | Path) -> list[dict[str, Any]]:
+    """Rows ``{id, ra_deg, dec_deg, priority}`` of a CSV / ECSV / VOTable / FITS table.
+
+    Column names are matched case-insensitively with common aliases (``ra``, ``RAJ2000``,
+    ``name``, ...). Sexagesimal RA (hours) / Dec strings are understood. Without an id column
+    the row number is the id; without a priority column every target has priority 1.
+    """
+    from astropy import units as u
+    from astropy.coordinates import SkyCoord
+    from astropy.table import Table
+
+    p = Path(path)
+    if not p.is_file():
+        raise TargetFileError(f"{p}: no such file")
+    suffix = "".join(p.suffixes[-2:]) if p.name.endswith(".fits.gz") else p.suffix.lower()
+    try:
+        table = Table.read(p, format=FORMATS[suffix]) if suffix in FORMATS else Table.read(p)
+    except Exception as exc:  # noqa: BLE001 - astropy raises many kinds
+        raise TargetFileError(f"{p}: cannot read as a table ({exc})") from exc
+    cols = {k: _find(table.colnames, k) for k in ALIASES}
+    for k in ("ra_deg", "dec_deg"):
+        if cols[k] is None:
+            raise TargetFileError(f"{p}: no {k} column (looked for {', '.join(ALIASES[k])})")
+    n = len(table)
+    if n == 0:
+        raise TargetFileError(f"{p}: the table has no rows")
+    ra_col, dec_col = table[cols["ra_deg"]], table[cols["dec_deg"]]
+    if ra_col.dtype.kind in "US":
+        c = SkyCoord(list(ra_col), list(dec_col), unit=(u.hourangle, u.deg))
+        ra, dec = c.ra.deg, c.dec.deg
+    else:
+        ra = _degrees(ra_col, "ra_deg", p)
+        dec = _degrees(dec_col, "dec_deg", p)
+    ids = [str(v) for v in table[cols["id"]]] if cols["id"] else [str(i) for i in range(n)]
+    if cols["priority"]:
+        pcol = table[cols["priority"]]
+        if getattr(pcol, "mask", None) is not None and np.any(pcol.mask):
+            raise TargetFileError(f"{p}: column {cols['priority']} has empty values")
+        prio = [_priority(v, i, p) for i, v in enumerate(pcol)]
+    else:
+        prio = [1] * n
+    return [
+        {"id": ids[i], "ra_deg": float(ra[i]), "dec_deg": float(dec[i]), "priority": prio[i]}
+        for i in range(n)
+    ]
+
+
+def _degrees(col: Any, name: str, p: Path) -> np.ndarray:
+    if getattr(col, "mask", None) is not None and np.any(col.mask):
+        raise TargetFileError(f"{p}: column {col.name} ({name}) has empty values")
+    if col.unit is not None and col.unit.physical_type == "angle":
+        return np.asarray(col.quantity.to_value("deg"), float)
+    return np.asarray(col, float)
+
+
+def _priority(v: Any, i: int, p: Path) -> int:
+    f = float(v)
+    if not f.is_integer():
+        raise TargetFileError(f"{p}: row {i}: priority {v!r} is not an integer")
+    return int(f)
+
+
+# ------------------------------------------------------------------------- commands
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    uvicorn.run("service.app:app", host=args.host, port=args.port, log_level=args.log_level)
+    return 0
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from pydantic import ValidationError
+    from tqdm import tqdm
+
+    from service import pipeline
+    from service.errors import ServiceError, StageUnavailable
+    from service.schemas import PlanRequest
+
+    try:
+        rows = read_targets(args.targets)
+        req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
+                          position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
+                          seed=args.seed, threshold_mm=args.threshold_mm)
+    except TargetFileError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except ValidationError as exc:
+        for e in exc.errors()[:20]:
+            loc = ".".join(str(x) for x in e["loc"])
+            print(f"error: {loc}: {e['msg']}", file=sys.stderr)
+        return 2
+    from service.settings import Settings
+
+    inst_file = args.instrument or Settings().instrument_file
+    inst = pipeline.instrument_from(str(inst_file) if inst_file else None)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with tqdm(total=100, desc="planning", unit="%", disable=args.quiet) as bar:
+        def progress(p: float) -> None:
+            bar.update(max(0, round(100 * p) - bar.n))
+
+        try:
+            result = pipeline.plan(req, inst, progress, time_limit_s=args.time_limit or 30.0)
+        except StageUnavailable as exc:
+            print(f"error: {exc.message}", file=sys.stderr)
+            return 3
+        except (ServiceError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+    (out / "plan.json").write_text(json.dumps(result, indent=1))
+    pictures = write_pictures(result, req, inst, out, quiet=args.quiet)
+    s = result["stats"]
+    print(f"{s['targets']} targets, {s['pointings']} pointings, {s['configurations']} "
+          f"configurations, {s['allocated_targets']} targets allocated; wrote {out / 'plan.json'}"
+          f" and {len(pictures)} pictures")
+    return 0
+
+
+def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
+                   quiet: bool = False) -> list[Path]:
+    from tqdm import tqdm
+
+    from service import pipeline
+    from service.plots import plot_configuration
+
+    by_id = {t.id: t for t in req.targets}
+    jobs = [(p, c) for p in result["pointings"] for c in p["configurations"]]
+    paths = []
+    for p, c in tqdm(jobs, desc="pictures", disable=quiet or not jobs):
+        members = [by_id[t] for t in p["target_ids"]]
+        x, y = pipeline.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst,
+                                     req.position_angle_deg)
+        here = {a["target_id"] for a in c["assignments"] if a["target_id"]}
+        paths.append(plot_configuration(
+            inst, {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in c["assignments"]},
+            out / f"pointing{p['id']}_config{c['index']}.png",
+            target_x_mm=x, target_y_mm=y, target_priority=[t.priority for t in members],
+            allocated=[t.id in here for t in members],
+            title=f"pointing {p['id']} (RA {p['ra_deg']:.5f}, Dec {p['dec_deg']:.5f}) - "
+                  f"configuration {c['index']}: {c['arm_yield']} arms, "
+                  f"priority {c['total_priority']}",
+        ))
+    return paths
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="mxs-planner", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    s = sub.add_parser("serve", help="run the HTTP API (settings from MXS_* variables)")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--log-level", default="info")
+    s.set_defaults(func=cmd_serve)
+    p = sub.add_parser("plan", help="plan a target list (CSV, ECSV, VOTable, FITS)")
+    p.add_argument("targets", help="target table: columns id, ra_deg, dec_deg, priority")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")
+    p.add_argument("--solver", choices=["highs", "cpsat"], default="highs")
+    p.add_argument("--position-angle", type=float, default=0.0, help="deg")
+    p.add_argument("--time-limit", type=float, default=None, help="per solver call, s")
+    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--threshold-mm", type=float, default=None)
+    p.add_argument("--instrument", default=None,
+                   help="instrument TOML file (default: $MXS_INSTRUMENT_FILE or the packaged one)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_plan)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,328 @@
+"""End-to-end tests of the HTTP API over a real socket (uvicorn), plus in-process edge cases."""
+
+from __future__ import annotations
+
+import json
+import math
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from fastapi.testclient import TestClient
+
+from models.instrument import default_instrument
+from service import pipeline
+from service.app import create_app
+from service.settings import Settings
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "requests"
+
+
+def example(name: str) -> dict[str, Any]:
+    return json.loads((EXAMPLES / f"{name}.json").read_text())
+
+
+def sky(n: int = 3, **over: Any) -> list[dict[str, Any]]:
+    base = [{"id": f"t{i}", "ra_deg": 34.75 + 0.001 * i, "dec_deg": 57.13, "priority": 10}
+            for i in range(n)]
+    for k, v in over.items():
+        base[0][k] = v
+    return base
+
+
+def park() -> list[dict[str, Any]]:
+    return [{"arm": a.index, "theta1_rad": a.park_theta1_rad, "theta2_rad": a.park_theta2_rad}
+            for a in default_instrument().arms]
+
+
+def assert_unavailable(r: httpx.Response) -> None:
+    assert r.status_code == 501, r.text
+    assert r.json()["error"] == "stage_unavailable"
+
+
+# ------------------------------------------------------------------ GET endpoints
+
+
+def test_health(live_server) -> None:
+    r = httpx.get(live_server.url + "/v1/health")
+    assert r.status_code == 200
+    body = r.json()
+    assert body["status"] == "ok" and body["version"]
+
+
+def test_instrument(live_server) -> None:
+    r = httpx.get(live_server.url + "/v1/instrument")
+    assert r.status_code == 200
+    body = r.json()
+    inst = default_instrument()
+    assert body["fov_diameter_mm"] == inst.fov_diameter_mm == 250.0
+    assert body["plate_scale_arcsec_per_mm"] == 1.2
+    assert body["collision_buffer_mm"] == 5.0
+    assert body["joint_speed_rad_s"] == pytest.approx(0.031416)
+    assert [a["arm"] for a in body["arms"]] == list(range(12))
+    a5 = body["arms"][5]
+    assert a5["enabled"] is True
+    assert math.hypot(a5["base_x_mm"], a5["base_y_mm"]) == pytest.approx(350.0)
+    assert (a5["d12_mm"], a5["d13_mm"], a5["d24_mm"], a5["d3tip_mm"]) == (186, 77, 50, 305)
+    assert (a5["stop_min_mm"], a5["stop_max_mm"]) == (183, 350)
+    assert a5["park"] == {"theta1_rad": pytest.approx(math.pi), "theta2_rad": 0.0}
+    assert [b["name"] for b in a5["bodies"]] == ["L1", "L2", "L3"]
+
+
+def test_unknown_job_is_404(live_server) -> None:
+    r = httpx.get(live_server.url + "/v1/jobs/nope")
+    assert r.status_code == 404 and r.json()["error"] == "not_found"
+
+
+def test_twenty_concurrent_requests(live_server) -> None:
+    def call(i: int) -> tuple[int, int, Any]:
+        with httpx.Client(base_url=live_server.url, timeout=30) as c:
+            if i % 3 == 0:
+                r = c.get("/v1/health")
+            elif i % 3 == 1:
+                r = c.get("/v1/instrument")
+            else:  # invalid on purpose: the field must be named in every answer
+                r = c.post("/v1/segmentations", json={"targets": sky(2, dec_deg=90 + i)})
+            return i, r.status_code, r.json()
+
+    with ThreadPoolExecutor(20) as pool:
+        results = list(pool.map(call, range(20)))
+    for i, status, body in results:
+        if i % 3 == 0:
+            assert (status, body["status"]) == (200, "ok")
+        elif i % 3 == 1:
+            assert status == 200 and len(body["arms"]) == 12
+        else:
+            assert status == 422
+            assert body["detail"][0]["loc"] == ["body", "targets", 0, "dec_deg"]
+            assert body["detail"][0]["input"] == 90 + i
+
+
+# ---------------------------------------------------------------- stage endpoints
+
+
+def test_segmentation_endpoint(live_server) -> None:
+    body = example("segmentation")
+    r = httpx.post(live_server.url + "/v1/segmentations", json=body, timeout=60)
+    if not pipeline.stage_available("segmentation"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    ids = [t for p in out["pointings"] for t in p["target_ids"]]
+    assert sorted(ids) == sorted(t["id"] for t in body["targets"])
+    fov_r = default_instrument().fov_radius_mm
+    assert all(p["radius_mm"] <= fov_r + 1e-9 for p in out["pointings"])
+    assert set(out["tangent_point"]) >= {"ra_deg", "dec_deg"}
+
+
+def _check_configuration(c: dict[str, Any], ids: set[str]) -> None:
+    assert [a["arm"] for a in c["assignments"]] == list(range(12))
+    got = [a["target_id"] for a in c["assignments"] if a["target_id"] is not None]
+    assert len(got) == len(set(got)) == c["arm_yield"]
+    assert set(got) <= ids
+    assert c["status"] in ("optimal", "feasible")
+
+
+def test_allocation_then_motion_plan(live_server) -> None:
+    body = example("allocation")
+    r = httpx.post(live_server.url + "/v1/allocations", json=body, timeout=120)
+    if not pipeline.stage_available("allocation"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    ids = {t["id"] for t in body["targets"]}
+    for c in out["configurations"]:
+        _check_configuration(c, ids)
+    done = {a["target_id"] for c in out["configurations"] for a in c["assignments"]}
+    assert ids <= done | {u["target_id"] for u in out["unallocated"]}
+    goal = [{k: a[k] for k in ("arm", "theta1_rad", "theta2_rad")}
+            for a in out["configurations"][0]["assignments"]]
+    r = httpx.post(live_server.url + "/v1/motion-plans",
+                   json={"start": park(), "goal": goal, "seed": 1}, timeout=120)
+    if not pipeline.stage_available("motion-plan"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+    plan = r.json()
+    assert plan["status"] in ("ok", "failed")
+    if plan["status"] == "ok":
+        assert plan["failed_arms"] == []
+        for tr in plan["trajectories"]:
+            end = tr["waypoints"][-1]
+            assert end["theta1_rad"] == pytest.approx(goal[tr["arm"]]["theta1_rad"], abs=1e-6)
+            assert math.remainder(end["theta2_rad"] - goal[tr["arm"]]["theta2_rad"],
+                                  2 * math.pi) == pytest.approx(0, abs=1e-6)
+
+
+def test_motion_plan_endpoint(live_server) -> None:
+    r = httpx.post(live_server.url + "/v1/motion-plans", json=example("motion_plan"), timeout=120)
+    if not pipeline.stage_available("motion-plan"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert out["status"] == "ok"
+    assert sorted(t["arm"] for t in out["trajectories"]) == list(range(12))
+
+
+def test_allocation_sky_targets(live_server) -> None:
+    r = httpx.post(live_server.url + "/v1/allocations", json=example("allocation_sky"),
+                   timeout=120)
+    if not pipeline.stage_available("allocation"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+
+
+def test_plan_endpoint(live_server) -> None:
+    body = {"targets": example("plan")["targets"][:15], "seed": 1, "time_limit_s": 10}
+    r = httpx.post(live_server.url + "/v1/plans", json=body, timeout=300)
+    if not pipeline.stage_available("plan"):
+        return assert_unavailable(r)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    ids = {t["id"] for t in body["targets"]}
+    assert sorted(t for p in out["pointings"] for t in p["target_ids"]) == sorted(ids)
+    for p in out["pointings"]:
+        assert len(p["motions"]) == len(p["configurations"]) + 1
+
+
+# --------------------------------------------------------------------- bad input
+
+
+BAD: list[tuple[str, str, Any, list[Any]]] = [
+    # (name, path, body, expected loc prefix)
+    ("wrong type ra", "/v1/segmentations", {"targets": sky(2, ra_deg="east")},
+     ["body", "targets", 0, "ra_deg"]),
+    ("wrong type targets", "/v1/segmentations", {"targets": "all of them"}, ["body", "targets"]),
+    ("NaN", "/v1/segmentations", '{"targets": [{"id": "a", "ra_deg": NaN, "dec_deg": 1, '
+     '"priority": 1}]}', ["body", "targets", 0, "ra_deg"]),
+    ("Infinity", "/v1/plans", '{"targets": [{"id": "a", "ra_deg": 1, "dec_deg": Infinity, '
+     '"priority": 1}]}', ["body", "targets", 0, "dec_deg"]),
+    ("Dec 95", "/v1/plans", {"targets": sky(2, dec_deg=95)}, ["body", "targets", 0, "dec_deg"]),
+    ("RA 360", "/v1/plans", {"targets": sky(2, ra_deg=360)}, ["body", "targets", 0, "ra_deg"]),
+    ("priority 0", "/v1/segmentations", {"targets": sky(2, priority=0)},
+     ["body", "targets", 0, "priority"]),
+    ("priority 2^40", "/v1/segmentations", {"targets": sky(2, priority=2**40)},
+     ["body", "targets", 0, "priority"]),
+    ("priority 1.5", "/v1/segmentations", {"targets": sky(2, priority=1.5)},
+     ["body", "targets", 0, "priority"]),
+    ("13 arms", "/v1/motion-plans",
+     {"start": park() + [{"arm": 0, "theta1_rad": 0, "theta2_rad": 0}], "goal": park()},
+     ["body", "start"]),
+    ("arm 12", "/v1/motion-plans",
+     {"start": park()[:11] + [{"arm": 12, "theta1_rad": 0, "theta2_rad": 0}], "goal": park()},
+     ["body", "start", 11, "arm"]),
+    ("arm twice", "/v1/motion-plans",
+     {"start": park()[:11] + [{"arm": 0, "theta1_rad": 0, "theta2_rad": 0}], "goal": park()},
+     ["body", "start"]),
+    ("unknown method", "/v1/allocations",
+     {"targets": [{"id": "a", "x_mm": 0, "y_mm": 0, "priority": 1}], "method": "magic"},
+     ["body", "method"]),
+    ("unknown solver", "/v1/plans", {"targets": sky(1), "solver": "cplex"}, ["body", "solver"]),
+    ("duplicate id", "/v1/segmentations", {"targets": sky(2, id="t1")}, ["body", "targets"]),
+    ("empty list", "/v1/segmentations", {"targets": []}, ["body", "targets"]),
+    ("missing pointing", "/v1/allocations", {"targets": sky(2)}, ["body"]),
+    ("unknown field", "/v1/plans", {"targets": sky(1), "thresold_mm": 3}, ["body", "thresold_mm"]),
+    ("negative time limit", "/v1/plans", {"targets": sky(1), "time_limit_s": -1},
+     ["body", "time_limit_s"]),
+    ("too long time limit", "/v1/plans", {"targets": sky(1), "time_limit_s": 86000},
+     ["body", "time_limit_s"]),
+    ("too many targets", "/v1/segmentations", {"targets": sky(501)}, ["body", "targets"]),
+    ("unknown job kind", "/v1/jobs", {"kind": "coffee", "request": {}}, ["body"]),
+    ("bad job request", "/v1/jobs", {"kind": "plan", "request": {"targets": sky(2, dec_deg=95)}},
+     ["body", "plan", "request", "targets", 0, "dec_deg"]),
+    ("not json", "/v1/plans", "{targets", ["body"]),
+]
+
+
+@pytest.mark.parametrize("name,path,body,loc", BAD, ids=[b[0] for b in BAD])
+def test_bad_input_is_422_naming_the_field(live_server, name, path, body, loc) -> None:
+    kw: dict[str, Any] = (
+        {"content": body, "headers": {"content-type": "application/json"}}
+        if isinstance(body, str) else {"json": body}
+    )
+    r = httpx.post(live_server.url + path, timeout=30, **kw)
+    assert r.status_code == 422, r.text
+    out = r.json()
+    locs = [e["loc"] for e in out["detail"]]
+    assert any(lc[: len(loc)] == loc for lc in locs), locs
+    assert out["message"]
+    if name == "missing pointing":
+        assert "pointing" in out["message"]
+    if name == "duplicate id":
+        assert "targets[1].id" in out["message"]
+
+
+def test_body_limit_is_413(live_server) -> None:
+    r = httpx.post(live_server.url + "/v1/plans", content=b"x" * 300_000,
+                   headers={"content-type": "application/json"})
+    assert r.status_code == 413 and r.json()["error"] == "too_large"
+
+    def chunks():  # no Content-Length: the limit still holds
+        for _ in range(30):
+            yield b" " * 10_000
+
+    r = httpx.post(live_server.url + "/v1/plans", content=chunks(),
+                   headers={"content-type": "application/json"})
+    assert r.status_code == 413
+
+
+# ------------------------------------------------------------- in-process edge cases
+
+
+def test_bearer_token_required_on_post(tmp_path) -> None:
+    app = create_app(Settings(job_db=tmp_path / "j.db", api_token="s3cret"))
+    with TestClient(app) as c:
+        assert c.get("/v1/health").status_code == 200  # GET stays open
+        body = {"targets": sky(1)}
+        for headers in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": "Basic s3cret"}):
+            r = c.post("/v1/plans", json=body, headers=headers)
+            assert r.status_code == 401, r.text
+            assert r.json()["error"] == "unauthorized"
+        r = c.post("/v1/plans", json={"targets": sky(1, dec_deg=95)},
+                   headers={"Authorization": "Bearer s3cret"})
+        assert r.status_code == 422
+
+
+def test_cors_origins(tmp_path) -> None:
+    app = create_app(Settings(job_db=tmp_path / "j.db", cors_origins="https://form.example"))
+    with TestClient(app) as c:
+        r = c.options("/v1/plans", headers={"Origin": "https://form.example",
+                                            "Access-Control-Request-Method": "POST"})
+        assert r.headers["access-control-allow-origin"] == "https://form.example"
+
+
+def test_unexpected_error_is_never_500(tmp_path, monkeypatch) -> None:
+    app = create_app(Settings(job_db=tmp_path / "j.db"))
+
+    def boom(_: Any) -> Any:
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(pipeline, "instrument_info", boom)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/v1/instrument")
+        assert r.status_code == 503
+        assert r.json()["error"] == "internal_error"
+
+
+def test_domain_input_error_is_422(tmp_path, monkeypatch) -> None:
+    from models.errors import InputError
+
+    def bad(*_: Any, **__: Any) -> Any:
+        raise InputError("targets[3].dec_deg", "too close to the pole")
+
+    monkeypatch.setattr(pipeline, "segmentation", bad)
+    app = create_app(Settings(job_db=tmp_path / "j.db"))
+    with TestClient(app) as c:
+        r = c.post("/v1/segmentations", json={"targets": sky(4)})
+        assert r.status_code == 422
+        assert r.json()["detail"][0]["loc"] == ["body", "targets", 3, "dec_deg"]
+
+
+def test_example_requests_are_valid() -> None:
+    from service.schemas import REQUEST_TYPES, JobStatus  # noqa: F401
+
+    names = {"segmentation": "segmentation", "allocation": "allocation",
+             "allocation_sky": "allocation", "motion_plan": "motion-plan", "plan": "plan"}
+    for name, kind in names.items():
+        REQUEST_TYPES[kind].model_validate(example(name))
