@@ -1,0 +1,117 @@
+"""Reachability and the incompatibility matrix against brute-force FCL."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from models.collision import fcl_clearance_mm
+from models.incompatibility import FIXED, PARK, build_assignments, incompatibility_for_targets
+from models.instrument import default_instrument
+from models.kinematics import inverse_fov, tip_fov
+
+INS = default_instrument()
+
+
+def random_fov_targets(rng: np.random.Generator, n: int, radius_mm: float = 125.0):
+    r = radius_mm * np.sqrt(rng.uniform(0, 1, n))
+    a = rng.uniform(0, 2 * np.pi, n)
+    return r * np.cos(a), r * np.sin(a)
+
+
+def brute_force_pairs(inc) -> set[tuple[int, int]]:
+    """Oracle: every cross-arm pair checked with FCL, plus same-target pairs."""
+    a = inc.assignments
+    out = set()
+    for i in range(len(a)):
+        for j in range(i + 1, len(a)):
+            if a.arm[i] == a.arm[j]:
+                continue
+            if a.target[i] >= 0 and a.target[i] == a.target[j]:
+                out.add((i, j))
+                continue
+            d = fcl_clearance_mm(INS, int(a.arm[i]), a.q[i], int(a.arm[j]), a.q[j])
+            if d < inc.buffer_mm:
+                out.add((i, j))
+    return out
+
+
+def test_incompatibility_equals_brute_force_fcl_on_60_targets() -> None:
+    rng = np.random.default_rng(21)
+    x, y = random_fov_targets(rng, 60)
+    inc = incompatibility_for_targets(INS, x, y)
+    got = {tuple(p) for p in inc.pairs.tolist()}
+    expected = brute_force_pairs(inc)
+    assert len(expected) > 1000
+    assert got == expected
+
+
+def test_structure_views_are_consistent() -> None:
+    rng = np.random.default_rng(22)
+    x, y = random_fov_targets(rng, 80)
+    inc = incompatibility_for_targets(INS, x, y, buffer_mm=8.0)
+    a = inc.assignments
+    # CSR symmetric and equal to the pair list
+    for i, j in inc.pairs[:500]:
+        assert j in inc.neighbours(i) and i in inc.neighbours(j)
+        assert not inc.compatible(int(i), int(j))
+        assert j in inc.conflicts(int(i), int(a.arm[j]))
+    assert len(inc.indices) == 2 * len(inc.pairs)
+    # same-target flags are right
+    st = inc.pairs[inc.same_target]
+    assert (a.target[st[:, 0]] == a.target[st[:, 1]]).all()
+    # counts add up
+    c = inc.counts()
+    assert c["incompatible_pairs"] == c["geometric_pairs"] + c["same_target_pairs"]
+    # every assignment's tip is on its target, to 1e-6 mm
+    real = a.target >= 0
+    tip = tip_fov(INS, a.arm[real], a.theta1_rad[real], a.theta2_rad[real])
+    assert np.allclose(tip[:, 0], x[a.target[real]], atol=1e-6)
+    assert np.allclose(tip[:, 1], y[a.target[real]], atol=1e-6)
+    # each arm has its park location
+    park = a.target == PARK
+    assert sorted(a.arm[park].tolist()) == list(range(12))
+
+
+def test_reachability_matches_ik_and_reports_unreachable_targets() -> None:
+    x = np.array([0.0, 60.0, 500.0, -124.0])
+    y = np.array([0.0, -30.0, 0.0, 0.0])
+    reach = build_assignments(INS, x, y)
+    sol = inverse_fov(INS, np.arange(12)[:, None], x[None], y[None])
+    assert reach.arms_per_target.tolist() == sol.valid.any(-1).sum(0).tolist()
+    assert reach.arms_per_target[0] == 12
+    assert reach.unreachable.tolist() == [2]  # never silently dropped
+
+
+def test_fixed_arm_and_current_locations() -> None:
+    rng = np.random.default_rng(23)
+    x, y = random_fov_targets(rng, 30)
+    q_fixed = (np.pi * 0.6, 1.0)
+    current = INS.park_configuration.copy()
+    current[4] = (np.pi * 0.7, 0.5)
+    reach = build_assignments(INS, x, y, fixed={3: q_fixed}, current=current)
+    a = reach.assignments
+    sl = a.of_arm(3)
+    assert a.target[sl].tolist() == [FIXED]
+    assert np.allclose(a.q[sl][0], q_fixed)
+    assert (a.target[a.of_arm(4)] == FIXED).sum() == 1  # current differs from park
+    assert (a.target[a.of_arm(5)] == FIXED).sum() == 0  # current == park: not duplicated
+    # disabled arms in the instrument file stay parked and take no target
+    ins = INS.with_arms_disabled([7])
+    r2 = build_assignments(ins, x, y)
+    assert r2.assignments.target[r2.assignments.of_arm(7)].tolist() == [FIXED]
+
+
+def test_empty_target_list() -> None:
+    inc = incompatibility_for_targets(INS, np.zeros(0), np.zeros(0))
+    assert len(inc.assignments) == 12
+    assert len(inc.pairs) == 0
+
+
+def test_larger_buffer_only_adds_pairs() -> None:
+    rng = np.random.default_rng(24)
+    x, y = random_fov_targets(rng, 100)
+    small = incompatibility_for_targets(INS, x, y, buffer_mm=5.0)
+    big = incompatibility_for_targets(INS, x, y, buffer_mm=15.0)
+    s = {tuple(p) for p in small.pairs.tolist()}
+    b = {tuple(p) for p in big.pairs.tolist()}
+    assert s < b
