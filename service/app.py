@@ -157,42 +157,42 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(CatchAllMiddleware)
 
-    @app.get("/v1/health", response_model=Health, tags=["service"], responses=ERRORS)
+    @app.get("/v1/health", operation_id="health", response_model=Health, tags=["service"], responses=ERRORS)
     def health() -> dict[str, Any]:
         return {"status": "ok", "version": VERSION}
 
-    @app.get("/v1/instrument", response_model=InstrumentInfo, tags=["service"], responses=ERRORS)
+    @app.get("/v1/instrument", operation_id="get_instrument", response_model=InstrumentInfo, tags=["service"], responses=ERRORS)
     def instrument(st: StateDep) -> dict[str, Any]:
         return pipeline.instrument_info(st.instrument)
 
     # Stage endpoints are plain ``def``: FastAPI runs them in its thread pool, never on the
     # event loop. Long work belongs in /v1/jobs (process pool).
 
-    @app.post("/v1/segmentations", response_model=SegmentationResponse, tags=["stages"],
+    @app.post("/v1/segmentations", operation_id="create_segmentation", response_model=SegmentationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     def segmentations(req: SegmentationRequest, st: StateDep) -> dict[str, Any]:
         _check_limits(req, st.settings)
         return pipeline.segmentation(req, st.instrument)
 
-    @app.post("/v1/allocations", response_model=AllocationResponse, tags=["stages"],
+    @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     def allocations(req: AllocationRequest, st: StateDep) -> dict[str, Any]:
         limit = _check_limits(req, st.settings)
         return pipeline.allocation(req, st.instrument, time_limit_s=limit)
 
-    @app.post("/v1/motion-plans", response_model=MotionPlanResponse, tags=["stages"],
+    @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     def motion_plans(req: MotionPlanRequest, st: StateDep) -> dict[str, Any]:
         limit = _check_limits(req, st.settings)
         return pipeline.motion_plan(req, st.instrument, time_limit_s=limit)
 
-    @app.post("/v1/plans", response_model=PlanResponse, tags=["stages"],
+    @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     def plans(req: PlanRequest, st: StateDep) -> dict[str, Any]:
         limit = _check_limits(req, st.settings)
         return pipeline.plan(req, st.instrument, time_limit_s=limit)
 
-    @app.post("/v1/jobs", response_model=JobCreated, status_code=202, tags=["jobs"],
+    @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
               dependencies=[Auth], responses=ERRORS)
     def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
         limit = _check_limits(job.request, st.settings, ("body", job.kind, "request"))
@@ -201,7 +201,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         job_id = st.jobs.submit(job.kind, request, limit)
         return JSONResponse(status_code=202, content={"job_id": job_id, "status": "queued"})
 
-    @app.get("/v1/jobs/{job_id}", response_model=JobStatus, tags=["jobs"],
+    @app.get("/v1/jobs/{job_id}", operation_id="get_job", response_model=JobStatus, tags=["jobs"],
              responses={404: {"model": ErrorResponse, "description": "No such job."}, **ERRORS})
     def get_job(job_id: str, st: StateDep) -> dict[str, Any]:
         job = st.jobs.get(job_id)

@@ -200,11 +200,13 @@ def segmentation(
         instrument=inst,
         plate_scale_arcsec_per_mm=inst.plate_scale_arcsec_per_mm,
         fov_radius_mm=inst.fov_radius_mm,
+        mode=req.mode,
+        seed=req.seed,
     )
     ids = [t.id for t in req.targets]
     pointings = [
         {
-            "id": int(p.id), "ra_deg": float(p.ra_deg), "dec_deg": float(p.dec_deg),
+            "id": str(p.id), "ra_deg": float(p.ra_deg), "dec_deg": float(p.dec_deg),
             "x_mm": float(p.x_mm), "y_mm": float(p.y_mm), "radius_mm": float(p.radius_mm),
             "target_ids": [ids[int(i)] for i in p.target_indices],
         }
@@ -359,7 +361,8 @@ def plan(
     """Segmentation -> per pointing: allocation (all configurations) -> motion chain."""
     _check_plan()
     seg = segmentation(
-        SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm), inst
+        SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
+                            mode=req.segmentation_mode, seed=req.seed), inst
     )
     by_id = {t.id: t for t in req.targets}
     n = max(len(seg["pointings"]), 1)

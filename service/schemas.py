@@ -14,36 +14,37 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 PRIORITY_MAX = 2**32 - 1
 N_ARMS = 12
 
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]
 ArmIndex = Annotated[int, Field(strict=True, ge=0, le=N_ARMS - 1, description="Arm number 0..11.")]
 Priority = Annotated[
     int, Field(strict=True, ge=1, le=PRIORITY_MAX, description="Integer priority 1..2^32-1.")
 ]
 TargetId = Annotated[str, Field(min_length=1, max_length=128, description="Unique target id.")]
 RaDeg = Annotated[
-    float, Field(ge=0.0, lt=360.0, allow_inf_nan=False, description="Right ascension, deg.")
+    float, Field(ge=0.0, lt=360.0, strict=True, allow_inf_nan=False, description="Right ascension, deg.")
 ]
 DecDeg = Annotated[
-    float, Field(ge=-90.0, le=90.0, allow_inf_nan=False, description="Declination, deg.")
+    float, Field(ge=-90.0, le=90.0, strict=True, allow_inf_nan=False, description="Declination, deg.")
 ]
 AngleRad = Annotated[
-    float, Field(ge=-1000.0, le=1000.0, allow_inf_nan=False, description="Joint angle, rad.")
+    float, Field(ge=-1000.0, le=1000.0, strict=True, allow_inf_nan=False, description="Joint angle, rad.")
 ]
 PositionAngleDeg = Annotated[
-    float, Field(ge=-360.0, le=360.0, allow_inf_nan=False, description="Position angle, deg.")
+    float, Field(ge=-360.0, le=360.0, strict=True, allow_inf_nan=False, description="Position angle, deg.")
 ]
 FocalMm = Annotated[
-    float, Field(ge=-1e5, le=1e5, allow_inf_nan=False, description="FOV-frame coordinate, mm.")
+    float, Field(ge=-1e5, le=1e5, strict=True, allow_inf_nan=False, description="FOV-frame coordinate, mm.")
 ]
 Seed = Annotated[int, Field(strict=True, ge=0, le=2**31 - 1, description="Random seed.")]
 TimeLimitS = Annotated[
-    float, Field(gt=0.0, le=86400.0, allow_inf_nan=False, description="Solver time limit, s.")
+    float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False, description="Solver time limit, s.")
 ]
 BufferMm = Annotated[
-    float, Field(ge=0.0, le=100.0, allow_inf_nan=False, description="Collision buffer, mm.")
+    float, Field(ge=0.0, le=100.0, strict=True, allow_inf_nan=False, description="Collision buffer, mm.")
 ]
 Method = Literal["ilp", "semigreedy"]
 Solver = Literal["highs", "cpsat"]
+SegmentationMode = Literal["complete-linkage", "balanced"]
 Stats = dict[str, Any]
 
 
@@ -120,12 +121,17 @@ class TelescopePointing(Request):
 
 class SegmentationRequest(Request):
     targets: list[SkyTarget] = Field(min_length=1)
-    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, allow_inf_nan=False)] | None = Field(
+    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Complete-linkage threshold, mm; default sqrt(3) * FOV radius."
     )
     tangent_point: SkyPoint | None = Field(
         None, description="Tangent point of the projection; default the field's centre."
     )
+    mode: SegmentationMode = Field(
+        "complete-linkage",
+        description="'complete-linkage' (thesis ch. 4) or 'balanced' (fewer, more even pointings).",
+    )
+    seed: Seed | None = None
 
     @field_validator("targets")
     @classmethod
@@ -183,10 +189,10 @@ class AllocationRequest(Request):
 class MotionPlanRequest(Request):
     start: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
     goal: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
-    dt_s: Annotated[float, Field(gt=0.0, le=600.0, allow_inf_nan=False)] | None = Field(
+    dt_s: Annotated[float, Field(gt=0.0, le=600.0, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Planning time step, s (default 6)."
     )
-    dt_col_s: Annotated[float, Field(gt=0.0, le=60.0, allow_inf_nan=False)] | None = Field(
+    dt_col_s: Annotated[float, Field(gt=0.0, le=60.0, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Collision-check time step, s (default 0.1)."
     )
     max_start_stop: Annotated[int, Field(strict=True, ge=0, le=20)] | None = Field(
@@ -214,9 +220,10 @@ class PlanRequest(Request):
     position_angle_deg: PositionAngleDeg = 0.0
     time_limit_s: TimeLimitS | None = None
     seed: Seed | None = None
-    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, allow_inf_nan=False)] | None = Field(
+    threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
+    segmentation_mode: SegmentationMode = "complete-linkage"
 
     @field_validator("targets")
     @classmethod
@@ -311,7 +318,7 @@ class InstrumentInfo(Response):
 
 
 class PointingOut(Response):
-    id: int
+    id: str
     ra_deg: float
     dec_deg: float
     x_mm: float

@@ -1,0 +1,135 @@
+"""The OpenAPI contract: committed document in sync, schemathesis, a generated client."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import schemathesis
+from hypothesis import HealthCheck, settings
+
+from service.app import create_app
+from service.export_openapi import DEFAULT_PATH, openapi_document, render
+from service.settings import Settings
+
+
+def test_committed_openapi_matches_app() -> None:
+    committed = DEFAULT_PATH.read_text()
+    current = render(openapi_document())
+    assert committed == current, (
+        "openapi/openapi.json is stale: run `python -m service.export_openapi`"
+    )
+
+
+def test_contract_names() -> None:
+    doc = openapi_document()
+    paths = doc["paths"]
+    for p in ("/v1/health", "/v1/instrument", "/v1/segmentations", "/v1/allocations",
+              "/v1/motion-plans", "/v1/plans", "/v1/jobs", "/v1/jobs/{job_id}"):
+        assert p in paths
+    s = doc["components"]["schemas"]
+    alloc = s["AllocationRequest"]["properties"]
+    assert alloc["method"]["default"] == "ilp"
+    assert alloc["solver"]["default"] == "highs"
+    assert alloc["configurations"]["default"] == "one"
+    assert set(s["SkyTarget"]["properties"]) == {"id", "ra_deg", "dec_deg", "priority"}
+    assert s["SkyTarget"]["properties"]["priority"]["maximum"] == 2**32 - 1
+    assert set(s["ArmState"]["properties"]) == {"arm", "theta1_rad", "theta2_rad"}
+    assert s["MotionPlanRequest"]["properties"]["start"]["maxItems"] == 12
+    assert "202" in paths["/v1/jobs"]["post"]["responses"]
+
+
+# ------------------------------------------------------------------- schemathesis
+
+
+@pytest.fixture(scope="module")
+def api_schema(tmp_path_factory: pytest.TempPathFactory):
+    app = create_app(Settings(
+        job_db=tmp_path_factory.mktemp("st") / "jobs.sqlite3", workers=1, max_targets=8,
+        default_time_limit_s=2.0, max_time_limit_s=86400.0,
+    ))
+    yield schemathesis.openapi.from_asgi("/openapi.json", app)
+    app.state.mxs.close()
+
+
+schema = schemathesis.pytest.from_fixture("api_schema")
+
+
+@schema.parametrize()
+@settings(max_examples=6, deadline=None, derandomize=True,
+          suppress_health_check=list(HealthCheck))
+def test_schemathesis(case) -> None:
+    from schemathesis.checks import response_schema_conformance
+
+    response = case.call()
+    unavailable = response.status_code == 501 and response.json()["error"] == "stage_unavailable"
+    assert response.status_code < 500 or unavailable, (response.status_code, response.text)
+    case.validate_response(response, checks=[response_schema_conformance])
+
+
+# --------------------------------------------------------------- generated client
+
+
+def test_generated_client_round_trip(tmp_path: Path, live_server) -> None:
+    exe = shutil.which("openapi-python-client")
+    if exe is None:
+        pytest.skip("openapi-python-client is not installed")
+    out = tmp_path / "mxs_client"
+    subprocess.run(
+        [exe, "generate", "--path", str(DEFAULT_PATH), "--output-path", str(out), "--meta", "none",
+         "--overwrite"],
+        check=True, capture_output=True, timeout=120,
+    )
+    code = CLIENT_SCRIPT.format(pkg=out.name, url=live_server.url)
+    r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    report = json.loads(r.stdout.strip().splitlines()[-1])
+    assert report["health"] == "ok"
+    assert report["arms"] == 12
+    assert report["allocation"] in ("ok", "unavailable")
+    assert report["motion"] in ("ok", "failed", "unavailable", "skipped")
+
+
+CLIENT_SCRIPT = r'''
+import json, math
+from {pkg} import Client
+from {pkg}.api.service import get_instrument, health
+from {pkg}.api.stages import create_allocation, create_motion_plan
+from {pkg}.models import AllocationRequest, ArmState, MotionPlanRequest, PlaneTarget
+
+client = Client(base_url="{url}", raise_on_unexpected_status=False, timeout=120)
+report = {{}}
+report["health"] = health.sync(client=client).status
+inst = get_instrument.sync(client=client)
+report["arms"] = len(inst.arms)
+targets = [PlaneTarget(id=f"t{{i}}", x_mm=60 * math.cos(i), y_mm=60 * math.sin(i), priority=i + 1)
+           for i in range(10)]
+resp = create_allocation.sync_detailed(
+    client=client, body=AllocationRequest(targets=targets, time_limit_s=10, seed=1))
+if resp.status_code == 501:
+    report["allocation"] = report["motion"] = "unavailable"
+else:
+    assert resp.status_code == 200, resp.content
+    alloc = resp.parsed
+    report["allocation"] = "ok"
+    cfg = alloc.configurations[0]
+    assert len(cfg.assignments) == 12
+    goal = [ArmState(arm=a.arm, theta1_rad=a.theta1_rad, theta2_rad=a.theta2_rad)
+            for a in cfg.assignments]
+    start = [ArmState(arm=a.arm, theta1_rad=a.park.theta1_rad, theta2_rad=a.park.theta2_rad)
+             for a in inst.arms]
+    m = create_motion_plan.sync_detailed(
+        client=client, body=MotionPlanRequest(start=start, goal=goal, seed=1))
+    if m.status_code == 501:
+        report["motion"] = "unavailable"
+    else:
+        assert m.status_code == 200, m.content
+        report["motion"] = m.parsed.status.value if hasattr(m.parsed.status, "value") else str(m.parsed.status)
+        assert len(m.parsed.trajectories) == 12
+print(json.dumps(report))
+'''

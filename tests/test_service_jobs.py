@@ -1,0 +1,108 @@
+"""Jobs: process pool, SQLite persistence, restart semantics."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+from fastapi.testclient import TestClient
+
+from service import pipeline
+from service.app import create_app
+from service.jobs import INTERRUPTED, JobStore
+from service.settings import Settings
+
+SEG_REQUEST = {"targets": [
+    {"id": f"s{i}", "ra_deg": 34.75 + 0.002 * i, "dec_deg": 57.13 - 0.001 * i, "priority": 1 + i}
+    for i in range(8)
+]}
+
+
+def wait_terminal(get, job_id: str, timeout: float = 60.0) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = get(job_id)
+        assert 0.0 <= job["progress"] <= 1.0
+        if job["status"] in ("done", "failed"):
+            return job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not finish: {job}")
+
+
+def test_job_over_http(live_server) -> None:
+    r = httpx.post(live_server.url + "/v1/jobs",
+                   json={"kind": "segmentation", "request": SEG_REQUEST})
+    if not pipeline.stage_available("segmentation"):
+        assert r.status_code == 501 and r.json()["error"] == "stage_unavailable"
+        return
+    assert r.status_code == 202, r.text
+    created = r.json()
+    assert created["status"] == "queued"
+    job = wait_terminal(lambda j: httpx.get(f"{live_server.url}/v1/jobs/{j}").json(),
+                        created["job_id"])
+    assert job["status"] == "done", job
+    assert job["kind"] == "segmentation" and job["progress"] == 1.0
+    ids = sorted(t for p in job["result"]["pointings"] for t in p["target_ids"])
+    assert ids == sorted(t["id"] for t in SEG_REQUEST["targets"])
+
+
+def test_job_survives_server_restart(tmp_path: Path) -> None:
+    db = tmp_path / "jobs.sqlite3"
+    settings = Settings(job_db=db, workers=1)
+
+    # first server: one job runs to its end in the process pool (done if the segmentation
+    # stage exists, otherwise failed with the reason), another is left "running"
+    app1 = create_app(settings)
+    with TestClient(app1) as c:
+        jobs = app1.state.mxs.jobs
+        finished = jobs.submit("segmentation", SEG_REQUEST, 10.0)
+        before = wait_terminal(lambda j: c.get(f"/v1/jobs/{j}").json(), finished)
+        if pipeline.stage_available("segmentation"):
+            assert before["status"] == "done" and before["result"]["pointings"]
+        else:
+            assert before["status"] == "failed" and "not available" in before["error"]
+        store = JobStore(db)
+        in_flight = store.create("plan", {"targets": []})
+        store.set_running(in_flight)
+        store.set_progress(in_flight, 0.4)
+        fake_done = store.create("allocation", {"targets": []})
+        store.set_done(fake_done, {"configurations": [], "unallocated": [], "stats": {"x": 1}})
+
+    # second server on the same database file
+    app2 = create_app(settings)
+    with TestClient(app2) as c:
+        after = c.get(f"/v1/jobs/{finished}").json()
+        assert after == before
+        lost = c.get(f"/v1/jobs/{in_flight}").json()
+        assert lost["status"] == "failed" and lost["error"] == INTERRUPTED
+        assert lost["progress"] == 0.4
+        kept = c.get(f"/v1/jobs/{fake_done}").json()
+        assert kept["status"] == "done" and kept["result"]["stats"] == {"x": 1}
+
+
+def test_store_never_reopens_a_finished_job(tmp_path: Path) -> None:
+    store = JobStore(tmp_path / "j.db")
+    store.init()
+    j = store.create("plan", {})
+    store.set_done(j, {"ok": True})
+    store.set_failed(j, "late failure")
+    store.set_progress(j, 0.1)
+    job = store.get(j)
+    assert job is not None
+    assert (job["status"], job["result"], job["error"], job["progress"]) == (
+        "done", {"ok": True}, None, 1.0)
+    assert store.init() == 0  # nothing to interrupt
+
+
+def test_invalid_job_request_fails_cleanly_in_worker(tmp_path: Path) -> None:
+    """A request that slips past the HTTP layer still ends as a failed job, never a hang."""
+    app = create_app(Settings(job_db=tmp_path / "j.db", workers=1))
+    with TestClient(app) as c:
+        jobs = app.state.mxs.jobs
+        j = jobs.submit("segmentation", {"targets": [{"id": "a", "ra_deg": 400}]}, 10.0)
+        job = wait_terminal(lambda k: c.get(f"/v1/jobs/{k}").json(), j)
+        assert job["status"] == "failed"
+        if pipeline.stage_available("segmentation"):
+            assert "ra_deg" in job["error"]
