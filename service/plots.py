@@ -31,10 +31,19 @@ def plot_configuration(
     title: str = "",
 ) -> Path:
     """Draw one configuration to ``path`` (PNG). ``joints`` maps arm -> (theta1, theta2)."""
-    fig, ax = plt.subplots(figsize=(7.0, 7.0), dpi=100)
+    shown = [a for a in instrument.arms if a.index in joints]
+    pos = {
+        a.index: {k: np.asarray(v) for k, v in joint_positions_fov(
+            instrument, a.index, *joints[a.index]).items()}
+        for a in shown
+    }
+    pts = np.array([v for p in pos.values() for v in p.values()] + [[0.0, 0.0]])
+    reach = float(np.abs(pts).max()) + 25.0
+    fig = plt.figure(figsize=(8.0, 7.0), dpi=100)
+    ax = fig.add_axes((0.09, 0.07, 0.74, 0.86))
+    cax = fig.add_axes((0.86, 0.2, 0.025, 0.6))
     try:
         r_fov = instrument.fov_radius_mm
-        reach = max(np.hypot(a.base_x_mm, a.base_y_mm) for a in instrument.arms) + 20.0
         ax.set_xlim(-reach, reach)
         ax.set_ylim(-reach, reach)
         ax.set_aspect("equal")
@@ -45,10 +54,9 @@ def plot_configuration(
         bbox = ax.get_window_extent()
         pt_per_mm = bbox.width / (2 * reach) * 72.0 / fig.dpi
         for arm in instrument.arms:
-            if arm.index not in joints:
+            if arm.index not in pos:
                 continue
-            t1, t2 = joints[arm.index]
-            p = {k: np.asarray(v) for k, v in joint_positions_fov(instrument, arm.index, t1, t2).items()}
+            p = pos[arm.index]
             colour = "tab:blue" if arm.enabled else "0.6"
             for body in arm.bodies:
                 a, b = p[body.joint_from], p[body.joint_to]
@@ -69,7 +77,9 @@ def plot_configuration(
                 m = np.asarray(allocated, bool)
                 ax.scatter(x[m], y[m], s=70, facecolors="none", edgecolors="tab:red", lw=1.2,
                            zorder=4, label="allocated")
-            fig.colorbar(sc, ax=ax, shrink=0.75, label="priority")
+            fig.colorbar(sc, cax=cax, label="priority")
+        else:
+            cax.set_visible(False)
         ax.set_xlabel("x [mm]")
         ax.set_ylabel("y [mm]")
         if title:

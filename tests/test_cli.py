@@ -1,0 +1,155 @@
+"""CLI: target-table reading, pictures, `plan`, and the Docker image's command run directly."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+from astropy.table import Table
+
+from models.instrument import default_instrument
+from service import pipeline
+from service.cli import TargetFileError, main, read_targets
+from service.plots import plot_configuration
+
+ROOT = Path(__file__).resolve().parent.parent
+EXAMPLES = ROOT / "examples"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _table() -> Table:
+    t = Table()
+    t["Name"] = ["a", "b", "c"]
+    t["RAJ2000"] = [10.0, 10.01, 10.02]
+    t["DEJ2000"] = [-30.0, -30.01, -30.02]
+    t["PRIO"] = [1, 500, 2**32 - 1]
+    return t
+
+
+@pytest.mark.parametrize("suffix,fmt", [(".csv", "ascii.csv"), (".ecsv", "ascii.ecsv"),
+                                        (".vot", "votable"), (".fits", "fits")])
+def test_read_targets_all_formats_and_aliases(tmp_path: Path, suffix: str, fmt: str) -> None:
+    path = tmp_path / f"t{suffix}"
+    _table().write(path, format=fmt)
+    rows = read_targets(path)
+    assert [r["id"] for r in rows] == ["a", "b", "c"]
+    assert rows[1]["ra_deg"] == pytest.approx(10.01)
+    assert rows[2]["dec_deg"] == pytest.approx(-30.02)
+    assert [r["priority"] for r in rows] == [1, 500, 2**32 - 1]
+
+
+def test_read_examples() -> None:
+    csv = read_targets(EXAMPLES / "ngc869_targets.csv")
+    ecsv = read_targets(EXAMPLES / "ngc869_targets.ecsv")
+    assert len(csv) == 60 and csv == ecsv
+    assert len(read_targets(EXAMPLES / "m13_targets.csv")) == 40
+
+
+def test_read_targets_sexagesimal_and_defaults(tmp_path: Path) -> None:
+    p = tmp_path / "s.csv"
+    p.write_text("ra,dec\n02:19:00.0,+57:08:00\n02:19:01.0,+57:08:30\n")
+    rows = read_targets(p)
+    assert rows[0] == {"id": "0", "ra_deg": pytest.approx(34.75), "dec_deg": pytest.approx(57 + 8 / 60),
+                       "priority": 1}
+
+
+def test_read_targets_errors(tmp_path: Path) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text("id,x,y\n1,2,3\n")
+    with pytest.raises(TargetFileError, match="ra_deg"):
+        read_targets(p)
+    with pytest.raises(TargetFileError, match="no such file"):
+        read_targets(tmp_path / "missing.csv")
+    p.write_text("id,ra,dec,priority\na,1,2,1.5\n")
+    with pytest.raises(TargetFileError, match="priority"):
+        read_targets(p)
+
+
+def test_cli_rejects_bad_rows(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text("id,ra,dec,priority\na,1,95,1\n")
+    assert main(["plan", str(p), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "targets.0.dec_deg" in capsys.readouterr().err
+
+
+def test_plot_configuration(tmp_path: Path) -> None:
+    inst = default_instrument()
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(-100, 100, (2, 30))
+    out = plot_configuration(
+        inst, {a.index: a.park for a in inst.arms}, tmp_path / "park.png",
+        target_x_mm=x, target_y_mm=y, target_priority=rng.integers(1, 500, 30),
+        allocated=rng.uniform(size=30) < 0.3, title="park",
+    )
+    data = out.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+
+
+def test_cli_plan(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "out"
+    code = main(["plan", str(EXAMPLES / "m13_targets.csv"), "--out", str(out), "--seed", "1",
+                 "--time-limit", "10", "--quiet"])
+    if not pipeline.stage_available("plan"):
+        assert code == 3
+        assert "not available" in capsys.readouterr().err
+        return
+    assert code == 0, capsys.readouterr().err
+    result = json.loads((out / "plan.json").read_text())
+    n_cfg = sum(len(p["configurations"]) for p in result["pointings"])
+    pngs = sorted(out.glob("*.png"))
+    assert n_cfg >= 1 and len(pngs) == n_cfg
+
+
+def _dockerfile_instruction(name: str) -> str:
+    text = (ROOT / "Dockerfile").read_text().replace("\\\n", " ")
+    return next(line for line in text.splitlines() if line.startswith(name + " "))
+
+
+def test_image_command_serves_health(tmp_path: Path) -> None:
+    """Run the Dockerfile's CMD (on a free port) and its HEALTHCHECK command against it."""
+    cmd = json.loads(_dockerfile_instruction("CMD")[4:])
+    assert cmd[:2] == ["mxs-planner", "serve"]
+    port = free_port()
+    cmd = [c.replace("8000", str(port)) for c in cmd]
+    cmd[cmd.index("--host") + 1] = "127.0.0.1"
+    exe = Path(sys.executable).parent / "mxs-planner"
+    cmd[0] = str(exe) if exe.exists() else cmd[0]
+    env = {**os.environ, "MXS_JOB_DB": str(tmp_path / "jobs.sqlite3"), "MXS_WORKERS": "1"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            try:
+                r = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=1)
+                if r.status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert proc.poll() is None, proc.stdout.read().decode() if proc.stdout else ""
+            time.sleep(0.2)
+        else:
+            raise AssertionError("mxs-planner serve did not answer /v1/health")
+        assert r.json()["status"] == "ok"
+        hc = _dockerfile_instruction("HEALTHCHECK")
+        py = re.search(r'CMD python -c "(.*)"\s*$', hc)
+        assert py is not None, hc
+        code = py.group(1).replace("8000", str(port))
+        assert subprocess.run([sys.executable, "-c", code], timeout=30).returncode == 0
+        assert (tmp_path / "jobs.sqlite3").exists()  # job DB opened at start-up
+    finally:
+        proc.terminate()
+        proc.wait(timeout=15)
