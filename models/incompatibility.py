@@ -218,6 +218,35 @@ def _body_pairs_that_can_meet(instrument: Instrument, k: int, kk: int, buffer_mm
     return out
 
 
+def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey, rad,
+                       buffer_mm: float) -> dict[tuple[int, int, int, int], np.ndarray]:
+    """keep[(k, bi, kk, bj)][a]: can body bi of assignment a (of arm k) meet body bj of arm kk?
+
+    Decided against the static region swept by body bj of arm kk (a capsule around its two
+    joints' bounding discs, see :func:`_body_pairs_that_can_meet`): O(n) per body pair, and
+    it removes most rows/columns for the short bodies near the arm bases.
+    """
+    keep = {}
+    n_arms = instrument.n_arms
+    for k in range(n_arms):
+        sl = asg.of_arm(k)
+        for kk in range(n_arms):
+            if kk == k:
+                continue
+            lo_k, hi_k = min(k, kk), max(k, kk)
+            pairs = _body_pairs_that_can_meet(instrument, lo_k, hi_k, buffer_mm)
+            jb = _joint_bounds(instrument, kk)
+            for p in pairs:
+                bi, bj = (p[0], p[1]) if k == lo_k else (p[1], p[0])
+                body = instrument.arms[kk].bodies[bj]
+                (c0, r0), (c1, r1) = jb[body.joint_from], jb[body.joint_to]
+                reach = max(r0, r1) + body.half_width_mm
+                d = segment_distance_xy(sx[bi, sl], sy[bi, sl], ex[bi, sl], ey[bi, sl],
+                                        c0[0], c0[1], c1[0], c1[1])
+                keep[(k, bi, kk, bj)] = d - rad[bi, sl] - reach < buffer_mm
+    return keep
+
+
 def compute_incompatibility(
     instrument: Instrument,
     reachability: Reachability,
@@ -247,6 +276,7 @@ def compute_incompatibility(
     loy = (np.minimum(sy, ey) - rad).astype(np.float32)
     hiy = (np.maximum(sy, ey) + rad + buffer_mm).astype(np.float32)
     target = asg.target
+    keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, buffer_mm)
     t_geom = time.perf_counter()
     found_i, found_j, found_same = [], [], []
     n_arms = instrument.n_arms
@@ -267,12 +297,21 @@ def compute_incompatibility(
                 same = (ta[:, None] == target[None, b0:b1]) & (ta[:, None] >= 0)
                 hit = same.copy()
                 for bi, bj in body_pairs:
-                    cand = lox[bi, r0:r1, None] < hix[bj, None, b0:b1]
-                    cand &= hix[bi, r0:r1, None] > lox[bj, None, b0:b1]
-                    cand &= loy[bi, r0:r1, None] < hiy[bj, None, b0:b1]
-                    cand &= hiy[bi, r0:r1, None] > loy[bj, None, b0:b1]
-                    cand &= ~hit
+                    # static prune: a body that stays near its base (L1, L2) only meets
+                    # the other arm's assignments whose body passes close to that region
+                    rk = keep[(k, bi, kk, bj)][r0 - a0:r1 - a0]
+                    ck = keep[(kk, bj, k, bi)]
+                    if not rk.any() or not ck.any():
+                        continue
+                    ri = np.flatnonzero(rk) + r0
+                    cj_ = np.flatnonzero(ck) + b0
+                    cand = lox[bi][ri][:, None] < hix[bj][cj_][None, :]
+                    cand &= hix[bi][ri][:, None] > lox[bj][cj_][None, :]
+                    cand &= loy[bi][ri][:, None] < hiy[bj][cj_][None, :]
+                    cand &= hiy[bi][ri][:, None] > loy[bj][cj_][None, :]
+                    cand &= ~hit[np.ix_(ri - r0, cj_ - b0)]
                     ci, cj = np.nonzero(cand)
+                    ci, cj = ri[ci] - r0, cj_[cj] - b0
                     if not len(ci):
                         continue
                     ai, bk = ci + r0, cj + b0
