@@ -11,12 +11,13 @@ import secrets
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from importlib import resources
 from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
+from fastapi.responses import HTMLResponse, JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from models.instrument import Instrument
@@ -156,6 +157,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(CatchAllMiddleware)
+
+    @app.get("/", include_in_schema=False, response_class=HTMLResponse)
+    def web_form() -> str:
+        """A minimal observation-preparation form (the observatory's own form lives elsewhere)."""
+        return resources.files("service").joinpath("static/index.html").read_text()
 
     @app.get("/v1/health", operation_id="health", response_model=Health, tags=["service"], responses=ERRORS)
     def health() -> dict[str, Any]:

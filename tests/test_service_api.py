@@ -71,6 +71,11 @@ def test_instrument(live_server) -> None:
     assert [b["name"] for b in a5["bodies"]] == ["L1", "L2", "L3"]
 
 
+def test_web_form(live_server) -> None:
+    r = httpx.get(live_server.url + "/")
+    assert r.status_code == 200 and "v1/jobs" in r.text
+
+
 def test_unknown_job_is_404(live_server) -> None:
     r = httpx.get(live_server.url + "/v1/jobs/nope")
     assert r.status_code == 404 and r.json()["error"] == "not_found"
