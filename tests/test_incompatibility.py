@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import fcl
 import numpy as np
 
-from models.collision import fcl_clearance_mm
+from models.collision import fcl_arm_objects
 from models.incompatibility import FIXED, PARK, build_assignments, incompatibility_for_targets
 from models.instrument import default_instrument
 from models.kinematics import inverse_fov, tip_fov
@@ -19,8 +20,10 @@ def random_fov_targets(rng: np.random.Generator, n: int, radius_mm: float = 125.
 
 
 def brute_force_pairs(inc) -> set[tuple[int, int]]:
-    """Oracle: every cross-arm pair checked with FCL, plus same-target pairs."""
+    """Oracle: every cross-arm pair checked with FCL (objects built once), plus same-target pairs."""
     a = inc.assignments
+    objs = [fcl_arm_objects(INS, int(a.arm[i]), a.theta1_rad[i], a.theta2_rad[i]) for i in range(len(a))]
+    request = fcl.DistanceRequest()
     out = set()
     for i in range(len(a)):
         for j in range(i + 1, len(a)):
@@ -29,7 +32,7 @@ def brute_force_pairs(inc) -> set[tuple[int, int]]:
             if a.target[i] >= 0 and a.target[i] == a.target[j]:
                 out.add((i, j))
                 continue
-            d = fcl_clearance_mm(INS, int(a.arm[i]), a.q[i], int(a.arm[j]), a.q[j])
+            d = min(fcl.distance(x, y, request, fcl.DistanceResult()) for x in objs[i] for y in objs[j])
             if d < inc.buffer_mm:
                 out.add((i, j))
     return out
