@@ -294,7 +294,7 @@ def _allocation_out(result: Any, ids: list[str], x: np.ndarray, y: np.ndarray) -
 
 
 def _check_motion() -> None:
-    _domain("motion planning", "planner", "plan_motion")
+    _domain("motion planning", "planner", "plan_motion", "plan_chain")
 
 
 def _full_configuration(states: Sequence[ArmState], inst: Instrument, field: str) -> np.ndarray:
@@ -314,15 +314,24 @@ def motion_plan(
     (plan_motion,) = _domain("motion planning", "planner", "plan_motion")
     start = _full_configuration(req.start, inst, "start")
     goal = _full_configuration(req.goal, inst, "goal")
-    if req.collision_buffer_mm is not None:
-        inst = inst.with_collision_buffer(req.collision_buffer_mm)
     result = call_domain(
-        plan_motion, start, goal,
-        instrument=inst, dt_s=req.dt_s, dt_col_s=req.dt_col_s,
-        max_start_stop=req.max_start_stop, seed=req.seed, time_limit_s=time_limit_s,
+        plan_motion, inst, start, goal,
+        dt_s=req.dt_s, dt_col_s=req.dt_col_s, max_start_stop=req.max_start_stop,
+        collision_buffer_mm=req.collision_buffer_mm, seed=req.seed, time_budget_s=time_limit_s,
     )
     progress(1.0)
     return _motion_out(result)
+
+
+def motion_chain(
+    inst: Instrument, configurations: Sequence[np.ndarray], *, seed: int | None,
+    time_limit_s: float,
+) -> list[dict[str, Any]]:
+    """Motion plans park -> c1 -> ... -> park, each leg from where the previous one ended."""
+    (plan_chain,) = _domain("motion planning", "planner", "plan_chain")
+    plans = call_domain(plan_chain, inst, list(configurations), seed=seed,
+                        time_budget_s=time_limit_s)
+    return [_motion_out(p) for p in plans]
 
 
 def _motion_out(result: Any) -> dict[str, Any]:
@@ -368,7 +377,6 @@ def plan(
     n = max(len(seg["pointings"]), 1)
     progress(0.05)
     out = []
-    park = park_states(inst)
     for i, p in enumerate(seg["pointings"]):
         members = [by_id[t] for t in p["target_ids"]]
         alloc = allocation(
@@ -380,17 +388,12 @@ def plan(
             ),
             inst, time_limit_s=time_limit_s,
         )
-        chain = [park] + [
-            [ArmState(arm=a["arm"], theta1_rad=a["theta1_rad"], theta2_rad=a["theta2_rad"])
-             for a in c["assignments"]]
+        progress(0.05 + 0.95 * (i + 0.5) / n)
+        configs_q = [
+            np.array([[a["theta1_rad"], a["theta2_rad"]] for a in c["assignments"]], float)
             for c in alloc["configurations"]
-        ] + [park]
-        motions = []
-        for j, (a, b) in enumerate(zip(chain[:-1], chain[1:], strict=True)):
-            motions.append(motion_plan(
-                MotionPlanRequest(start=a, goal=b, seed=req.seed), inst, time_limit_s=time_limit_s,
-            ))
-            progress(0.05 + 0.95 * (i + (j + 1) / len(chain)) / n)
+        ]
+        motions = motion_chain(inst, configs_q, seed=req.seed, time_limit_s=time_limit_s)
         out.append({**p, "configurations": alloc["configurations"], "motions": motions,
                     "unallocated": alloc["unallocated"]})
         progress(0.05 + 0.95 * (i + 1) / n)
