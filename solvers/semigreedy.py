@@ -1,0 +1,636 @@
+"""Semi-Greedy Patrol-Based Target Allocator, SGPBTA (thesis 5.3, Algorithms 3-5).
+
+A GRASP-style multistart heuristic for one observational configuration. Each iteration
+
+1. **constructs** a partial solution target by target (thesis Algorithm 4): a limited
+   pool of candidates (LPC) of the targets with the greatest benefit
+   ``eta_i = p_i + gamma * r_i / n`` (eq. 5.4), those with ``eta_i >= q(alpha)``
+   (eq. 5.5), one drawn at random; then an arm for it, ordered by the patrolling penalty
+   matrix (:mod:`solvers.patrolling`) -- greedy (GAS) or shuffled per penalty level
+   (PBAS) -- taking the first one compatible with the assignments already made;
+2. **pads** the arms left without a target (thesis Algorithm 5): current position, then
+   park; if both collide with the assignments made, the colliding assignments are undone
+   (a repair step, see :func:`_pad`), so every returned solution is complete;
+3. runs a **local search** (5.3.1.3): swap moves then replace moves, first improvement;
+4. keeps the best solution (**solution update**, 5.3.1.4): total priority, then arm
+   yield, then total joint displacement (eq. 5.1) -- lexicographically.
+
+Everything runs on the precomputed incompatibility structure (the same CSR adjacency the
+exact allocator uses): compatibility of a candidate is ``blocked[a] == 0`` where
+``blocked`` counts the chosen assignments incompatible with ``a``, updated in O(degree)
+per move. No geometry is evaluated while solving.
+
+Two deliberate departures from the thesis pseudo-code, both documented where they occur:
+targets that can no longer be placed are left out of the pool (the thesis draws them, fails
+at line 19 and moves on), and a multistart stops early once a solution reaches the
+collision-free upper bound (bipartite matching) in priority and yield.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from models.errors import InputError
+from models.incompatibility import FIXED, PARK
+from models.kinematics import joint_displacement
+from solvers.patrolling import point_penalties, thesis_penalty_matrix, validate_penalty_matrix
+from solvers.problem import ConfigProblem, ConfigSolution, evaluate
+
+ArmSelection = Literal["gas", "pbas"]
+PatrolSpec = Literal["thesis", "workspace"]
+
+_Q_TOL_RAD = 1e-9  # a rest location "is" the current position within this tolerance
+_DISP_EPS = 1e-9  # displacement improvements smaller than this are noise
+
+
+@dataclass(frozen=True)
+class SemiGreedyOptions:
+    """Parameters of SGPBTA (thesis 5.5.3.1 defaults: 30 runs, gamma 0.1, PBAS, eq. 5.21 matrix).
+
+    ``penalty_matrix``: ``"thesis"`` (eq. 5.3), ``"workspace"`` (any reachable target,
+    penalty 0) or an (n_arms, n_slices) integer matrix. ``first_slice_deg`` is the azimuth
+    of the centre of slice 0 (arm 0's azimuth in the default instrument).
+    ``time_limit_s`` defaults to the problem's. ``early_stop`` ends the multistart when
+    a solution meets the matching upper bound in priority and yield.
+    """
+
+    alpha: float = 0.2
+    gamma: float = 0.1
+    n_iter: int = 30
+    seed: int | None = None
+    arm_selection: ArmSelection = "pbas"
+    penalty_matrix: PatrolSpec | np.ndarray = "thesis"
+    first_slice_deg: float = 0.0
+    local_search: bool = True
+    early_stop: bool = True
+    time_limit_s: float | None = None
+
+
+def _validate_options(opts: SemiGreedyOptions) -> None:
+    for name, lo, hi in (("alpha", 0.0, 1.0), ("gamma", 0.0, 10.0)):
+        v = getattr(opts, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not (lo <= v <= hi):
+            raise InputError(name, f"must be a number in [{lo:g}, {hi:g}], got {v!r}")
+    if isinstance(opts.n_iter, bool) or not isinstance(opts.n_iter, (int, np.integer)) or opts.n_iter < 1:
+        raise InputError("n_iter", f"must be an integer >= 1, got {opts.n_iter!r}")
+    if opts.arm_selection not in ("gas", "pbas"):
+        raise InputError("arm_selection", f"must be 'gas' or 'pbas', got {opts.arm_selection!r}")
+    if opts.time_limit_s is not None and not opts.time_limit_s > 0:
+        raise InputError("time_limit_s", f"must be > 0, got {opts.time_limit_s!r}")
+
+
+# ------------------------------------------------------------------- static data
+
+
+@dataclass(frozen=True)
+class _FieldStatic:
+    """What does not change between the configurations of one field: per-assignment
+    penalties, reachability counts r_i (eq. 5.4), park locations. Cached per structure."""
+
+    pen: np.ndarray  # (A,) int64 patrol penalty of target assignments, -1 forbidden, 0 rest
+    r: np.ndarray  # (n_targets,) distinct arms that reach and may patrol each target
+    n_avail: int  # arms in service (n of eq. 5.4)
+    park_idx: np.ndarray  # (n_arms,) park assignment or -1
+
+
+_FIELD_CACHE: dict[tuple, tuple[object, _FieldStatic]] = {}
+
+
+def _penalty_spec(spec, n_arms: int) -> np.ndarray:
+    if isinstance(spec, str):
+        if spec == "thesis":
+            return thesis_penalty_matrix(n_arms)
+        if spec == "workspace":
+            return np.zeros((n_arms, 1), np.int64)
+        raise InputError("penalty_matrix", f"must be 'thesis', 'workspace' or a matrix, got {spec!r}")
+    return validate_penalty_matrix(spec, n_arms)
+
+
+def _field_static(problem: ConfigProblem, penalty: np.ndarray, first_slice_deg: float) -> _FieldStatic:
+    inc = problem.incompatibility
+    key = (id(inc), penalty.shape, penalty.tobytes(), float(first_slice_deg),
+           None if problem.target_xy_mm is None else id(problem.target_xy_mm))
+    hit = _FIELD_CACHE.get(key)
+    if hit is not None and hit[0] is inc:
+        return hit[1]
+    a = problem.assignments
+    n_arms = len(a.arm_start) - 1
+    tgt = a.target.astype(np.int64)
+    is_target = tgt >= 0
+    n_t = len(problem.priority)
+    pen = np.zeros(len(a), np.int64)
+    if is_target.any():
+        # penalty per target position, not per tip, so both IK branches of a target on a
+        # slice border get the same slice
+        if problem.target_xy_mm is not None:
+            txy = np.asarray(problem.target_xy_mm, float)
+        else:
+            txy = np.zeros((n_t, 2))
+            txy[tgt[is_target]] = np.column_stack([a.x_mm[is_target], a.y_mm[is_target]])
+        used = np.unique(tgt[is_target])
+        pp = point_penalties(penalty, txy[used, 0], txy[used, 1], first_slice_deg)
+        col = np.full(n_t, -1)
+        col[used] = np.arange(len(used))
+        pen[is_target] = pp[a.arm[is_target], col[tgt[is_target]]]
+    ok = is_target & (pen >= 0)
+    pair = np.unique(tgt[ok] * n_arms + a.arm[ok])
+    r = np.bincount(pair // n_arms, minlength=n_t)
+    in_service = np.zeros(n_arms, bool)
+    in_service[a.arm[is_target | (tgt == PARK)]] = True
+    park_idx = np.full(n_arms, -1)
+    pk = np.flatnonzero(tgt == PARK)
+    park_idx[a.arm[pk]] = pk
+    fs = _FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx)
+    if len(_FIELD_CACHE) > 8:
+        _FIELD_CACHE.clear()
+    _FIELD_CACHE[key] = (inc, fs)
+    return fs
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Per-problem arrays the iterations share (built once per call, O(n_assignments)).
+
+    Targets are renumbered to *live* ids 0..m-1 in decreasing benefit eta (eq. 5.4):
+    available targets with at least one allowed, patrolled assignment. ``tc[a]`` is the
+    live id of assignment a (-1 otherwise). ``tptr/tasg`` list, per live id, its
+    assignments in GAS order (penalty, arm, displacement).
+    """
+
+    n_arms: int
+    arm: np.ndarray  # (A,) int
+    arm_start: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+    prio: np.ndarray  # (A,) int64, 0 for rest
+    is_target: np.ndarray  # (A,) bool
+    disp: np.ndarray  # (A,) total joint displacement from start_q (eq. 5.1)
+    score: np.ndarray  # (A,) prio - disp / (2 pi + 1): (prio, -disp) order as one float
+    pen: np.ndarray  # (A,) patrol penalty, -1 forbidden (0 for rest locations)
+    tok: np.ndarray  # (A,) bool: allowed target assignment on a patrolled slice
+    rest_ok: np.ndarray  # (A,) bool: allowed park / current / fixed location
+    movable: np.ndarray  # (A,) bool: tok | rest_ok, what a replace move may pick
+    tc: np.ndarray  # (A,) live target id or -1
+    live_targets: np.ndarray  # (m,) original target index of each live id
+    eta: np.ndarray  # (m,) benefit (eq. 5.4), non-increasing
+    tptr: np.ndarray
+    tasg: np.ndarray
+    current_idx: np.ndarray  # (n_arms,) rest assignment at start_q, or -1
+    park_idx: np.ndarray  # (n_arms,) park assignment, or -1
+    preset: np.ndarray  # (n_arms,) the only location of an arm with one, else -1
+    target_arms: np.ndarray  # (n_arms,) bool: arm can take some live target
+    ub_priority: int  # matching bound, patrolled targets (what SGPBTA can reach)
+    ub_yield: int
+    ub_priority_all: int  # matching bound, every allowed target (bounds the exact optimum)
+
+
+def _matching_bound(arm: np.ndarray, tcol: np.ndarray, weight: np.ndarray, n_arms: int, m: int) -> int:
+    """Max-weight arm-target matching ignoring collisions: an upper bound on any solution."""
+    if m == 0 or len(arm) == 0:
+        return 0
+    w = np.zeros((n_arms, m))
+    w[arm, tcol] = weight  # both IK branches of an (arm, target) pair carry the same weight
+    r, c = linear_sum_assignment(w, maximize=True)
+    return int(round(w[r, c].sum()))
+
+
+def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
+    """Build the per-problem arrays (penalties, benefits, per-target lists, bounds)."""
+    a = problem.assignments
+    n_arms = len(a.arm_start) - 1
+    n_asg = len(a)
+    penalty = _penalty_spec(opts.penalty_matrix, n_arms)
+    fs = _field_static(problem, penalty, opts.first_slice_deg)
+    pen = fs.pen
+    allowed = problem.allowed()
+    tgt = a.target
+    is_target = tgt >= 0
+    prio = problem.assignment_priority()
+    d1, ccw, cw = joint_displacement(problem.start_q[a.arm], a.q)
+    disp = np.abs(d1) + np.minimum(ccw, -cw)
+    tok = allowed & is_target & (pen >= 0)
+    rest_ok = allowed & ~is_target
+
+    # live targets sorted by decreasing eta_i = p_i + gamma * r_i / n  (eq. 5.4)
+    n_t = len(problem.priority)
+    live_mask = np.zeros(n_t, bool)
+    live_mask[tgt[tok]] = True
+    ids = np.flatnonzero(live_mask)
+    eta_ids = problem.priority[ids].astype(float) + opts.gamma * fs.r[ids] / fs.n_avail
+    order = np.argsort(-eta_ids, kind="stable")
+    live_targets = ids[order]
+    eta = eta_ids[order]
+    m = len(live_targets)
+    rank = np.full(n_t, -1, np.int64)
+    rank[live_targets] = np.arange(m)
+    tc = np.where(tok, rank[np.where(is_target, tgt, 0)], -1)
+
+    # per live target, its usable assignments in GAS order: penalty, arm, displacement
+    idx = np.flatnonzero(tok)
+    tasg = idx[np.lexsort((disp[idx], a.arm[idx], pen[idx], tc[idx]))]
+    tptr = np.searchsorted(tc[tasg], np.arange(m + 1))
+
+    # rest locations: the one at start_q is "current"; an arm with one location only
+    # (out of service) is an obstacle placed before anything else
+    current_idx = np.full(n_arms, -1)
+    rest = np.flatnonzero(rest_ok & (disp < _Q_TOL_RAD))
+    current_idx[a.arm[rest[::-1]]] = rest[::-1]  # first one per arm wins
+    park_idx = np.where(rest_ok[np.maximum(fs.park_idx, 0)] & (fs.park_idx >= 0), fs.park_idx, -1)
+    n_loc = np.add.reduceat((tok | rest_ok).astype(np.int64), a.arm_start[:-1]) if n_asg else np.zeros(n_arms)
+    n_loc[np.diff(a.arm_start) == 0] = 0
+    target_arms = np.zeros(n_arms, bool)
+    target_arms[a.arm[tok]] = True
+    preset = np.full(n_arms, -1)
+    for k in np.flatnonzero((n_loc == 1) & ~target_arms):
+        j = int(a.arm_start[k]) + int(np.flatnonzero(rest_ok[a.arm_start[k]:a.arm_start[k + 1]])[0])
+        if tgt[j] == FIXED:
+            preset[k] = j
+
+    free = preset < 0
+    sel = tok & free[a.arm]
+    ub_p = _matching_bound(a.arm[sel], tc[sel], prio[sel], n_arms, m)
+    ub_y = _matching_bound(a.arm[sel], tc[sel], 1.0, n_arms, m)
+    all_ok = allowed & is_target & free[a.arm]
+    if np.array_equal(all_ok, sel):
+        ub_all = ub_p
+    else:
+        all_t, all_c = np.unique(tgt[all_ok], return_inverse=True)
+        ub_all = _matching_bound(a.arm[all_ok], all_c, prio[all_ok], n_arms, len(all_t))
+    return Prepared(
+        n_arms=n_arms, arm=a.arm.astype(np.int64), arm_start=np.asarray(a.arm_start, np.int64),
+        indptr=problem.incompatibility.indptr, indices=problem.incompatibility.indices,
+        prio=prio, is_target=is_target, disp=disp, score=prio - disp / (2 * np.pi + 1),
+        pen=pen, tok=tok, rest_ok=rest_ok, movable=tok | rest_ok, tc=tc,
+        live_targets=live_targets, eta=eta, tptr=tptr, tasg=tasg, current_idx=current_idx,
+        park_idx=park_idx, preset=preset, target_arms=target_arms,
+        ub_priority=ub_p, ub_yield=ub_y, ub_priority_all=ub_all,
+    )
+
+
+# ------------------------------------------------------------------ mutable state
+
+
+@dataclass
+class State:
+    """A (partial) solution: ``chosen[k]`` (-1 = unassigned) and the blocking counts."""
+
+    chosen: np.ndarray  # (n_arms,) int64
+    blocked: np.ndarray  # (A,) int32: chosen assignments incompatible with each assignment
+    picked: list[int] = field(default_factory=list)  # live target ids drawn, in order
+
+    @staticmethod
+    def empty(st: Prepared) -> State:
+        s = State(np.full(st.n_arms, -1, np.int64), np.zeros(len(st.arm), np.int32))
+        for k in np.flatnonzero(st.preset >= 0):
+            s.place(st, int(st.preset[k]))
+        return s
+
+    def place(self, st: Prepared, x: int) -> None:
+        self.chosen[st.arm[x]] = x
+        self.blocked[st.indices[st.indptr[x]:st.indptr[x + 1]]] += 1
+
+    def remove(self, st: Prepared, k: int) -> None:
+        x = int(self.chosen[k])
+        self.blocked[st.indices[st.indptr[x]:st.indptr[x + 1]]] -= 1
+        self.chosen[k] = -1
+
+    def key(self, st: Prepared) -> tuple[int, int, float]:
+        """Solution-update order (5.3.1.4): priority, yield, minus total displacement."""
+        c = self.chosen[self.chosen >= 0]
+        return (int(st.prio[c].sum()), int(st.is_target[c].sum()), -float(st.disp[c].sum()))
+
+
+# ------------------------------------------------------------ construction (Alg. 4)
+
+
+def lpc(eta: np.ndarray, candidates: np.ndarray, alpha: float) -> np.ndarray:
+    """Limited pool of candidates (eq. 5.5): those with eta >= eta_max - alpha (eta_max - eta_min)."""
+    e = eta[candidates]
+    hi, lo = e.max(), e.min()
+    q = hi - alpha * (hi - lo)
+    return candidates[e >= q - 1e-12 * max(1.0, abs(hi))]
+
+
+def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.random.Generator) -> State:
+    """Semi-greedy patrol-based construction (thesis Algorithm 4), vectorised.
+
+    ``cnt[t]`` counts the assignments of live target t still usable (arm free, not
+    blocked by any assignment made); a target with ``cnt == 0`` is left out of the pool:
+    in the thesis it would be drawn, fail every arm (line 13) and land in T^o (line 19)
+    with no other effect. Live ids are sorted by decreasing eta, so the pool of eq. 5.5
+    is the live part of a prefix. The candidate list of the drawn target holds only
+    usable assignments, so the first arm in GAS/PBAS order is the one lines 10-18 accept.
+    """
+    s = State.empty(st)
+    m = len(st.eta)
+    neg_eta = -st.eta
+    arm_free = (s.chosen < 0) & st.target_arms
+    n_free = int(arm_free.sum())
+    usable = st.tok & (s.blocked == 0) & arm_free[st.arm]
+    cnt = np.bincount(st.tc[usable], minlength=m)
+    remaining = np.ones(m, bool)
+    arm, pen, disp, blocked = st.arm, st.pen, st.disp, s.blocked
+    while n_free:
+        live = remaining & (cnt > 0)
+        first = int(live.argmax())
+        if not live[first]:
+            break
+        last = m - 1 - int(live[::-1].argmax())
+        hi, lo = st.eta[first], st.eta[last]
+        q = hi - alpha * (hi - lo)
+        end = int(np.searchsorted(neg_eta, -q + 1e-12 * max(1.0, abs(hi)), side="right"))
+        pool = first + np.flatnonzero(live[first:end])
+        t = int(pool[rng.integers(len(pool))]) if len(pool) > 1 else int(pool[0])
+        remaining[t] = False
+        s.picked.append(t)
+        cand = [x for x in st.tasg[st.tptr[t]:st.tptr[t + 1]].tolist()
+                if arm_free[arm[x]] and blocked[x] == 0]
+        x = cand[0]  # GAS: lowest penalty, then arm index, then shorter move
+        if arm_selection == "pbas" and len(cand) > 1:
+            # PBAS: the arms of the lowest usable penalty level in random order; all of
+            # them are usable, so the first of the shuffled list is a uniform draw
+            level = [c for c in cand if pen[c] == pen[x]]
+            arms = sorted({int(arm[c]) for c in level})
+            if len(arms) > 1:
+                k = arms[int(rng.integers(len(arms)))]
+                x = min((c for c in level if arm[c] == k), key=lambda c: disp[c])
+        k = int(arm[x])
+        s0, s1 = int(st.arm_start[k]), int(st.arm_start[k + 1])
+        lost = st.tok[s0:s1] & (blocked[s0:s1] == 0)  # arm k's usable assignments go away
+        np.subtract.at(cnt, st.tc[s0:s1][lost], 1)
+        arm_free[k] = False
+        n_free -= 1
+        nb = st.indices[st.indptr[x]:st.indptr[x + 1]]
+        newly = nb[blocked[nb] == 0]
+        blocked[nb] += 1
+        s.chosen[k] = x
+        newly = newly[st.tok[newly] & arm_free[arm[newly]]]
+        if len(newly):
+            np.subtract.at(cnt, st.tc[newly], 1)
+    return s
+
+
+# ------------------------------------------------------------------ padding (Alg. 5)
+
+
+def _rest_options(st: Prepared, k: int) -> list[int]:
+    out = []
+    for r in (int(st.current_idx[k]), int(st.park_idx[k])):
+        if r >= 0 and r not in out:
+            out.append(r)
+    return out
+
+
+def pad(st: Prepared, s: State) -> bool:
+    """Solution padding (thesis Algorithm 5): unassigned arms to current position, then park.
+
+    Both are locations of the structure, so compatibility is the same ``blocked`` test.
+    Where both collide with assignments already made the thesis would sample blank sky
+    or drop the solution; here the blocking assignments are undone instead (their arms
+    are padded in turn), which keeps every iteration complete -- the local search can
+    re-fill those arms. Returns False only if no complete solution was reached.
+    """
+    pending = [int(k) for k in np.flatnonzero(s.chosen < 0)]
+    budget = 4 * st.n_arms
+    while pending and budget > 0:
+        k = pending.pop(0)
+        opts = _rest_options(st, k)
+        free_opt = [r for r in opts if s.blocked[r] == 0]
+        if free_opt:
+            s.place(st, free_opt[0])
+            continue
+        if not opts:  # an arm with no rest location: take any compatible location
+            sl = np.arange(int(st.arm_start[k]), int(st.arm_start[k + 1]))
+            ok = sl[st.movable[sl] & (s.blocked[sl] == 0)]
+            if len(ok):
+                s.place(st, int(ok[0]))
+                continue
+            return False
+        # repair: evict the (lowest-priority first) assignments blocking the preferred rest
+        budget -= 1
+        r = opts[0]
+        nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
+        blockers = [int(j) for j in np.flatnonzero(s.chosen >= 0) if s.chosen[j] in set(nb.tolist())]
+        blockers = [j for j in blockers if st.preset[j] < 0]
+        if len(blockers) < int(s.blocked[r]):  # blocked by an out-of-service arm
+            if len(opts) > 1:
+                opts = opts[1:]
+                r = opts[0]
+                nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
+                nbs = set(nb.tolist())
+                blockers = [int(j) for j in np.flatnonzero(s.chosen >= 0)
+                            if s.chosen[j] in nbs and st.preset[j] < 0]
+                if len(blockers) < int(s.blocked[r]):
+                    return False
+            else:
+                return False
+        for j in blockers:
+            s.remove(st, j)
+            pending.append(j)
+        s.place(st, r)
+    return not pending
+
+
+# ------------------------------------------------------------- local search (5.3.1.3)
+
+
+def swap_pass(st: Prepared, s: State, rng: np.random.Generator) -> bool:
+    """One first-improvement pass of swap moves; True if a move was made.
+
+    Two arms on targets exchange them (each arm must patrol the other's target). Priority
+    and yield are unchanged, so a swap can only shorten the total displacement. Pairs of
+    adjacent arms are tried first, the others in random order (thesis 5.3.1.3).
+    """
+    chosen = s.chosen
+    on_target = chosen[chosen >= 0]
+    on_target = on_target[st.tc[on_target] >= 0]
+    if len(on_target) < 2:
+        return False
+    # x2: an assignment of another busy arm k2 on the target held by k1
+    lists = [st.tasg[st.tptr[t]:st.tptr[t + 1]] for t in st.tc[on_target]]
+    x2s = np.concatenate(lists)
+    holder = np.repeat(st.arm[on_target], [len(v) for v in lists])
+    k2s = st.arm[x2s]
+    c2s = chosen[k2s]
+    # x2's only blocker must be the holder of its target (same-target conflict)
+    keep = (k2s != holder) & (c2s >= 0) & (s.blocked[x2s] == 1)
+    keep[keep] &= st.tc[c2s[keep]] >= 0
+    if not keep.any():
+        return False
+    x2s, k1s, k2s = x2s[keep], holder[keep], k2s[keep]
+    n = st.n_arms
+    dist = np.minimum((k1s - k2s) % n, (k2s - k1s) % n)
+    order = np.lexsort((rng.random(len(x2s)), dist > 1))
+    disp, blocked = st.disp, s.blocked
+    for i in order.tolist():
+        k1, k2, x2 = int(k1s[i]), int(k2s[i]), int(x2s[i])
+        c1, c2 = int(chosen[k1]), int(chosen[k2])
+        t2 = int(st.tc[c2])
+        for x1 in st.tasg[st.tptr[t2]:st.tptr[t2 + 1]].tolist():
+            if arm_of(st, x1) != k1 or blocked[x1] != 1:
+                continue
+            if disp[x1] + disp[x2] - disp[c1] - disp[c2] >= -_DISP_EPS:
+                continue
+            nb = st.indices[st.indptr[x1]:st.indptr[x1 + 1]]
+            j = int(np.searchsorted(nb, x2))
+            if j < len(nb) and nb[j] == x2:
+                continue
+            s.remove(st, k1)
+            s.remove(st, k2)
+            s.place(st, x1)
+            s.place(st, x2)
+            return True
+    return False
+
+
+def arm_of(st: Prepared, x: int) -> int:
+    return int(st.arm[x])
+
+
+def replace_pass(st: Prepared, s: State, rng: np.random.Generator) -> int:
+    """One pass of replace moves over the arms in random order; returns #moves made.
+
+    An arm moves to another location (a pending target it patrols, or a rest location)
+    compatible with the others. First improvement over arms: each arm whose
+    neighbourhood holds an improving move is moved at once and the scan goes on; within
+    one arm all its replacements are scored in one vectorised step, so the best of them
+    (priority, then displacement; yield follows priority since targets have p >= 1) is
+    taken -- it costs the same as the first. The thesis restricts the new target to the
+    arm's own and adjacent slices; here any slice the penalty matrix allows is taken.
+    """
+    score = np.where(st.movable & (s.blocked == 0), st.score, -np.inf)
+    made = 0
+    for k in rng.permutation(st.n_arms).tolist():
+        c = int(s.chosen[k])
+        if c < 0 or st.preset[k] >= 0:
+            continue
+        s0, s1 = int(st.arm_start[k]), int(st.arm_start[k + 1])
+        if made:  # earlier moves of this pass changed what is blocked
+            sc = np.where(st.movable[s0:s1] & (s.blocked[s0:s1] == 0), st.score[s0:s1], -np.inf)
+        else:
+            sc = score[s0:s1]
+        j = s0 + int(sc.argmax())
+        if j == c:
+            continue
+        # exact lexicographic check (the float score only ranks)
+        dp = int(st.prio[j]) - int(st.prio[c])
+        if dp > 0 or (dp == 0 and st.disp[j] < st.disp[c] - _DISP_EPS):
+            s.remove(st, k)
+            s.place(st, j)
+            made += 1
+    return made
+
+
+def local_search(st: Prepared, s: State, rng: np.random.Generator, max_moves: int = 1000) -> int:
+    """Swap moves to a local optimum, then replace moves, repeated until neither improves
+    (thesis 5.3.1.3). Every move strictly improves the lexicographic key. Returns #moves."""
+    moves = 0
+    while moves < max_moves:
+        made = 0
+        while moves + made < max_moves and swap_pass(st, s, rng):
+            made += 1
+        made += replace_pass(st, s, rng)
+        moves += made
+        if not made:  # a replace can enable new swaps: repeat until a quiet round
+            break
+    return moves
+
+
+# ----------------------------------------------------------- multistart (Alg. 3)
+
+
+def _fallback(st: Prepared) -> State | None:
+    """Every arm at rest (current, else park), when compatible: the last resort."""
+    s = State.empty(st)
+    if pad(st, s):
+        return s
+    return None
+
+
+def solve_semigreedy(problem: ConfigProblem, **options) -> ConfigSolution:
+    """SGPBTA for one configuration (thesis Algorithm 3): multistart construction, padding,
+    local search and solution update; keyword options are :class:`SemiGreedyOptions`.
+
+    ``seed`` defaults to ``problem.seed``; the same problem and options give the same
+    solution. ``time_limit_s`` (default ``problem.time_limit_s``) bounds the multistart
+    (at least one iteration runs). The returned status is ``"feasible"`` (a heuristic
+    proves nothing) or ``"infeasible"`` when no complete collision-free choice was found;
+    ``gap`` is the relative gap to the collision-free matching upper bound, an upper
+    bound on the true optimality gap. ``stats`` holds the bounds, iterations, timings.
+    """
+    t0 = time.perf_counter()
+    unknown = set(options) - set(SemiGreedyOptions.__dataclass_fields__)
+    if unknown:
+        raise InputError(sorted(unknown)[0], "unknown semigreedy option")
+    opts = SemiGreedyOptions(**options)
+    _validate_options(opts)
+    seed = problem.seed if opts.seed is None else opts.seed
+    rng = np.random.default_rng(seed)
+    limit = problem.time_limit_s if opts.time_limit_s is None else opts.time_limit_s
+    st = prepare(problem, opts)
+    t_prep = time.perf_counter()
+
+    best: State | None = None
+    best_key: tuple | None = None
+    n_done = 0
+    ls_moves = 0
+    best_iter = -1
+    for it in range(opts.n_iter):
+        s = construct(st, opts.alpha, opts.arm_selection, rng)
+        if not pad(st, s):
+            continue  # thesis line 9: only complete solutions go on
+        if opts.local_search:
+            ls_moves += local_search(st, s, rng)
+        n_done += 1
+        key = s.key(st)
+        if best_key is None or key[:2] > best_key[:2] or (
+                key[:2] == best_key[:2] and key[2] > best_key[2] + _DISP_EPS):
+            best, best_key, best_iter = s, key, it
+        if opts.early_stop and best_key[0] >= st.ub_priority and best_key[1] >= st.ub_yield:
+            break
+        if time.perf_counter() - t0 > limit:
+            break
+    if best is None:
+        best = _fallback(st)
+    stats = {
+        "method": "semigreedy", "iterations": n_done, "best_iteration": best_iter,
+        "local_search_moves": ls_moves, "upper_bound_priority": st.ub_priority_all,
+        "upper_bound_priority_patrolled": st.ub_priority, "upper_bound_yield": st.ub_yield,
+        "live_targets": int(len(st.eta)), "seed": int(seed) if seed is not None else None,
+        "alpha": opts.alpha, "gamma": opts.gamma, "arm_selection": opts.arm_selection,
+        "time_prepare_s": t_prep - t0, "time_s": time.perf_counter() - t0,
+    }
+    if best is None:
+        park = np.array([int(st.current_idx[k]) if st.current_idx[k] >= 0 else int(st.park_idx[k])
+                         for k in range(st.n_arms)])
+        return ConfigSolution(park, "infeasible", 0, 0, 0.0, None, stats)
+    total, yield_, longest = evaluate(problem, best.chosen)
+    ub = st.ub_priority_all
+    gap = (ub - total) / ub if ub > 0 else 0.0
+    stats["total_displacement_rad"] = -best_key[2] if best_key else float(st.disp[best.chosen].sum())
+    return ConfigSolution(best.chosen.copy(), "feasible", total, yield_, longest, gap, stats)
+
+
+def warm_start(problem: ConfigProblem, **options) -> np.ndarray:
+    """The heuristic's chosen assignment indices, (n_arms,), for a MIP start / CP-SAT hints.
+
+    Set ``x_a = 1`` for ``a`` in the result and 0 elsewhere (see :func:`warm_start_vector`);
+    the choice is complete and compatible with the incompatibility structure, so it is a
+    feasible start for the exact model on the same ``problem``. Defaults favour speed
+    (``n_iter=5``) since the exact solver improves on it anyway.
+    """
+    options.setdefault("n_iter", 5)
+    sol = solve_semigreedy(problem, **options)
+    return np.asarray(sol.chosen, dtype=np.int64)
+
+
+def warm_start_vector(problem: ConfigProblem, chosen: np.ndarray) -> np.ndarray:
+    """(n_assignments,) 0/1 int8 vector of a choice, ready for ``setSolution``/``AddHint``."""
+    x = np.zeros(len(problem.assignments), np.int8)
+    x[np.asarray(chosen, dtype=np.int64)] = 1
+    return x
