@@ -1,0 +1,350 @@
+"""SGPBTA semi-greedy allocator (thesis 5.3): patrolling, construction, padding, local search."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chisquare
+
+from models.errors import InputError
+from models.incompatibility import PARK, incompatibility_for_targets
+from models.instrument import default_instrument
+from solvers import semigreedy as sg
+from solvers.patrolling import (
+    point_penalties,
+    slice_membership,
+    slice_of_point,
+    thesis_penalty_matrix,
+    validate_penalty_matrix,
+    workspace_penalty_matrix,
+)
+from solvers.problem import ConfigProblem, check_solution, evaluate
+
+INST = default_instrument()
+
+
+def _speeds():
+    return np.column_stack([INST.arm_array("joint1_speed_rad_s"), INST.arm_array("joint2_speed_rad_s")])
+
+
+def field(n: int, seed: int, kind: str = "uniform", priorities=None, instrument=INST, current=None):
+    """A ConfigProblem on n random FOV targets (uniform or Gaussian about the centre)."""
+    rng = np.random.default_rng(seed)
+    if kind == "uniform":
+        r = 120 * np.sqrt(rng.random(n))
+        th = rng.random(n) * 2 * np.pi
+        x, y = r * np.cos(th), r * np.sin(th)
+    else:
+        x, y = rng.normal(0, 30, n), rng.normal(0, 30, n)
+    if priorities is None:
+        priorities = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1])
+    inc = incompatibility_for_targets(instrument, x, y, current=current)
+    start = instrument.park_configuration if current is None else current
+    return ConfigProblem(inc, np.asarray(priorities, np.int64), np.ones(n, bool), start, _speeds(),
+                         target_xy_mm=np.column_stack([x, y]))
+
+
+# ------------------------------------------------------------------------ patrolling
+
+
+def test_thesis_matrix_is_eq_5_3():
+    c = thesis_penalty_matrix(12)
+    assert c[0].tolist() == [0, 10, 20, 30, -1, -1, -1, -1, -1, 35, 25, 15]
+    assert c[1].tolist() == [15, 0, 10, 20, 30, -1, -1, -1, -1, -1, 35, 25]
+    assert c[11].tolist() == [10, 20, 30, -1, -1, -1, -1, -1, 35, 25, 15, 0]
+    assert ((c >= 0).sum(axis=1) == 7).all()
+    assert workspace_penalty_matrix(12).shape == (12, 1)
+
+
+def test_slice_membership():
+    deg = np.deg2rad([0, 29, 31, 180, -14, 15])
+    x, y = 100 * np.cos(deg), 100 * np.sin(deg)
+    assert slice_of_point(x[:5], y[:5], 12).tolist() == [0, 1, 1, 6, 0]
+    m = slice_membership(x, y, 12)
+    assert m[5, 0] and m[5, 1] and m[5].sum() == 2  # on the 15 degree border: both slices
+    assert slice_membership([0.0], [0.0], 12).all()  # the centre is in every slice
+    assert slice_membership(x, y, 1).all()
+    pen = point_penalties(thesis_penalty_matrix(), [0.0, 100.0], [0.0, 0.0])
+    assert (pen[:, 0] == 0).all()  # centre: every arm at its best penalty
+    assert pen[:, 1].tolist() == thesis_penalty_matrix()[:, 0].tolist()
+
+
+@pytest.mark.parametrize("bad, field_name", [
+    (np.zeros((11, 12)), "penalty_matrix"),
+    (np.zeros(12), "penalty_matrix"),
+    (np.zeros((12, 0)), "penalty_matrix"),
+    (np.full((12, 12), -2), "penalty_matrix[0][0]"),
+    (np.full((12, 12), 1.5), "penalty_matrix[0][0]"),
+    (np.full((12, 12), np.nan), "penalty_matrix[0][0]"),
+    ([[0] * 12] * 11 + [[0] * 11], "penalty_matrix"),
+])
+def test_penalty_matrix_validation(bad, field_name):
+    with pytest.raises(InputError) as e:
+        validate_penalty_matrix(bad, 12)
+    assert e.value.field == field_name
+    p = field(10, 0)
+    with pytest.raises(InputError):
+        sg.solve_semigreedy(p, penalty_matrix=bad)
+
+
+@pytest.mark.parametrize("opts, name", [({"alpha": 1.5}, "alpha"), ({"gamma": 11}, "gamma"),
+                                        ({"n_iter": 0}, "n_iter"), ({"arm_selection": "x"}, "arm_selection"),
+                                        ({"bogus": 1}, "bogus")])
+def test_option_validation(opts, name):
+    with pytest.raises(InputError) as e:
+        sg.solve_semigreedy(field(5, 0), **opts)
+    assert e.value.field == name
+
+
+# ------------------------------------------------------------------------- solutions
+
+
+def test_same_seed_same_result():
+    p = field(150, 1)
+    a = sg.solve_semigreedy(p, seed=7, alpha=0.8, early_stop=False)
+    b = sg.solve_semigreedy(p, seed=7, alpha=0.8, early_stop=False)
+    assert np.array_equal(a.chosen, b.chosen) and a.total_priority == b.total_priority
+    # different seeds explore differently (construction draws differ)
+    st = sg.prepare(p, sg.SemiGreedyOptions(alpha=0.8))
+    picks = {tuple(sg.construct(st, 0.8, "pbas", np.random.default_rng(s)).picked) for s in range(5)}
+    assert len(picks) > 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("kind", ["uniform", "clustered"])
+def test_every_solution_passes_check(seed, kind):
+    p = field(80, seed, kind)
+    for opts in ({}, {"alpha": 0.8, "arm_selection": "gas"}, {"penalty_matrix": "workspace"},
+                 {"local_search": False, "n_iter": 3}):
+        sol = sg.solve_semigreedy(p, seed=seed, **opts)
+        assert sol.chosen.shape == (12,)
+        assert check_solution(INST, p, sol.chosen) == []
+        assert (sol.total_priority, sol.arm_yield) == evaluate(p, sol.chosen)[:2]
+        assert sol.status == "feasible"
+        assert sol.total_priority <= sol.stats["upper_bound_priority"]
+
+
+def test_sequence_with_current_positions_and_disabled_arm():
+    """Chained configurations start where the last one ended; an out-of-service arm stays."""
+    inst = INST.with_arms_disabled([4])
+    rng = np.random.default_rng(3)
+    n = 60
+    x, y = rng.normal(0, 50, n), rng.normal(0, 50, n)
+    pri = rng.integers(1, 100, n)
+    avail = np.ones(n, bool)
+    q = inst.park_configuration
+    for _ in range(3):
+        inc = incompatibility_for_targets(inst, x, y, current=q)
+        p = ConfigProblem(inc, pri, avail.copy(), q, _speeds(), target_xy_mm=np.column_stack([x, y]))
+        sol = sg.solve_semigreedy(p, seed=1)
+        assert check_solution(inst, p, sol.chosen) == []
+        a = inc.assignments
+        assert a.target[sol.chosen[4]] < 0  # the disabled arm is on no target
+        t = a.target[sol.chosen]
+        avail[t[t >= 0]] = False
+        q = a.q[sol.chosen]
+
+
+def test_nothing_available_all_rest():
+    p = field(20, 2)
+    p = ConfigProblem(p.incompatibility, p.priority, np.zeros(20, bool), p.start_q, p.joint_speed_rad_s)
+    sol = sg.solve_semigreedy(p)
+    assert sol.total_priority == 0 and sol.arm_yield == 0
+    assert (p.assignments.target[sol.chosen] == PARK).all()
+    assert check_solution(INST, p, sol.chosen) == []
+
+
+# ---------------------------------------------------------------------- construction
+
+
+def test_lpc_eq_5_5():
+    eta = np.array([10.0, 8.0, 5.0, 1.0])
+    c = np.arange(4)
+    assert sg.lpc(eta, c, 0.0).tolist() == [0]
+    assert sg.lpc(eta, c, 0.5).tolist() == [0, 1]  # q = 10 - 0.5 * 9 = 5.5
+    assert sg.lpc(eta, c, 1.0).tolist() == [0, 1, 2, 3]
+
+
+def _independent_greedy(p: ConfigProblem, penalty) -> dict[int, int]:
+    """Pure greedy (alpha = 0, gamma = 0, GAS), written without the module's data
+    structures: targets by decreasing priority; for each, the arms in order of
+    (penalty, arm, displacement); the first assignment compatible with those made."""
+    inc = p.incompatibility
+    a = p.assignments
+    xy = p.target_xy_mm
+    pen = point_penalties(penalty, xy[:, 0], xy[:, 1])  # (arms, targets)
+    start = p.start_q
+    chosen: dict[int, int] = {}
+    for t in sorted(range(len(p.priority)), key=lambda t: -int(p.priority[t])):
+        if len(chosen) == 12:
+            break
+        opts = []
+        for i in np.flatnonzero(a.target == t):
+            k = int(a.arm[i])
+            if k in chosen or pen[k, t] < 0:
+                continue
+            d = abs(a.theta1_rad[i] - start[k, 0])
+            d2 = abs(a.theta2_rad[i] - start[k, 1]) % (2 * np.pi)
+            opts.append((int(pen[k, t]), k, d + min(d2, 2 * np.pi - d2), int(i)))
+        for _, k, _, i in sorted(opts):
+            if all(inc.compatible(i, j) for j in chosen.values()):
+                chosen[k] = i
+                break
+    return chosen
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("patrol", ["thesis", "workspace"])
+def test_alpha0_is_pure_greedy(seed, patrol):
+    rng = np.random.default_rng(seed)
+    n = 40
+    pri = rng.permutation(n) + 1  # distinct priorities: no ties in the greedy order
+    p = field(n, seed, priorities=pri)
+    matrix = thesis_penalty_matrix() if patrol == "thesis" else workspace_penalty_matrix()
+    st = sg.prepare(p, sg.SemiGreedyOptions(gamma=0.0, penalty_matrix=patrol))
+    s = sg.construct(st, 0.0, "gas", np.random.default_rng(99))
+    got = {int(k): int(x) for k, x in enumerate(s.chosen) if x >= 0}
+    assert got == _independent_greedy(p, matrix)
+
+
+def test_alpha1_is_uniform_over_pool():
+    """alpha = 1: the first drawn target is uniform over all live targets (chi-square)."""
+    p = field(6, 5, priorities=[500, 100, 100, 10, 1, 1])
+    st = sg.prepare(p, sg.SemiGreedyOptions(alpha=1.0))
+    m = len(st.eta)
+    assert m >= 4
+    rng = np.random.default_rng(12345)
+    draws = 3000
+    counts = np.bincount([sg.construct(st, 1.0, "pbas", rng).picked[0] for _ in range(draws)], minlength=m)
+    assert chisquare(counts).pvalue > 1e-3
+    # and alpha = 0 never leaves the top of the pool
+    firsts = {sg.construct(st, 0.0, "pbas", rng).picked[0] for _ in range(50)}
+    assert firsts == {0}
+
+
+def test_pbas_spreads_ties_gas_does_not():
+    """A lone target at the centre: every arm has penalty 0 for it (thesis 5.5.2)."""
+    p = ConfigProblem(incompatibility_for_targets(INST, [0.0], [0.0]), np.array([5]), np.ones(1, bool),
+                      INST.park_configuration, _speeds(), target_xy_mm=np.zeros((1, 2)))
+    st = sg.prepare(p, sg.SemiGreedyOptions())
+    rng = np.random.default_rng(0)
+
+    def holder(sel: str) -> int:
+        c = sg.construct(st, 0.0, sel, rng).chosen
+        return int(np.flatnonzero(c >= 0)[0])  # the one arm given the target
+
+    gas = {holder("gas") for _ in range(20)}
+    pbas = {holder("pbas") for _ in range(200)}
+    assert gas == {0}
+    assert len(pbas) >= 10
+
+
+def test_sop_matrix_restricts_arms():
+    p = field(120, 4)
+    xy = p.target_xy_mm
+    own = np.full((12, 12), -1)
+    np.fill_diagonal(own, 0)  # eq. 5.2: each arm patrols only its own slice
+    no_arm0 = thesis_penalty_matrix()
+    no_arm0[0] = -1
+    for matrix in (thesis_penalty_matrix(), own, no_arm0):
+        pen = point_penalties(matrix, xy[:, 0], xy[:, 1])
+        for seed in range(3):
+            sol = sg.solve_semigreedy(p, penalty_matrix=matrix, seed=seed, alpha=0.8)
+            assert check_solution(INST, p, sol.chosen) == []
+            a = p.assignments
+            for k, x in enumerate(sol.chosen):
+                t = a.target[x]
+                if t >= 0:
+                    assert pen[k, t] >= 0, (k, t)
+    sol = sg.solve_semigreedy(p, penalty_matrix=no_arm0)
+    assert p.assignments.target[sol.chosen[0]] < 0
+    sol = sg.solve_semigreedy(p, penalty_matrix=own)
+    sl = slice_membership(xy[:, 0], xy[:, 1], 12)
+    for k, x in enumerate(sol.chosen):
+        t = p.assignments.target[x]
+        assert t < 0 or sl[t, k]
+
+
+# ---------------------------------------------------------------------- local search
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_local_search_never_lowers_objective(seed):
+    p = field(100, seed, "clustered" if seed % 2 else "uniform")
+    st = sg.prepare(p, sg.SemiGreedyOptions(penalty_matrix="workspace"))
+    rng = np.random.default_rng(seed)
+    improved = 0
+    for _ in range(10):
+        s = sg.construct(st, 0.8, "pbas", rng)
+        assert sg.pad(st, s)
+        before = s.key(st)
+        sg.local_search(st, s, rng)
+        after = s.key(st)
+        assert after[:2] > before[:2] or (after[:2] == before[:2] and after[2] >= before[2] - 1e-9)
+        improved += after > before
+        assert check_solution(INST, p, s.chosen) == []
+    assert improved > 0  # the test can see a change at all
+
+
+# ------------------------------------------------------------------------ the oracle
+
+
+def _brute_force(p: ConfigProblem) -> int:
+    """Maximum total priority over every complete compatible choice (depth-first, exact)."""
+    a = p.assignments
+    inc = p.incompatibility
+    allowed = p.allowed()
+    prio = p.assignment_priority()
+    options = []
+    for k in range(12):
+        s = a.of_arm(k)
+        idx = np.arange(s.start, s.stop)[allowed[s]]
+        options.append(sorted(idx.tolist(), key=lambda i: -prio[i]))
+    best = -1
+
+    def dfs(k: int, chosen: list[int], total: int, used: frozenset) -> None:
+        nonlocal best
+        if k == 12:
+            best = max(best, total)
+            return
+        # bound: the remaining arms at their best unused target
+        bound = total + sum(max((prio[i] for i in options[j] if a.target[i] not in used), default=0)
+                            for j in range(k, 12))
+        if bound <= best:
+            return
+        for i in options[k]:
+            t = int(a.target[i])
+            if t >= 0 and t in used:
+                continue
+            if all(inc.compatible(i, j) for j in chosen):
+                dfs(k + 1, chosen + [i], total + int(prio[i]), used | {t} if t >= 0 else used)
+
+    dfs(0, [], 0, frozenset())
+    return best
+
+
+def test_never_beats_and_usually_equals_brute_force():
+    equal = 0
+    cases = 0
+    for seed in range(24):
+        rng = np.random.default_rng(1000 + seed)
+        n = int(rng.integers(2, 9))
+        kind = "clustered" if seed % 3 == 0 else "uniform"
+        p = field(n, 1000 + seed, kind, priorities=rng.integers(1, 50, n))
+        opt = _brute_force(p)
+        sol = sg.solve_semigreedy(p, penalty_matrix="workspace", seed=seed)
+        assert check_solution(INST, p, sol.chosen) == []
+        assert sol.total_priority <= opt
+        sol_thesis = sg.solve_semigreedy(p, seed=seed)
+        assert sol_thesis.total_priority <= opt
+        equal += sol.total_priority == opt
+        cases += 1
+    assert equal >= 0.8 * cases, (equal, cases)
+
+
+def test_warm_start_is_a_feasible_choice():
+    p = field(60, 8)
+    chosen = sg.warm_start(p, seed=3)
+    assert chosen.shape == (12,) and check_solution(INST, p, chosen) == []
+    x = sg.warm_start_vector(p, chosen)
+    assert x.sum() == 12 and x[chosen].all()
