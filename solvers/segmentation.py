@@ -95,17 +95,19 @@ def _rnn_rounds(m: int, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarr
     d(A u B, X) = max(d(A, X), d(B, X)) (Lance-Williams), so a merged cluster keeps an edge
     only to clusters that had one with *both* parts. Every round merges all reciprocal
     nearest-neighbour pairs at once; reducibility (thesis eq. 4.17) makes that give the same
-    hierarchy as merging them one at a time in an NN-chain. Ties are broken by the total
-    order (w, u, v), so the first edge is always a reciprocal pair and every round merges.
+    hierarchy as merging them one at a time in an NN-chain. Ties are broken by position in
+    the weight-sorted edge list, so the first edge is always a reciprocal pair.
     Returns the root of every cluster.
     """
     parent = np.arange(m, dtype=np.int64)
     lab = np.arange(m, dtype=np.int64)
     mult = np.ones(m, dtype=np.int64)
     merged = np.zeros(m, dtype=bool)
+    order = np.argsort(w, kind="stable")
+    u, v, w = u[order], v[order], w[order]
     while u.size:
-        order = np.lexsort((v, u, w))
-        u, v, w = u[order], v[order], w[order]
+        # edges are sorted by w; the sort position is a strict total order even with tied
+        # distances, so the first edge is always a reciprocal pair and every round merges
         rank = np.arange(u.size, dtype=np.int64)
         first = np.full(m, u.size, dtype=np.int64)
         np.minimum.at(first, u, rank)
@@ -131,9 +133,13 @@ def _rnn_rounds(m: int, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarr
             wmax = np.maximum.reduceat(tw, starts)
             ga, gb = a[starts], b[starts]
             ok = count == mult[ga] * mult[gb]
-            u = np.concatenate([ku, ga[ok]])
-            v = np.concatenate([kv, gb[ok]])
-            w = np.concatenate([kw, wmax[ok]])
+            # untouched edges are still sorted; timsort merges the two sorted runs in O(E)
+            o = np.argsort(wmax[ok], kind="stable")
+            w = np.concatenate([kw, wmax[ok][o]])
+            order = np.argsort(w, kind="stable")
+            u = np.concatenate([ku, ga[ok][o]])[order]
+            v = np.concatenate([kv, gb[ok][o]])[order]
+            w = w[order]
         else:
             u, v, w = ku, kv, kw
         # reset the per-round scratch state of the clusters touched this round
@@ -189,7 +195,7 @@ def _cluster_pair_max_dist(xy, offsets, a, b, chunk=4_000_000) -> np.ndarray:
 
 
 def sparse_complete_linkage(points_mm: np.ndarray, threshold_mm: float,
-                            stages: int = 3) -> np.ndarray:
+                            stages: int = 4) -> np.ndarray:
     """Threshold complete linkage without the O(n^2) matrix; returns labels.
 
     Only pairs closer than the threshold can ever merge, so edges come from a KD-tree. To
