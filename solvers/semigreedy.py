@@ -56,7 +56,8 @@ class SemiGreedyOptions:
     penalty 0) or an (n_arms, n_slices) integer matrix. ``first_slice_deg`` is the azimuth
     of the centre of slice 0 (arm 0's azimuth in the default instrument).
     ``time_limit_s`` defaults to the problem's. ``early_stop`` ends the multistart when
-    a solution meets the matching upper bound in priority and yield.
+    a solution meets the matching upper bound in priority and yield; ``max_stall`` (off
+    by default, as in the thesis) ends it after that many iterations without improvement.
     """
 
     alpha: float = 0.2
@@ -68,6 +69,7 @@ class SemiGreedyOptions:
     first_slice_deg: float = 0.0
     local_search: bool = True
     early_stop: bool = True
+    max_stall: int | None = None
     time_limit_s: float | None = None
 
 
@@ -80,6 +82,8 @@ def _validate_options(opts: SemiGreedyOptions) -> None:
         raise InputError("n_iter", f"must be an integer >= 1, got {opts.n_iter!r}")
     if opts.arm_selection not in ("gas", "pbas"):
         raise InputError("arm_selection", f"must be 'gas' or 'pbas', got {opts.arm_selection!r}")
+    if opts.max_stall is not None and (isinstance(opts.max_stall, bool) or opts.max_stall < 1):
+        raise InputError("max_stall", f"must be an integer >= 1 or None, got {opts.max_stall!r}")
     if opts.time_limit_s is not None and not opts.time_limit_s > 0:
         raise InputError("time_limit_s", f"must be > 0, got {opts.time_limit_s!r}")
 
@@ -591,6 +595,8 @@ def solve_semigreedy(problem: ConfigProblem, **options) -> ConfigSolution:
         if best_key is None or key[:2] > best_key[:2] or (
                 key[:2] == best_key[:2] and key[2] > best_key[2] + _DISP_EPS):
             best, best_key, best_iter = s, key, it
+        elif opts.max_stall is not None and it - best_iter >= opts.max_stall:
+            break
         if opts.early_stop and best_key[0] >= st.ub_priority and best_key[1] >= st.ub_yield:
             break
         if time.perf_counter() - t0 > limit:
