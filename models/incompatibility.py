@@ -27,13 +27,14 @@ from models.kinematics import inverse_fov, tip_fov
 FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV scale
 PARK = -1  # target index of a park assignment
 FIXED = -2  # target index of a current/fixed (out-of-service) location
+BLANK = -3  # target index of a blank-sky location (thesis Algorithm 5 padding)
 
 
 @dataclass(frozen=True)
 class Assignments:
     """All candidate locations of every arm, as parallel arrays of length n_assignments.
 
-    ``target`` is the target index, ``PARK`` (-1) or ``FIXED`` (-2). Sorted by arm, then
+    ``target`` is the target index, ``PARK`` (-1), ``FIXED`` (-2) or ``BLANK`` (-3). Sorted by arm, then
     target; ``arm_start[k]:arm_start[k+1]`` slices the assignments of arm k.
     """
 
@@ -123,8 +124,15 @@ def build_assignments(
     include_park: bool = True,
     current: np.ndarray | None = None,
     fixed: dict[int, tuple[float, float]] | None = None,
+    blank_per_arm: int = 0,
+    seed: int = 0,
 ) -> Reachability:
     """Every (arm, target, IK branch) assignment plus park/current locations (thesis 5.4).
+
+    ``blank_per_arm``: that many blank-sky locations per arm, sampled (with ``seed``) in the
+    free area the arm covers near its own base, in front of its park position — the
+    thesis' padding of idle arms with blank sky (Algorithm 5). They enter the
+    incompatibility structure like any location, so allocators need no geometry calls.
 
     ``current``: optional (n_arms, 2) joint angles added as an extra location per arm (when
     it differs from park). ``fixed``: arm -> (theta1, theta2) for arms out of service; such
@@ -168,6 +176,11 @@ def build_assignments(
                 ex_k.append(k)
                 ex_t.append(FIXED)
                 ex_q.append(c)
+        if blank_per_arm:
+            for q in sample_blank_sky(instrument, int(k), blank_per_arm, seed):
+                ex_k.append(k)
+                ex_t.append(BLANK)
+                ex_q.append(q)
     ex_q = np.asarray(ex_q, float).reshape(-1, 2)
     arm = np.concatenate([k_idx, np.asarray(ex_k, int)])
     target = np.concatenate([t_idx, np.asarray(ex_t, int)])
@@ -182,6 +195,33 @@ def build_assignments(
                               th1, th2, tip[:, 0], tip[:, 1], arm_start)
     arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
     return Reachability(n_t, arms_per_target, assignments)
+
+
+def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` feasible configurations of ``arm`` whose tip lies in the outer FOV ring in
+    front of its base (between its neighbours), for blank-sky exposures (thesis Algorithm 5).
+
+    Deterministic for a given seed; drawn by rejection in joint space around the park
+    configuration so the arm stays retracted and out of the crowded centre.
+    """
+    from models.kinematics import Links, in_zoa
+
+    rng = np.random.default_rng([seed, arm])
+    links = Links.of(instrument, arm)
+    a = instrument.arms[arm]
+    out = np.zeros((0, 2))
+    r_fov = instrument.fov_radius_mm
+    for _ in range(50):
+        t1 = rng.uniform(max(a.theta1_min_rad, a.park_theta1_rad - 0.6), a.park_theta1_rad, 8 * n)
+        t2 = a.park_theta2_rad + rng.uniform(-0.8, 0.8, 8 * n)
+        ok = ~in_zoa(t1, t2, links)
+        tip = tip_fov(instrument, arm, t1, t2)
+        r = np.hypot(tip[:, 0], tip[:, 1])
+        ok &= (r > 0.6 * r_fov) & (r < r_fov)
+        out = np.vstack([out, np.column_stack([t1[ok], t2[ok]])])
+        if len(out) >= n:
+            break
+    return out[:n]
 
 
 def _joint_bounds(instrument: Instrument, k: int) -> dict[str, tuple[np.ndarray, float]]:
@@ -358,10 +398,13 @@ def incompatibility_for_targets(
     include_park: bool = True,
     current: np.ndarray | None = None,
     fixed: dict[int, tuple[float, float]] | None = None,
+    blank_per_arm: int = 0,
+    seed: int = 0,
 ) -> Incompatibility:
     """Reachability plus incompatibility for FOV targets, with per-phase timings."""
     t0 = time.perf_counter()
-    reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed)
+    reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
+                              blank_per_arm=blank_per_arm, seed=seed)
     t1 = time.perf_counter()
     inc = compute_incompatibility(instrument, reach, buffer_mm)
     inc.timings_s["reachability"] = t1 - t0

@@ -6,9 +6,16 @@ import fcl
 import numpy as np
 
 from models.collision import fcl_arm_objects
-from models.incompatibility import FIXED, PARK, build_assignments, incompatibility_for_targets
+from models.incompatibility import (
+    BLANK,
+    FIXED,
+    PARK,
+    build_assignments,
+    incompatibility_for_targets,
+    sample_blank_sky,
+)
 from models.instrument import default_instrument
-from models.kinematics import inverse_fov, tip_fov
+from models.kinematics import Links, in_zoa, inverse_fov, tip_fov
 
 INS = default_instrument()
 
@@ -41,7 +48,8 @@ def brute_force_pairs(inc) -> set[tuple[int, int]]:
 def test_incompatibility_equals_brute_force_fcl_on_60_targets() -> None:
     rng = np.random.default_rng(21)
     x, y = random_fov_targets(rng, 60)
-    inc = incompatibility_for_targets(INS, x, y)
+    inc = incompatibility_for_targets(INS, x, y, blank_per_arm=2)
+    assert (inc.assignments.target == BLANK).sum() == 24
     got = {tuple(p) for p in inc.pairs.tolist()}
     expected = brute_force_pairs(inc)
     assert len(expected) > 1000
@@ -118,3 +126,14 @@ def test_larger_buffer_only_adds_pairs() -> None:
     s = {tuple(p) for p in small.pairs.tolist()}
     b = {tuple(p) for p in big.pairs.tolist()}
     assert s < b
+
+
+def test_blank_sky_locations_are_feasible_and_deterministic() -> None:
+    for k in (0, 5, 11):
+        q = sample_blank_sky(INS, k, 6, seed=3)
+        assert q.shape == (6, 2)
+        assert not in_zoa(q[:, 0], q[:, 1], Links.of(INS, k)).any()
+        tip = tip_fov(INS, k, q[:, 0], q[:, 1])
+        assert (np.hypot(tip[:, 0], tip[:, 1]) < INS.fov_radius_mm).all()
+        assert np.array_equal(q, sample_blank_sky(INS, k, 6, seed=3))
+        assert not np.array_equal(q, sample_blank_sky(INS, k, 6, seed=4))
