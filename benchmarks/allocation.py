@@ -1,0 +1,102 @@
+"""Allocation benchmark (issue 4): thesis protocol 5.5.3 + dense field + one configuration.
+
+Prints JSON.  ``--smoke`` for a quick CI-size run, ``--instances N`` per (distribution, size).
+Fields: uniform in the 250 mm FOV, heavily clustered Gaussian (sigma 30 mm) and weakly
+clustered Gaussian (sigma 60 mm) about the centre, clipped to the FOV; priorities 10 % 500,
+40 % 100, 40 % 10, 10 % 1 (thesis 5.5.3).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import time
+
+import numpy as np
+
+from models.instrument import default_instrument
+from models.types import PlaneTargets
+from solvers.allocation import allocate
+
+SIGMA_MM = {"uniform": None, "heavy": 30.0, "weak": 60.0}
+
+
+def make_field(n: int, dist: str, rng: np.random.Generator, radius_mm: float = 125.0) -> PlaneTargets:
+    sig = SIGMA_MM[dist]
+    if sig is None:
+        r = radius_mm * np.sqrt(rng.random(n))
+        a = rng.random(n) * 2 * np.pi
+        x, y = r * np.cos(a), r * np.sin(a)
+    else:
+        pts = np.zeros((0, 2))
+        while len(pts) < n:
+            p = rng.normal(0.0, sig, (2 * n, 2))
+            pts = np.vstack([pts, p[np.hypot(p[:, 0], p[:, 1]) <= radius_mm]])
+        x, y = pts[:n, 0], pts[:n, 1]
+    pr = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
+    return PlaneTargets.from_lists([f"t{i}" for i in range(n)], x, y, pr)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--smoke", action="store_true")
+    ap.add_argument("--instances", type=int, default=20)
+    ap.add_argument("--solver", default="cpsat")
+    ap.add_argument("--sizes", default="96,192,384")
+    ap.add_argument("--dists", default="uniform,heavy,weak")
+    ap.add_argument("--dense", type=int, default=1200)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    ins = default_instrument()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    n_inst = args.instances
+    if args.smoke:
+        sizes, n_inst, args.dense, args.repeats = [96], 2, 200, 1
+    out: dict = {"solver": args.solver, "protocol": {}, "one_configuration_384": {}, "dense": {}}
+    for dist in args.dists.split(","):
+        for n in sizes:
+            rng = np.random.default_rng(1000 * n + hash(dist) % 997)
+            counts, greedy, walls, lb = [], [], [], []
+            for _ in range(n_inst):
+                f = make_field(n, dist, rng)
+                t = time.perf_counter()
+                r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=120.0)
+                walls.append(time.perf_counter() - t)
+                assert r.stats["field_completeness"] == 1.0 or r.unallocated
+                counts.append(r.stats["n_configurations"])
+                greedy.append(r.stats["n_configurations_greedy"])
+                lb.append(r.stats["lower_bound_configurations"])
+            out["protocol"][f"{dist}_{n}"] = {
+                "instances": n_inst, "mean_configurations": statistics.mean(counts),
+                "mean_configurations_before_repack": statistics.mean(greedy),
+                "ceil_t_over_12": math.ceil(n / 12), "mean_lower_bound": statistics.mean(lb),
+                "max_configurations": max(counts), "median_wall_s": statistics.median(walls),
+            }
+            print(json.dumps({f"{dist}_{n}": out["protocol"][f"{dist}_{n}"]}), flush=True)
+    rng = np.random.default_rng(7)
+    one = []
+    for _ in range(max(args.repeats, 3)):
+        f = make_field(384, "uniform", rng)
+        t = time.perf_counter()
+        allocate(ins, f, solver=args.solver, configurations="one")
+        one.append(time.perf_counter() - t)
+    out["one_configuration_384"] = {"median_wall_s_including_incompatibility": statistics.median(one)}
+    walls, counts = [], []
+    for i in range(args.repeats):
+        f = make_field(args.dense, "weak", np.random.default_rng(100 + i))
+        t = time.perf_counter()
+        r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=120.0)
+        walls.append(time.perf_counter() - t)
+        counts.append(r.stats["n_configurations"])
+        out["dense"].setdefault("runs", []).append({k: r.stats[k] for k in (
+            "n_configurations", "n_configurations_greedy", "lower_bound_configurations", "field_completeness",
+            "priority_completeness", "timers_s", "stop_reason")})
+    out["dense"].update({"targets": args.dense, "median_wall_s": statistics.median(walls), "configurations": counts,
+                         "ceil_t_over_12": math.ceil(args.dense / 12)})
+    print(json.dumps(out, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,148 @@
+"""Top-level allocation entry point (thesis ch. 5): one configuration or a full sequence.
+
+``allocate`` validates options (``InputError`` naming the field), picks the single-
+configuration back-end (exact ILP on HiGHS or CP-SAT, or the semi-greedy heuristic) and
+runs :func:`solvers.sequencing.sequence_configurations`.  ``position_angles_deg`` adds the
+position-angle search of thesis 7.3: the field is rotated about the FOV centre by each
+angle, every rotation is sequenced in parallel threads (the solvers release the GIL) and
+the rotation with the fewest configurations, then highest priority completeness, wins.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from functools import partial
+
+import numpy as np
+
+from models.errors import InputError
+from models.instrument import Instrument
+from models.types import AllocationResult, PlaneTargets
+from solvers.problem import ConfigProblem, ConfigSolution
+from solvers.sequencing import Progress, sequence_configurations
+
+METHODS = ("ilp", "semigreedy")
+SOLVERS = ("highs", "cpsat")
+CONFIG_MODES = ("one", "all")
+ILP_OPTIONS = {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level", "interface"}
+SEQ_OPTIONS = {"config_time_limit_s", "mip_rel_gap", "threads", "tie_break", "repack", "repack_max_window",
+               "repack_time_limit_s", "max_configurations"}
+
+
+def _solver_fn(method: str, solver: str, options: dict) -> Callable[[ConfigProblem], ConfigSolution]:
+    if method == "semigreedy":
+        try:
+            from solvers.semigreedy import solve_semigreedy  # lazy: lands with issue 5
+        except ImportError as e:
+            raise NotImplementedError("method='semigreedy' needs solvers.semigreedy.solve_semigreedy "
+                                      "(issue 5), which is not available yet") from e
+        return partial(solve_semigreedy, **options)
+    from solvers.ilp import solve_ilp_cpsat, solve_ilp_highs
+
+    if solver == "highs":
+        bad = set(options) - {"form", "minimize_move", "candidates_per_arm", "interface"}
+        if bad:
+            raise InputError(f"options.{sorted(bad)[0]}", "not an option of solver 'highs'")
+        return partial(solve_ilp_highs, **options)
+    bad = set(options) - {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level"}
+    if bad:
+        raise InputError(f"options.{sorted(bad)[0]}", "not an option of solver 'cpsat'")
+    return partial(solve_ilp_cpsat, **options)
+
+
+def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
+    """The field rotated by ``angle_deg`` about the FOV centre (a change of position angle)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    x, y = np.asarray(targets.x_mm, float), np.asarray(targets.y_mm, float)
+    return PlaneTargets(targets.ids, c * x - s * y, s * x + c * y, targets.priority)
+
+
+def allocate(
+    instrument: Instrument,
+    targets: PlaneTargets,
+    *,
+    method: str = "ilp",
+    solver: str = "cpsat",
+    configurations: str = "one",
+    time_limit_s: float = 10.0,
+    seed: int = 0,
+    collision_buffer_mm: float | None = None,
+    start_q: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None,
+    progress: Progress | None = None,
+    position_angles_deg: tuple[float, ...] | None = None,
+    **method_options,
+) -> AllocationResult:
+    """Allocate arms to targets: ``configurations="one"`` (best single configuration) or
+    ``"all"`` (sequence to full completeness).  ``time_limit_s`` bounds the whole call.
+
+    ``method_options``: sequencing options (``config_time_limit_s``, ``mip_rel_gap``,
+    ``threads``, ``tie_break``, ``repack``, ``repack_max_window``, ``repack_time_limit_s``,
+    ``max_configurations``) and back-end options (ILP: ``form``, ``minimize_move``,
+    ``candidates_per_arm``; HiGHS: ``interface``; CP-SAT: ``workers``,
+    ``linearization_level``; semi-greedy: whatever ``solve_semigreedy`` accepts).
+    With ``position_angles_deg`` the returned stats hold ``position_angle_deg``: the
+    returned x/y of assignments are in the rotated frame of that angle.
+    """
+    if method not in METHODS:
+        raise InputError("method", f"must be one of {METHODS}, got {method!r}")
+    if method == "ilp" and solver not in SOLVERS:
+        raise InputError("solver", f"must be one of {SOLVERS}, got {solver!r}")
+    if configurations not in CONFIG_MODES:
+        raise InputError("configurations", f"must be one of {CONFIG_MODES}, got {configurations!r}")
+    if not (isinstance(time_limit_s, int | float) and math.isfinite(time_limit_s) and time_limit_s > 0):
+        raise InputError("time_limit_s", "must be a positive finite number of seconds")
+    if not isinstance(seed, int | np.integer) or isinstance(seed, bool):
+        raise InputError("seed", "must be an integer")
+    if collision_buffer_mm is not None and not (math.isfinite(collision_buffer_mm) and collision_buffer_mm >= 0):
+        raise InputError("collision_buffer_mm", "must be a finite number >= 0")
+    if start_q is not None:
+        start_q = np.asarray(start_q, float)
+        if start_q.shape != (instrument.n_arms, 2) or not np.isfinite(start_q).all():
+            raise InputError("start_q", f"must be {instrument.n_arms} finite (theta1_rad, theta2_rad) pairs")
+    for k, q in (fixed or {}).items():
+        if not (isinstance(k, int | np.integer) and 0 <= k < instrument.n_arms):
+            raise InputError(f"fixed[{k}]", f"arm index must be in 0..{instrument.n_arms - 1}")
+        if len(q) != 2 or not all(math.isfinite(v) for v in q):
+            raise InputError(f"fixed[{k}]", "must be a finite (theta1_rad, theta2_rad) pair")
+    seq_opts = {k: method_options.pop(k) for k in list(method_options) if k in SEQ_OPTIONS}
+    if configurations == "one":
+        seq_opts["max_configurations"] = 1
+    for name in ("config_time_limit_s", "repack_time_limit_s"):
+        v = seq_opts.get(name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise InputError(name, "must be a positive finite number of seconds")
+    mc = seq_opts.get("max_configurations")
+    if mc is not None and not (isinstance(mc, int) and mc >= 1):
+        raise InputError("max_configurations", "must be an integer >= 1")
+    if method == "ilp":
+        form = method_options.get("form", "aggregated")
+        if form not in ("aggregated", "pairwise"):
+            raise InputError("form", "must be 'aggregated' or 'pairwise'")
+    solve_one = _solver_fn(method, solver, method_options)
+    seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
+
+    def run(tgts: PlaneTargets) -> AllocationResult:
+        return sequence_configurations(instrument, tgts, solve_one, start_q=start_q, fixed=fixed,
+                                       buffer_mm=collision_buffer_mm, time_limit_s=time_limit_s, seed=int(seed),
+                                       progress=progress, **seq_opts)
+
+    if not position_angles_deg:
+        return run(targets)
+    angles = [float(a) for a in position_angles_deg]
+    with ThreadPoolExecutor(max_workers=min(len(angles), 4)) as ex:
+        results = list(ex.map(lambda a: run(rotate_targets(targets, a)), angles))
+
+    def key(i: int):
+        s = results[i].stats
+        return (-s["field_completeness"], s["n_configurations"], -s["priority_completeness"])
+
+    best = min(range(len(angles)), key=key)
+    r = results[best]
+    stats = dict(r.stats, position_angle_deg=angles[best],
+                 position_angle_search=[{"angle_deg": a, "n_configurations": x.stats["n_configurations"],
+                                         "priority_completeness": x.stats["priority_completeness"]}
+                                        for a, x in zip(angles, results, strict=True)])
+    return AllocationResult(r.configurations, r.unallocated, stats)

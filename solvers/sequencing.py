@@ -1,0 +1,307 @@
+"""Sequencing of observational configurations until a field is complete (thesis 5.5).
+
+The thesis protocol: allocate one configuration, remove its targets, repeat with the
+pending ones until every target is observed.  Here:
+
+* the reachability / incompatibility structure is computed ONCE for the whole field; each
+  configuration is a :class:`ConfigProblem` over it with ``available`` = still pending;
+* every solution is re-checked by :func:`solvers.problem.check_solution` (geometry, not the
+  table) before it becomes a :class:`Configuration` — an unverified one raises;
+* the next configuration's ``start_q`` is the previous configuration's arm positions
+  (longest-move criterion, eq. 5.16);
+* beyond the thesis: (1) a tie-break among equal-priority, equal-yield solutions in favour
+  of hard-to-place targets (few arms reach them), with weights that cannot trade priority
+  or yield away (solvers.ilp.safe_weights); (2) a *tail repacking* pass: the targets of
+  the last W configurations are re-packed into W - 1 configurations by one multi-
+  configuration CP-SAT model (each pooled target exactly once, per-configuration
+  eqs. 5.13–5.15), repeated while it succeeds and the count exceeds ceil(t / 12).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from models.incompatibility import Incompatibility, incompatibility_for_targets
+from models.instrument import Instrument
+from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
+from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
+
+Progress = Callable[[float, str], None]
+
+
+class UnverifiedConfigurationError(RuntimeError):
+    """A back-end returned a configuration that fails the independent geometric re-check."""
+
+
+def joint_speeds(instrument: Instrument) -> np.ndarray:
+    return np.column_stack([instrument.arm_array("joint1_speed_rad_s"), instrument.arm_array("joint2_speed_rad_s")])
+
+
+def hard_to_place(incompatibility: Incompatibility, n_arms: int) -> np.ndarray:
+    """(n_targets,) tie-break weight: n_arms - (arms reaching the target), 0 if unreachable."""
+    apt = incompatibility.reachability.arms_per_target
+    return np.where(apt > 0, n_arms - apt, 0).astype(np.int64)
+
+
+def make_configuration(index: int, problem: ConfigProblem, chosen: np.ndarray, targets: PlaneTargets,
+                       status: str, stats: dict) -> Configuration:
+    """One :class:`Configuration` with one ArmAssignment per arm (kind target/park/fixed)."""
+    a = problem.assignments
+    out = []
+    for k, c in enumerate(np.asarray(chosen, int)):
+        t = int(a.target[c])
+        kind = "target" if t >= 0 else ("park" if t == -1 else "fixed")
+        out.append(ArmAssignment(k, kind, float(a.theta1_rad[c]), float(a.theta2_rad[c]), float(a.x_mm[c]),
+                                 float(a.y_mm[c]), t if t >= 0 else None, targets.ids[t] if t >= 0 else None))
+    total, yld, _ = evaluate(problem, chosen)
+    return Configuration(index, tuple(out), total, yld, "optimal" if status == "optimal" else "feasible", stats)
+
+
+def _verify(instrument: Instrument, problem: ConfigProblem, chosen: np.ndarray) -> None:
+    errors = check_solution(instrument, problem, chosen)
+    if errors:
+        raise UnverifiedConfigurationError("; ".join(errors))
+
+
+def sequence_configurations(
+    instrument: Instrument,
+    targets: PlaneTargets,
+    solve_one: Callable[[ConfigProblem], ConfigSolution],
+    *,
+    max_configurations: int | None = None,
+    start_q: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None,
+    buffer_mm: float | None = None,
+    time_limit_s: float = 60.0,
+    config_time_limit_s: float = 5.0,
+    mip_rel_gap: float = 0.0,
+    threads: int = 2,
+    seed: int = 0,
+    tie_break: bool = True,
+    repack: bool = True,
+    repack_max_window: int = 6,
+    repack_time_limit_s: float = 2.0,
+    progress: Progress | None = None,
+    incompatibility: Incompatibility | None = None,
+) -> AllocationResult:
+    """Configurations until every reachable target is allocated or nothing more can be.
+
+    ``time_limit_s`` bounds the whole sequence (pending targets then get reason
+    ``no_time``); ``config_time_limit_s`` each single solve.  ``max_configurations=1`` is
+    the "one configuration" mode.  Unallocated targets: ``unreachable`` (no enabled arm
+    reaches them), ``conflict`` (reachable but no further configuration could take them),
+    ``no_time``.
+    """
+    t0 = time.perf_counter()
+    timers: dict[str, float] = {}
+    n = len(targets)
+    n_arms = instrument.n_arms
+    x = np.asarray(targets.x_mm, float)
+    y = np.asarray(targets.y_mm, float)
+    if incompatibility is None:
+        incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed)
+    inc = incompatibility
+    timers["incompatibility_s"] = time.perf_counter() - t0
+    if progress:
+        progress(0.05, "incompatibility ready")
+    priority = np.asarray(targets.priority, dtype=np.int64)
+    unreachable = np.zeros(n, bool)
+    unreachable[inc.reachability.unreachable] = True
+    pending = ~unreachable
+    n_reachable = int(pending.sum())
+    lower_bound = math.ceil(n_reachable / max(len(_active_arms(inc, n_arms)), 1)) if n_reachable else 0
+    speeds = joint_speeds(instrument)
+    q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
+    tie = hard_to_place(inc, n_arms) if tie_break else None
+    xy = np.column_stack([x, y])
+    configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
+    t_solve = 0.0
+    stop_reason = "complete"
+    while pending.any():
+        if max_configurations is not None and len(configs) >= max_configurations:
+            stop_reason = "max_configurations"
+            break
+        remaining = time_limit_s - (time.perf_counter() - t0)
+        if remaining <= 0.01:
+            stop_reason = "no_time"
+            break
+        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, time_limit_s=min(config_time_limit_s, remaining),
+                             mip_rel_gap=mip_rel_gap, threads=threads, seed=seed + len(configs),
+                             target_xy_mm=xy, tie_break=tie)
+        ts = time.perf_counter()
+        sol = solve_one(prob)
+        dt = time.perf_counter() - ts
+        t_solve += dt
+        if sol.status in ("timeout", "infeasible") or (sol.chosen < 0).any():
+            stop_reason = f"solver_{sol.status}"
+            break
+        _verify(instrument, prob, sol.chosen)
+        tg = prob.assignments.target[sol.chosen]
+        tg = tg[tg >= 0]
+        if not len(tg):
+            stop_reason = "conflict"
+            break
+        stats = {"solve_s": dt, "status": sol.status, "gap": sol.gap, "longest_move_s": sol.longest_move_s}
+        configs.append((prob, sol.chosen, sol.status, stats))
+        pending[tg] = False
+        q = prob.assignments.q[sol.chosen]
+        if progress:
+            progress(0.05 + 0.85 * (1 - pending.sum() / max(n_reachable, 1)), f"configuration {len(configs)}")
+    timers["sequence_s"] = t_solve
+    greedy_count = len(configs)
+    if repack and stop_reason == "complete" and len(configs) > lower_bound:
+        tr = time.perf_counter()
+        budget = min(time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
+        configs = _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
+                               repack_max_window, repack_time_limit_s, budget, seed, threads)
+        timers["repack_s"] = time.perf_counter() - tr
+    # build outputs
+    out = []
+    for i, (prob, chosen, status, stats) in enumerate(configs):
+        out.append(make_configuration(i, prob, chosen, targets, status, stats))
+    allocated = np.zeros(n, bool)
+    for c in out:
+        for a in c.assignments:
+            if a.target_index is not None:
+                allocated[a.target_index] = True
+    reason_left = "no_time" if stop_reason in ("no_time", "solver_timeout") else "conflict"
+    if stop_reason == "max_configurations":
+        reason_left = "conflict"
+    unalloc = []
+    for i in np.flatnonzero(~allocated):
+        unalloc.append(Unallocated(int(i), targets.ids[i], "unreachable" if unreachable[i] else reason_left))
+    total_p = sum(int(p) for p in priority)
+    got_p = sum(int(p) for p in priority[allocated])
+    timers["total_s"] = time.perf_counter() - t0
+    stats = {
+        "n_targets": n,
+        "n_reachable": n_reachable,
+        "n_configurations": len(out),
+        "n_configurations_greedy": greedy_count,
+        "lower_bound_configurations": lower_bound,
+        "field_completeness": float(allocated.sum() / n) if n else 1.0,
+        "reachable_completeness": float(allocated.sum() / n_reachable) if n_reachable else 1.0,
+        "priority_completeness": got_p / total_p if total_p else 1.0,
+        "stop_reason": stop_reason,
+        "per_configuration": [{"total_priority": c.total_priority, "arm_yield": c.arm_yield, "status": c.status,
+                               "solve_s": c.stats.get("solve_s")} for c in out],
+        "timers_s": timers,
+        "incompatibility": inc.counts(),
+    }
+    if progress:
+        progress(1.0, "done")
+    return AllocationResult(tuple(out), tuple(unalloc), stats)
+
+
+def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
+    a = inc.assignments
+    return [k for k in range(n_arms) if (a.target[a.of_arm(k)] >= 0).any()]
+
+
+# ------------------------------------------------------------------------------ tail repacking
+
+
+def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
+                 seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None) -> list[np.ndarray] | None:
+    """Multi-configuration model: place every pooled target in one of ``n_configs``
+    configurations (each obeying eqs. 5.13–5.15).  Returns the chosen assignment indices
+    per configuration, or None when no packing was found in time (CP-SAT, exact int)."""
+    from ortools.sat.python import cp_model
+
+    from solvers.ilp import build_model_arrays
+
+    a = inc.assignments
+    n_t = inc.reachability.n_targets
+    avail = np.zeros(n_t, bool)
+    avail[pool] = True
+    n_arms = len(a.arm_start) - 1
+    dummy = ConfigProblem(inc, np.ones(n_t, np.int64), avail, np.zeros((n_arms, 2)), np.ones((n_arms, 2)))
+    m = build_model_arrays(dummy, "aggregated", None, wildcards=False)
+    if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
+        return None
+    model = cp_model.CpModel()
+    x = [[model.NewBoolVar("") for _ in range(m.n_vars)] for _ in range(n_configs)]
+    li = m.le_indices.tolist()
+    for c in range(n_configs):
+        for k in range(n_arms):
+            model.AddExactlyOne([x[c][j] for j in m.eq_indices[m.eq_indptr[k]:m.eq_indptr[k + 1]]])
+        # conflict rows only (target rows are replaced by the global cover rows below)
+        for i in range(m.n_target_rows, len(m.le_indptr) - 1):
+            model.AddAtMostOne([x[c][j] for j in li[m.le_indptr[i]:m.le_indptr[i + 1]]])
+    tgt = a.target[m.var]
+    for t in pool:
+        cols = np.flatnonzero(tgt == t)
+        model.AddExactlyOne([x[c][j] for c in range(n_configs) for j in cols])
+    # symmetry breaking: the hardest target (fewest columns) goes to configuration 0
+    counts = np.bincount(tgt[tgt >= 0], minlength=n_t)[pool]
+    t_hard = pool[int(np.argmin(counts))]
+    model.Add(sum(x[0][j] for j in np.flatnonzero(tgt == t_hard)) == 1)
+    if hint:
+        col_of = {int(v): j for j, v in enumerate(m.var)}
+        for c, ch in enumerate(hint[:n_configs]):
+            for v in ch:
+                if int(v) in col_of:
+                    model.AddHint(x[c][col_of[int(v)]], True)
+    solver = cp_model.CpSolver()
+    solver.parameters.max_time_in_seconds = float(time_limit_s)
+    solver.parameters.num_workers = max(2, threads)
+    solver.parameters.random_seed = int(seed)
+    code = solver.Solve(model)
+    if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+        return None
+    out = []
+    for c in range(n_configs):
+        xv = np.array([solver.BooleanValue(v) for v in x[c]], dtype=float)
+        ch = np.full(n_arms, -1, np.int64)
+        for k in range(n_arms):
+            row = m.eq_indices[m.eq_indptr[k]:m.eq_indptr[k + 1]]
+            ch[k] = m.var[row[int(np.argmax(xv[row]))]]
+        out.append(ch)
+    return out
+
+
+def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, max_window,
+                 attempt_s, budget_s, seed, threads):
+    """Re-pack the targets of the last W configurations into W - 1 while it succeeds."""
+    t0 = time.perf_counter()
+    a = inc.assignments
+    window = 2
+    while len(configs) > lower_bound and window <= min(max_window, len(configs)):
+        left = budget_s - (time.perf_counter() - t0)
+        if left <= 0.05:
+            break
+        tail = configs[-window:]
+        pool = np.concatenate([a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in tail])
+        n_arms = len(a.arm_start) - 1
+        if len(pool) > n_arms * (window - 1):
+            window += 1
+            continue
+        ts = time.perf_counter()
+        packed = pack_targets(inc, pool, window - 1, time_limit_s=min(attempt_s, left), seed=seed,
+                              threads=threads, hint=[ch for _, ch, _, _ in tail])
+        dt = time.perf_counter() - ts
+        if packed is None:
+            window += 1
+            continue
+        # rebuild the tail as verified configurations, highest priority first
+        head = configs[:-window]
+        q = head[-1][0].assignments.q[head[-1][1]] if head else instrument.park_configuration
+        pending = np.zeros(len(priority), bool)
+        pending[pool] = True
+        packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
+        new = []
+        for ch in packed:
+            prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, target_xy_mm=xy, tie_break=tie)
+            _verify(instrument, prob, ch)
+            tg = a.target[ch]
+            pending[tg[tg >= 0]] = False
+            new.append((prob, ch, "feasible", {"solve_s": dt / len(packed), "status": "repacked",
+                                                "longest_move_s": evaluate(prob, ch)[2]}))
+            q = a.q[ch]
+        configs = head + new
+        window = 2
+    return configs
