@@ -1,0 +1,366 @@
+"""Prioritized multi-arm motion planning with replanning, and chains of configurations.
+
+Thesis Algorithm 6: arms are planned one at a time in priority order, each against the
+obstacle-time set of the arms planned before it (:mod:`planner.single_arm`). Priorities
+follow 6.4.1: the estimated travel time (eq. 6.23) of each arm's shortest roadmap path,
+longest first, so the arm that bounds the makespan gets the empty workspace.
+
+When an arm finds no trajectory the planner does not give up (thesis 6.4.2 suggests
+re-running with other priorities); within ``max_attempts`` / ``time_budget_s`` it cycles
+through strategies:
+
+* priority rotation: the failed arm is promoted to the front of the order;
+* time reversal (SDSS-V / kaiju, Sayres et al. 2021): plan goal -> start instead and play
+  the result backwards. Collision-freeness, speeds and stop counts are invariant under
+  t -> T - t; what changes is that the crowded end of the move becomes the *start* of the
+  search, where prioritized planning's goal-conflict waits become departure waits. Forward
+  and reversed attempts alternate, each direction keeping its own rotated order.
+
+Arms whose start equals their goal are planned like the others, so a resting arm in the way
+of a higher-priority arm can step aside along a start -> v -> start roadmap path (the
+thesis' "move an arrived arm out of the way" future work, in its simplest form).
+
+``plan_motion`` returns status "ok" only after :func:`planner.verify.verify_trajectories`
+passes; otherwise "failed" with the failing arms named. Unplannable input (a start or goal
+in the ZoA, colliding goal configurations) fails fast; only malformed input raises
+:class:`models.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from models.collision import body_segments_mm, clearance_mm, colliding_arm_pairs
+from models.errors import InputError
+from models.instrument import Instrument
+from models.kinematics import direct_move_time_s
+from models.types import ArmTrajectory, MotionPlan
+from planner.commands import compress_waypoints, controller_commands
+from planner.geometry import ArmGeom
+from planner.roadmap import RoadmapParams, RoadmapPath, candidate_paths
+from planner.single_arm import (
+    ArmPlan,
+    ObstacleTime,
+    SearchParams,
+    SearchStats,
+    plan_arm,
+    step_samples,
+)
+from planner.verify import verify_trajectories
+
+TWO_PI = 2.0 * np.pi
+
+
+def _check_q(instrument: Instrument, q, name: str) -> np.ndarray:
+    a = np.asarray(q, dtype=float)
+    if a.shape != (instrument.n_arms, 2):
+        raise InputError(name, f"expected shape ({instrument.n_arms}, 2), got {a.shape}")
+    bad = np.argwhere(~np.isfinite(a))
+    if len(bad):
+        raise InputError(f"{name}[{bad[0][0]}]", "joint angles must be finite")
+    return a
+
+
+def _failed(instrument: Instrument, start_q: np.ndarray, arms: Sequence[int], stats: dict) -> MotionPlan:
+    trajs = tuple(ArmTrajectory(k, np.array([0.0]), start_q[k, :1].copy(), start_q[k, 1:].copy())
+                  for k in range(instrument.n_arms))
+    return MotionPlan("failed", float("nan"), trajs, tuple(sorted({int(a) for a in arms})), stats)
+
+
+def _same_angle(a: float, b: float, tol: float = 1e-9) -> bool:
+    return abs((a - b + np.pi) % TWO_PI - np.pi) <= tol
+
+
+def _precheck(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray,
+              buffer_mm: float) -> dict[int, str]:
+    """Reasons why arms cannot be planned at all (thesis 6.3.1 assumes feasible ends)."""
+    reasons: dict[int, str] = {}
+    enabled = set(instrument.enabled_arms)
+    for k, g in enumerate(geoms):
+        if g.in_zoa(start_q[k, 0], start_q[k, 1]):
+            reasons[k] = "start in zone of avoidance or beyond joint limits"
+        elif g.in_zoa(goal_q[k, 0], goal_q[k, 1]):
+            reasons[k] = "goal in zone of avoidance or beyond joint limits"
+        elif k not in enabled and not (abs(start_q[k, 0] - goal_q[k, 0]) <= 1e-9
+                                       and _same_angle(start_q[k, 1], goal_q[k, 1])):
+            reasons[k] = "arm is disabled but its goal differs from its start"
+    for name, q in (("goal", goal_q), ("start", start_q)):
+        for a, b in colliding_arm_pairs(instrument, q, buffer_mm):
+            for x, y in ((a, b), (b, a)):
+                reasons.setdefault(x, f"{name} configuration collides with arm {y}")
+    return reasons
+
+
+def _path_samples(path: RoadmapPath, geom: ArmGeom, dt_s: float, n_samples: int) -> np.ndarray:
+    """Configurations along a roadmap path at full speed from t = 0, every ``dt_s`` (then at rest)."""
+    wp = path.waypoints
+    te = np.concatenate([[0.0], np.cumsum(geom.move_time_s(wp[:-1], wp[1:]))]) if len(wp) > 1 else np.zeros(1)
+    t = np.arange(n_samples) * dt_s
+    return np.column_stack([np.interp(t, te, wp[:, 0]), np.interp(t, te, wp[:, 1])])
+
+
+def conflict_order(instrument: Instrument, geoms: list[ArmGeom], paths: list[list[RoadmapPath]],
+                   start_q: np.ndarray, goal_q: np.ndarray, arms: Sequence[int], est: dict[int, float],
+                   buffer_mm: float, dt_s: float = 1.0) -> list[int]:
+    """Priority order: longest estimated travel first (thesis 6.4.1), repaired by conflicts.
+
+    Prioritized planning only handles a conflict well one way round: a lower-priority arm
+    can wait for a higher one to pass its *goal* (goal conflict, 6.3.4.5), but it cannot
+    move out of the way of a higher-priority arm that sweeps through its *start* (the higher
+    arm planned without seeing it). So each arm's most promising path, timed at full speed,
+    is tested against every other arm parked at its start and at its goal:
+    hitting j's start puts j before i, hitting j's goal puts i before j. The order is a
+    topological sort of these constraints, choosing the longest estimated travel among the
+    free arms (and, on a cycle, among all remaining arms).
+    """
+    arms = list(arms)
+    if len(arms) < 2:
+        return arms
+    K = int(max(est[k] for k in arms) / dt_s) + 2
+    qs = np.stack([_path_samples(paths[k][0], geoms[k], dt_s, K) for k in arms])  # (n, K, 2)
+    a = np.asarray(arms)
+    S, E, R = body_segments_mm(instrument, a[:, None], qs[..., 0], qs[..., 1])  # (n, K, nb, 2)
+    Ss, Es, Rs = body_segments_mm(instrument, a, start_q[a, 0], start_q[a, 1])  # (n, nb, 2)
+    Sg, Eg, Rg = body_segments_mm(instrument, a, goal_q[a, 0], goal_q[a, 1])
+    n = len(a)
+
+    def hits(Sx, Ex, Rx) -> np.ndarray:
+        c = clearance_mm((S[:, None], E[:, None], R[:, None]),
+                         (Sx[None, :, None], Ex[None, :, None], Rx[None, :, None]))  # (n, n, K)
+        h = (c < buffer_mm).any(-1)
+        np.fill_diagonal(h, False)
+        return h
+
+    before = np.zeros((n, n), bool)  # before[x, y]: x must be planned before y
+    hs = hits(Ss, Es, Rs)  # hs[i, j]: path i hits start j -> j before i
+    hg = hits(Sg, Eg, Rg)  # hg[i, j]: path i hits goal j -> i before j
+    before |= hs.T
+    before |= hg
+    rank = {k: (-est[k], k) for k in arms}
+    remaining = set(range(n))
+    order: list[int] = []
+    while remaining:
+        free = [x for x in remaining if not any(before[y, x] for y in remaining if y != x)]
+        pool = free or list(remaining)
+        x = min(pool, key=lambda i: rank[arms[i]])
+        order.append(arms[x])
+        remaining.remove(x)
+    return order
+
+
+def _assemble(instrument: Instrument, plans: dict[int, ArmPlan], start_q: np.ndarray, dt_s: float,
+              reverse: bool) -> tuple[tuple[ArmTrajectory, ...], float]:
+    """Per-arm way-points and commands; reversed plans are played backwards (kaiju)."""
+    T = max(p.arrival_step for p in plans.values())
+    out = []
+    for k in range(instrument.n_arms):
+        q = plans[k].q_steps
+        if reverse:
+            # forward arm waits at its start until T - T_k, then retraces the reversed path
+            q = np.concatenate([np.repeat(q[-1:], T - (len(q) - 1), axis=0), q[::-1]])
+            # the reverse search ends at start modulo 2 pi: shift theta2 back onto the real start
+            q = q.copy()
+            q[:, 1] += TWO_PI * np.round((start_q[k, 1] - q[0, 1]) / TWO_PI)
+        t = np.arange(len(q)) * dt_s
+        t, q = compress_waypoints(t, q)
+        if len(t) > 1 and np.all(np.abs(q - q[0]) <= 1e-15):
+            t, q = t[:1], q[:1]
+        out.append(ArmTrajectory(k, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1])))
+    return tuple(out), T * dt_s
+
+
+def plan_motion(
+    instrument: Instrument,
+    start_q: np.ndarray,
+    goal_q: np.ndarray,
+    *,
+    dt_s: float = 6.0,
+    dt_col_s: float = 0.1,
+    max_start_stop: int = 1,
+    collision_buffer_mm: float | None = None,
+    seed: int = 0,
+    horizon_s: float = 220.0,
+    max_attempts: int = 10,
+    time_budget_s: float = 10.0,
+    grid: tuple[int, int] = (8, 6),
+    strategies: Sequence[str] = ("forward", "reverse"),
+    rpp: bool = False,
+    rpp_max_paths: int = 8,
+    turn_sense: int = 1,
+    turn_bias_s: float = 0.0,
+) -> MotionPlan:
+    """Collision-free, verified trajectories of all arms from ``start_q`` to ``goal_q`` (thesis 6.3).
+
+    ``start_q`` / ``goal_q`` are (n_arms, 2) joint angles (theta1, theta2) in rad; the
+    start's theta2 may be unwrapped (continuing a previous trajectory), the goal's counts
+    modulo 2 pi. Returns a :class:`~models.types.MotionPlan`: per arm timed way-points
+    (linear joint motion between them; the MCC2 really executes each move as a trapezoidal
+    LSPB profile from rest to rest) and controller commands per joint. ``status`` is "ok"
+    only when the independent verifier passed; "failed" plans name ``failed_arms`` and give
+    reasons in ``stats["reasons"]`` (never an exception for an unplannable case).
+
+    Parameters follow thesis table 6.1: ``dt_s`` the motion-action step, ``dt_col_s`` the
+    collision-check step (a sub-multiple of ``dt_s``), ``max_start_stop`` the stops allowed
+    per arm, ``horizon_s`` T_f. Replanning (priority rotation, time reversal) runs within
+    ``max_attempts`` and ``time_budget_s``. Same input and ``seed`` -> same plan.
+    """
+    t0 = time.perf_counter()
+    start_q = _check_q(instrument, start_q, "start_q")
+    goal_q = _check_q(instrument, goal_q, "goal_q")
+    if not (dt_s > 0 and dt_col_s > 0 and math.isfinite(dt_s) and math.isfinite(dt_col_s)):
+        raise InputError("dt_s", "dt_s and dt_col_s must be positive")
+    m = max(1, int(round(dt_s / dt_col_s)))
+    if abs(m * dt_col_s - dt_s) > 1e-6 * dt_s:
+        raise InputError("dt_col_s", "must divide dt_s into a whole number of collision steps")
+    if max_start_stop < 0:
+        raise InputError("max_start_stop", "must be >= 0")
+    buffer_mm = instrument.collision_buffer_mm if collision_buffer_mm is None else float(collision_buffer_mm)
+    n = instrument.n_arms
+    geoms = [ArmGeom.of(instrument, k) for k in range(n)]
+    v1 = instrument.arm_array("joint1_speed_rad_s")
+    v2 = instrument.arm_array("joint2_speed_rad_s")
+    lower_bound = float(np.max(direct_move_time_s(start_q, goal_q, v1, v2), initial=0.0))
+    stats: dict = {"lower_bound_s": lower_bound, "attempts": 0, "collision_checks": 0,
+                   "states_explored": 0, "paths_explored": 0, "attempt_log": []}
+
+    reasons = _precheck(instrument, geoms, start_q, goal_q, buffer_mm)
+    if reasons:
+        stats["reasons"] = {int(k): v for k, v in reasons.items()}
+        stats["compute_s"] = time.perf_counter() - t0
+        return _failed(instrument, start_q, list(reasons), stats)
+
+    params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
+                          horizon_steps=max(1, math.ceil(horizon_s / dt_s - 1e-9)))
+    rpp_params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
+                              horizon_steps=params.horizon_steps, max_paths=rpp_max_paths,
+                              max_states_per_arm=2000)
+    rparams = RoadmapParams(grid=grid, max_edges_per_path=max_start_stop + 1, turn_sense=turn_sense,
+                            turn_bias_s=turn_bias_s)
+    enabled = [k for k in instrument.enabled_arms]
+    disabled = [k for k in range(n) if k not in set(enabled)]
+
+    paths_cache: dict[str, list[list[RoadmapPath]]] = {}
+
+    def paths_for(direction: str) -> list[list[RoadmapPath]]:
+        if direction not in paths_cache:
+            a, b = (start_q, goal_q) if direction == "forward" else (goal_q, start_q)
+            paths_cache[direction] = [
+                candidate_paths(geoms[k], a[k], b[k], np.random.default_rng([seed, k, int(direction == "reverse")]),
+                                rparams) if k in enabled else []
+                for k in range(n)
+            ]
+        return paths_cache[direction]
+
+    # priorities (6.4.1): estimated travel time of the shortest roadmap path, longest first
+    fwd = paths_for("forward")
+    est = {k: (fwd[k][0].est_time_s if fwd[k] else math.inf) for k in enabled}
+    no_path = [k for k in enabled if not fwd[k]]
+    if no_path:
+        stats["reasons"] = {k: "no ZoA-free roadmap path from start to goal" for k in no_path}
+        stats["compute_s"] = time.perf_counter() - t0
+        return _failed(instrument, start_q, no_path, stats)
+    orders = {}
+    for s in strategies:
+        a, b = (start_q, goal_q) if s == "forward" else (goal_q, start_q)
+        orders[s] = conflict_order(instrument, geoms, paths_for(s), a, b, enabled, est, buffer_mm)
+    fail_count: dict[int, int] = {}
+    best_failed: list[int] = []
+    last_reason: dict[int, str] = {}
+
+    for attempt in range(max_attempts):
+        if attempt > 0 and time.perf_counter() - t0 > time_budget_s:
+            break
+        direction = strategies[attempt % len(strategies)]
+        order = orders[direction]
+        paths = paths_for(direction)
+        a_start = start_q if direction == "forward" else goal_q
+        obst = ObstacleTime(m=m, n_steps=params.horizon_steps, buffer_mm=buffer_mm,
+                            nb=max(len(a.bodies) for a in instrument.arms))
+        for k in disabled:
+            obst.add(geoms[k], np.repeat(a_start[k:k + 1], obst.n_samples, axis=0), 0)
+        st = SearchStats()
+        plans: dict[int, ArmPlan] = {
+            k: ArmPlan(k, a_start[k:k + 1].copy(), -1, 1.0) for k in disabled
+        }
+        failed = None
+        for idx, k in enumerate(order):
+            p = None
+            rest = [j for j in order[idx + 1:]]
+            if rpp and rest:
+                # revised prioritized planning (Cap et al. 2015): first try to keep clear of
+                # the arms not yet planned, resting at their starts, so that they can always
+                # wait there; fall back to ignoring them (thesis Algorithm 6)
+                p = plan_arm(geoms[k], paths[k], obst.with_static([(geoms[j], a_start[j]) for j in rest]),
+                             rpp_params, st)
+            if p is None:
+                p = plan_arm(geoms[k], paths[k], obst, params, st)
+            if p is None:
+                failed = k
+                break
+            plans[k] = p
+            obst.add(geoms[k], step_samples(p.q_steps, m, params.horizon_steps), p.arrival_step)
+        stats["attempts"] = attempt + 1
+        stats["collision_checks"] += st.collision_checks
+        stats["states_explored"] += st.states_explored
+        stats["paths_explored"] += st.paths_explored
+        log = {"direction": direction, "order": list(order), "failed_arm": failed}
+        stats["attempt_log"].append(log)
+        if failed is not None:
+            fail_count[failed] = fail_count.get(failed, 0) + 1
+            last_reason[failed] = "no collision-free trajectory within the horizon"
+            order.remove(failed)
+            order.insert(0, failed)  # priority rotation: promote the failed arm
+            continue
+        trajs, makespan = _assemble(instrument, plans, start_q, dt_s, direction == "reverse")
+        rep = verify_trajectories(instrument, trajs, start_q, goal_q, collision_buffer_mm=buffer_mm,
+                                  max_start_stop=max_start_stop)
+        log["verified"] = rep.ok
+        stats["verify_pair_samples"] = rep.pair_samples_checked
+        if rep.ok:
+            stats["strategy"] = direction
+            stats["min_clearance_mm"] = rep.min_clearance_mm
+            stats["compute_s"] = time.perf_counter() - t0
+            return MotionPlan("ok", makespan, trajs, (), stats)
+        # the verifier found what the dt_col sampling missed: promote the arms involved
+        log["violations"] = [(v.kind, v.arms, v.detail) for v in rep.violations[:5]]
+        for a in rep.arms:
+            if a in order:
+                order.remove(a)
+                order.insert(0, a)
+            last_reason[a] = "verification failed: " + rep.violations[0].kind
+        best_failed = list(rep.arms)
+
+    failed_arms = sorted(fail_count, key=lambda a: (-fail_count[a], a)) or best_failed
+    stats["reasons"] = {int(a): last_reason.get(a, "not planned") for a in failed_arms}
+    stats["compute_s"] = time.perf_counter() - t0
+    return _failed(instrument, start_q, failed_arms, stats)
+
+
+def plan_chain(instrument: Instrument, configurations: Sequence[np.ndarray], *,
+               start_q: np.ndarray | None = None, end_q: np.ndarray | None = None,
+               **kwargs) -> list[MotionPlan]:
+    """Plans park -> c1 -> c2 -> ... -> park (one :class:`MotionPlan` per leg, len = len(configs) + 1).
+
+    ``start_q`` / ``end_q`` default to the park configuration. Each leg starts where the
+    previous one really ended (theta2 unwrapped); after a failed leg the next one starts
+    from that leg's intended goal (the arms must be brought there by other means first).
+    ``kwargs`` go to :func:`plan_motion`.
+    """
+    park = instrument.park_configuration
+    seq = [park if start_q is None else np.asarray(start_q, float)]
+    seq += [np.asarray(c, float) for c in configurations]
+    seq.append(park if end_q is None else np.asarray(end_q, float))
+    out = []
+    cur = seq[0]
+    for goal in seq[1:]:
+        p = plan_motion(instrument, cur, goal, **kwargs)
+        out.append(p)
+        if p.status == "ok":
+            cur = np.array([[tr.theta1_rad[-1], tr.theta2_rad[-1]] for tr in p.trajectories])
+        else:
+            cur = goal
+    return out
