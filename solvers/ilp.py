@@ -576,7 +576,9 @@ def _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, t
     model.obj = pyo.Objective(expr=LinearExpression(constant=0, linear_coefs=[float(cost[j]) for j in nz],
                                                    linear_vars=[xs[j] for j in nz]),
                               sense=pyo.maximize if sense_max else pyo.minimize)  # eq. 5.18
-    opt = pyo.SolverFactory("appsi_highs")
+    from pyomo.contrib.appsi.solvers import Highs as AppsiHighs
+
+    opt = AppsiHighs()
     opt.config.time_limit = float(time_limit_s)
     opt.config.mip_gap = float(problem.mip_rel_gap)
     opt.config.load_solution = False

@@ -54,7 +54,7 @@ def make_configuration(index: int, problem: ConfigProblem, chosen: np.ndarray, t
     out = []
     for k, c in enumerate(np.asarray(chosen, int)):
         t = int(a.target[c])
-        kind = "target" if t >= 0 else ("park" if t == -1 else "fixed")
+        kind = "target" if t >= 0 else {-1: "park", -2: "fixed", -3: "blank"}.get(t, "fixed")
         out.append(ArmAssignment(k, kind, float(a.theta1_rad[c]), float(a.theta2_rad[c]), float(a.x_mm[c]),
                                  float(a.y_mm[c]), t if t >= 0 else None, targets.ids[t] if t >= 0 else None))
     total, yld, _ = evaluate(problem, chosen)

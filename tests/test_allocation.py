@@ -1,0 +1,50 @@
+"""Top-level allocate(): option validation, back-end dispatch, position-angle search."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.errors import InputError
+from models.instrument import default_instrument
+from models.types import PlaneTargets
+from solvers.allocation import allocate
+
+INS = default_instrument()
+T = PlaneTargets.from_lists([f"t{i}" for i in range(20)], np.linspace(-80, 80, 20), np.linspace(60, -60, 20),
+                            [500, 100, 10, 1] * 5)
+
+
+@pytest.mark.parametrize("kw,field", [
+    ({"method": "magic"}, "method"), ({"solver": "gurobi"}, "solver"), ({"configurations": "some"}, "configurations"),
+    ({"time_limit_s": -1}, "time_limit_s"), ({"collision_buffer_mm": -2.0}, "collision_buffer_mm"),
+    ({"start_q": np.zeros((3, 2))}, "start_q"), ({"fixed": {99: (0.0, 0.0)}}, "fixed[99]"),
+    ({"form": "triangular"}, "form"), ({"solver": "highs", "workers": 3}, "options.workers"),
+])
+def test_invalid_options_name_the_field(kw, field) -> None:
+    with pytest.raises(InputError) as e:
+        allocate(INS, T, **kw)
+    assert e.value.field == field
+
+
+@pytest.mark.parametrize("solver", ["highs", "cpsat"])
+def test_one_configuration_both_solvers_agree(solver) -> None:
+    r = allocate(INS, T, solver=solver, configurations="one")
+    assert len(r.configurations) == 1
+    ref = allocate(INS, T, solver="cpsat", configurations="one")
+    assert r.configurations[0].total_priority == ref.configurations[0].total_priority
+
+
+def test_all_configurations_and_position_angle_search() -> None:
+    r = allocate(INS, T, configurations="all", position_angles_deg=(0.0, 15.0))
+    assert r.stats["field_completeness"] == 1.0
+    assert r.stats["position_angle_deg"] in (0.0, 15.0)
+    assert len(r.stats["position_angle_search"]) == 2
+
+
+def test_semigreedy_dispatch_is_lazy() -> None:
+    try:
+        import solvers.semigreedy  # noqa: F401
+    except ImportError:
+        with pytest.raises(NotImplementedError):
+            allocate(INS, T, method="semigreedy")

@@ -1,0 +1,100 @@
+"""Sequencing to full completeness (thesis 5.5) and tail repacking."""
+
+from __future__ import annotations
+
+from functools import partial
+
+import numpy as np
+import pytest
+
+from models.collision import fcl_configuration_collisions
+from models.instrument import default_instrument
+from models.kinematics import tip_fov
+from models.types import PlaneTargets
+from solvers.ilp import solve_ilp_cpsat
+from solvers.problem import ConfigSolution
+from solvers.sequencing import UnverifiedConfigurationError, sequence_configurations
+
+INS = default_instrument()
+
+
+def _targets(rng, n, radius=125.0):
+    r = radius * np.sqrt(rng.random(n))
+    a = rng.random(n) * 2 * np.pi
+    pr = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1])
+    return PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), pr)
+
+
+def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
+    t = _targets(np.random.default_rng(0), 40)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, time_limit_s=60)
+    seen = set()
+    for c in r.configurations:
+        q = c.q
+        assert fcl_configuration_collisions(INS, q) == []
+        tips = tip_fov(INS, np.arange(INS.n_arms), q[:, 0], q[:, 1])
+        assert [a.arm for a in c.assignments] == list(range(INS.n_arms))
+        for a in c.assignments:
+            if a.kind == "target":
+                assert a.target_index not in seen
+                seen.add(a.target_index)
+                assert np.hypot(tips[a.arm, 0] - t.x_mm[a.target_index], tips[a.arm, 1] - t.y_mm[a.target_index]) < 0.01
+                assert a.target_id == t.ids[a.target_index]
+    assert len(seen) + len(r.unallocated) == len(t)
+    assert all(u.reason == "conflict" for u in r.unallocated)
+    s = r.stats
+    assert s["n_configurations"] >= s["lower_bound_configurations"] == 4
+    assert len(s["per_configuration"]) == s["n_configurations"]
+    assert 0 < s["priority_completeness"] <= 1
+
+
+def test_priority_order_of_first_configuration() -> None:
+    t = _targets(np.random.default_rng(1), 60)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, repack=False)
+    tp = [c.total_priority for c in r.configurations]
+    assert tp[0] == max(tp)
+
+
+def test_unreachable_targets_reported_and_arms_parked() -> None:
+    t = PlaneTargets.from_lists(["a", "b"], [500.0, -600.0], [0.0, 0.0], [1, 2])
+    r = sequence_configurations(INS, t, solve_ilp_cpsat)
+    assert r.configurations == ()
+    assert sorted(u.reason for u in r.unallocated) == ["unreachable", "unreachable"]
+
+
+def test_one_configuration_all_parked_when_nothing_reachable() -> None:
+    from solvers.allocation import allocate
+
+    t = PlaneTargets.from_lists(["a"], [500.0], [0.0], [1])
+    r = allocate(INS, t, configurations="one")
+    assert [u.reason for u in r.unallocated] == ["unreachable"]
+
+
+def test_unverified_solution_raises() -> None:
+    def bad(problem):
+        a = problem.assignments
+        # every arm on its first target assignment (or rest): collisions / duplicates
+        chosen = np.array([a.arm_start[k + 1] - 1 for k in range(INS.n_arms)])
+        return ConfigSolution(chosen, "optimal", 1, 12, 0.0)
+
+    t = _targets(np.random.default_rng(2), 80, radius=40.0)
+    with pytest.raises(UnverifiedConfigurationError):
+        sequence_configurations(INS, t, bad)
+
+
+def test_disabled_arms_respected_in_sequence() -> None:
+    t = _targets(np.random.default_rng(3), 30)
+    fixed = {0: (np.pi, 0.0), 5: (np.pi, 0.0)}
+    r = sequence_configurations(INS, t, partial(solve_ilp_cpsat, minimize_move=False), fixed=fixed)
+    for c in r.configurations:
+        for k in fixed:
+            assert c.assignments[k].kind == "fixed"
+
+
+def test_repacking_never_increases_configurations() -> None:
+    t = _targets(np.random.default_rng(4), 48, radius=70.0)
+    f = partial(solve_ilp_cpsat, minimize_move=False)
+    a = sequence_configurations(INS, t, f, repack=False)
+    b = sequence_configurations(INS, t, f, repack=True)
+    assert b.stats["n_configurations"] <= a.stats["n_configurations"]
+    assert b.stats["field_completeness"] == a.stats["field_completeness"]
