@@ -9,8 +9,10 @@ A GRASP-style multistart heuristic for one observational configuration. Each ite
    matrix (:mod:`solvers.patrolling`) -- greedy (GAS) or shuffled per penalty level
    (PBAS) -- taking the first one compatible with the assignments already made;
 2. **pads** the arms left without a target (thesis Algorithm 5): current position, then
-   park; if both collide with the assignments made, the colliding assignments are undone
-   (a repair step, see :func:`_pad`), so every returned solution is complete;
+   park, then the blank-sky locations sampled in the free area in front of the arm (when
+   the structure has them, ``blank_per_arm``) -- the first compatible one, so padding
+   never collides; only if none fits are the blocking assignments undone (a last-resort
+   repair, see :func:`pad`), so every returned solution is complete;
 3. runs a **local search** (5.3.1.3): swap moves then replace moves, first improvement;
 4. keeps the best solution (**solution update**, 5.3.1.4): total priority, then arm
    yield, then total joint displacement (eq. 5.1) -- lexicographically.
@@ -68,6 +70,7 @@ class SemiGreedyOptions:
     penalty_matrix: PatrolSpec | np.ndarray = "thesis"
     first_slice_deg: float = 0.0
     local_search: bool = True
+    lookahead: bool = True
     early_stop: bool = True
     max_stall: int | None = None
     time_limit_s: float | None = None
@@ -100,6 +103,8 @@ class _FieldStatic:
     r: np.ndarray  # (n_targets,) distinct arms that reach and may patrol each target
     n_avail: int  # arms in service (n of eq. 5.4)
     park_idx: np.ndarray  # (n_arms,) park assignment or -1
+    rn_ptr: np.ndarray  # CSR: per assignment, the incompatible rest locations
+    rn_idx: np.ndarray  # (park / current / fixed / blank sky) -- the padding look-ahead
 
 
 _FIELD_CACHE: dict[tuple, tuple[object, _FieldStatic]] = {}
@@ -149,7 +154,12 @@ def _field_static(problem: ConfigProblem, penalty: np.ndarray, first_slice_deg: 
     park_idx = np.full(n_arms, -1)
     pk = np.flatnonzero(tgt == PARK)
     park_idx[a.arm[pk]] = pk
-    fs = _FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx)
+    is_rest = tgt < 0
+    keep = is_rest[inc.indices]
+    rows = np.repeat(np.arange(len(a)), np.diff(inc.indptr))
+    rn_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=len(a)))]).astype(np.int64)
+    rn_idx = inc.indices[keep].astype(np.int64)
+    fs = _FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx, rn_ptr, rn_idx)
     if len(_FIELD_CACHE) > 8:
         _FIELD_CACHE.clear()
     _FIELD_CACHE[key] = (inc, fs)
@@ -186,6 +196,10 @@ class Prepared:
     tasg: np.ndarray
     current_idx: np.ndarray  # (n_arms,) rest assignment at start_q, or -1
     park_idx: np.ndarray  # (n_arms,) park assignment, or -1
+    rest_order: np.ndarray  # per arm, its rest locations in padding order (Alg. 5):
+    rest_ptr: np.ndarray  # current, park, then blank sky / others by displacement
+    rn_ptr: np.ndarray  # per assignment, the rest locations incompatible with it
+    rn_idx: np.ndarray
     preset: np.ndarray  # (n_arms,) the only location of an arm with one, else -1
     target_arms: np.ndarray  # (n_arms,) bool: arm can take some live target
     ub_priority: int  # matching bound, patrolled targets (what SGPBTA can reach)
@@ -245,6 +259,11 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
     rest = np.flatnonzero(rest_ok & (disp < _Q_TOL_RAD))
     current_idx[a.arm[rest[::-1]]] = rest[::-1]  # first one per arm wins
     park_idx = np.where(rest_ok[np.maximum(fs.park_idx, 0)] & (fs.park_idx >= 0), fs.park_idx, -1)
+    # padding order per arm: current, park, then the others (blank sky) by displacement
+    rest = np.flatnonzero(rest_ok)
+    rank_ = np.where(rest == current_idx[a.arm[rest]], 0, np.where(rest == park_idx[a.arm[rest]], 1, 2))
+    rest_order = rest[np.lexsort((rest, disp[rest], rank_, a.arm[rest]))]
+    rest_ptr = np.searchsorted(a.arm[rest_order], np.arange(n_arms + 1))
     n_loc = np.add.reduceat((tok | rest_ok).astype(np.int64), a.arm_start[:-1]) if n_asg else np.zeros(n_arms)
     n_loc[np.diff(a.arm_start) == 0] = 0
     target_arms = np.zeros(n_arms, bool)
@@ -271,7 +290,7 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
         prio=prio, is_target=is_target, disp=disp, score=prio - disp / (2 * np.pi + 1),
         pen=pen, tok=tok, rest_ok=rest_ok, movable=tok | rest_ok, tc=tc,
         live_targets=live_targets, eta=eta, tptr=tptr, tasg=tasg, current_idx=current_idx,
-        park_idx=park_idx, preset=preset, target_arms=target_arms,
+        park_idx=park_idx, rest_order=rest_order, rest_ptr=rest_ptr, rn_ptr=fs.rn_ptr, rn_idx=fs.rn_idx, preset=preset, target_arms=target_arms,
         ub_priority=ub_p, ub_yield=ub_y, ub_priority_all=ub_all,
     )
 
@@ -320,7 +339,8 @@ def lpc(eta: np.ndarray, candidates: np.ndarray, alpha: float) -> np.ndarray:
     return candidates[e >= q - 1e-12 * max(1.0, abs(hi))]
 
 
-def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.random.Generator) -> State:
+def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.random.Generator,
+              lookahead: bool = True) -> State:
     """Semi-greedy patrol-based construction (thesis Algorithm 4), vectorised.
 
     ``cnt[t]`` counts the assignments of live target t still usable (arm free, not
@@ -329,6 +349,11 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
     with no other effect. Live ids are sorted by decreasing eta, so the pool of eq. 5.5
     is the live part of a prefix. The candidate list of the drawn target holds only
     usable assignments, so the first arm in GAS/PBAS order is the one lines 10-18 accept.
+
+    ``lookahead`` (a departure, default on): a candidate is accepted only if every arm
+    still without a location keeps at least one compatible rest location (current, park,
+    blank sky), so padding (Algorithm 5) cannot fail; in the thesis such a solution is
+    built, fails padding and is dropped (Algorithm 3, line 9). Off: Algorithm 4 verbatim.
     """
     s = State.empty(st)
     m = len(st.eta)
@@ -339,6 +364,25 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
     cnt = np.bincount(st.tc[usable], minlength=m)
     remaining = np.ones(m, bool)
     arm, pen, disp, blocked = st.arm, st.pen, st.disp, s.blocked
+    idle = s.chosen < 0  # arms without a location yet (they will need a rest location)
+    ro = st.rest_order
+    rest_free = np.add.reduceat(np.append(blocked[ro] == 0, False).astype(np.int64),
+                                st.rest_ptr[:-1]) * (np.diff(st.rest_ptr) > 0) if len(ro) else np.zeros(st.n_arms)
+    rn_ptr, rn_idx = st.rn_ptr, st.rn_idx
+
+    def leaves_rest(x: int, k: int) -> bool:
+        """Padding look-ahead: after x (arm k), every other idle arm keeps a free rest location."""
+        rn = rn_idx[rn_ptr[x]:rn_ptr[x + 1]]
+        if not lookahead or not len(rn):
+            return True
+        rn = rn[(blocked[rn] == 0)]
+        ka = arm[rn]
+        ka = ka[idle[ka] & (ka != k)]
+        if not len(ka):
+            return True
+        lost = np.bincount(ka, minlength=st.n_arms)
+        return not ((lost >= rest_free) & (rest_free > 0)).any()
+
     while n_free:
         live = remaining & (cnt > 0)
         first = int(live.argmax())
@@ -354,21 +398,34 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
         s.picked.append(t)
         cand = [x for x in st.tasg[st.tptr[t]:st.tptr[t + 1]].tolist()
                 if arm_free[arm[x]] and blocked[x] == 0]
-        x = cand[0]  # GAS: lowest penalty, then arm index, then shorter move
         if arm_selection == "pbas" and len(cand) > 1:
-            # PBAS: the arms of the lowest usable penalty level in random order; all of
-            # them are usable, so the first of the shuffled list is a uniform draw
-            level = [c for c in cand if pen[c] == pen[x]]
-            arms = sorted({int(arm[c]) for c in level})
-            if len(arms) > 1:
-                k = arms[int(rng.integers(len(arms)))]
-                x = min((c for c in level if arm[c] == k), key=lambda c: disp[c])
+            # PBAS: per penalty level, the arms in random order (each arm's assignments
+            # keep their displacement order); GAS keeps lowest penalty, arm, displacement
+            levels = sorted({int(pen[c]) for c in cand})
+            order = []
+            for lv in levels:
+                arms = sorted({int(arm[c]) for c in cand if pen[c] == lv})
+                if len(arms) > 1:
+                    arms = [arms[i] for i in rng.permutation(len(arms))]
+                for k in arms:
+                    order += sorted((c for c in cand if pen[c] == lv and arm[c] == k), key=lambda c: disp[c])
+            cand = order
+        # the first candidate that leaves every idle arm a rest location (departure from
+        # the thesis: there a solution whose padding fails is dropped at Alg. 3 line 9)
+        x = next((c for c in cand if leaves_rest(c, int(arm[c]))), -1)
+        if x < 0:
+            continue
         k = int(arm[x])
         s0, s1 = int(st.arm_start[k]), int(st.arm_start[k + 1])
         lost = st.tok[s0:s1] & (blocked[s0:s1] == 0)  # arm k's usable assignments go away
         np.subtract.at(cnt, st.tc[s0:s1][lost], 1)
         arm_free[k] = False
+        idle[k] = False
         n_free -= 1
+        rn = rn_idx[rn_ptr[x]:rn_ptr[x + 1]]
+        rn = rn[blocked[rn] == 0]
+        if len(rn):
+            np.subtract.at(rest_free, arm[rn], 1)
         nb = st.indices[st.indptr[x]:st.indptr[x + 1]]
         newly = nb[blocked[nb] == 0]
         blocked[nb] += 1
@@ -382,58 +439,57 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
 # ------------------------------------------------------------------ padding (Alg. 5)
 
 
-def _rest_options(st: Prepared, k: int) -> list[int]:
-    out = []
-    for r in (int(st.current_idx[k]), int(st.park_idx[k])):
-        if r >= 0 and r not in out:
-            out.append(r)
-    return out
-
-
 def pad(st: Prepared, s: State) -> bool:
-    """Solution padding (thesis Algorithm 5): unassigned arms to current position, then park.
+    """Solution padding (thesis Algorithm 5): each arm left without a target goes to the
+    first compatible rest location in the order current position, park, blank sky.
 
-    Both are locations of the structure, so compatibility is the same ``blocked`` test.
-    Where both collide with assignments already made the thesis would sample blank sky
-    or drop the solution; here the blocking assignments are undone instead (their arms
-    are padded in turn), which keeps every iteration complete -- the local search can
-    re-fill those arms. Returns False only if no complete solution was reached.
+    Blank-sky locations are the ones sampled in the free area in front of each arm
+    (``models.incompatibility.sample_blank_sky``, target ``BLANK``) when the structure
+    was built with ``blank_per_arm``; they are tried by increasing displacement (the
+    thesis samples the area at random; the sample is already random, and the shorter
+    move is what the solution update prefers). All are locations of the structure, so
+    compatibility is the same ``blocked == 0`` test and padding can never collide.
+
+    Last resort (no blank-sky sample fits, or the structure has none): the assignments
+    blocking the arm's preferred rest location are undone and their arms padded in turn
+    -- where the thesis would return an incomplete solution and drop the iteration. It
+    keeps every iteration complete; the local search can re-fill those arms. Returns
+    False only if no complete solution was reached.
     """
     pending = [int(k) for k in np.flatnonzero(s.chosen < 0)]
     budget = 4 * st.n_arms
+    order, ptr, blocked = st.rest_order, st.rest_ptr, s.blocked
     while pending and budget > 0:
         k = pending.pop(0)
-        opts = _rest_options(st, k)
-        free_opt = [r for r in opts if s.blocked[r] == 0]
-        if free_opt:
-            s.place(st, free_opt[0])
+        opts = order[ptr[k]:ptr[k + 1]]
+        free_opt = opts[blocked[opts] == 0]
+        if len(free_opt):
+            s.place(st, int(free_opt[0]))
             continue
-        if not opts:  # an arm with no rest location: take any compatible location
+        if not len(opts):  # an arm with no rest location: take any compatible location
             sl = np.arange(int(st.arm_start[k]), int(st.arm_start[k + 1]))
-            ok = sl[st.movable[sl] & (s.blocked[sl] == 0)]
+            ok = sl[st.movable[sl] & (blocked[sl] == 0)]
             if len(ok):
                 s.place(st, int(ok[0]))
                 continue
             return False
-        # repair: evict the (lowest-priority first) assignments blocking the preferred rest
+        # repair: evict the assignments blocking a rest location (current/park first),
+        # choosing the first one not blocked by an out-of-service arm
         budget -= 1
-        r = opts[0]
-        nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
-        blockers = [int(j) for j in np.flatnonzero(s.chosen >= 0) if s.chosen[j] in set(nb.tolist())]
-        blockers = [j for j in blockers if st.preset[j] < 0]
-        if len(blockers) < int(s.blocked[r]):  # blocked by an out-of-service arm
-            if len(opts) > 1:
-                opts = opts[1:]
-                r = opts[0]
-                nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
-                nbs = set(nb.tolist())
-                blockers = [int(j) for j in np.flatnonzero(s.chosen >= 0)
-                            if s.chosen[j] in nbs and st.preset[j] < 0]
-                if len(blockers) < int(s.blocked[r]):
-                    return False
-            else:
-                return False
-        for j in blockers:
+        busy = np.flatnonzero((s.chosen >= 0) & (st.preset < 0))
+        best = None
+        for i, r in enumerate(opts.tolist()):
+            nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
+            blockers = busy[np.isin(s.chosen[busy], nb)]
+            if len(blockers) < int(blocked[r]):  # an out-of-service arm is in the way
+                continue
+            cost = (int(st.prio[s.chosen[blockers]].sum()), len(blockers), i)
+            if best is None or cost < best[0]:
+                best = (cost, r, blockers)
+        if best is None:
+            return False
+        _, r, blockers = best
+        for j in blockers.tolist():
             s.remove(st, j)
             pending.append(j)
         s.place(st, r)
@@ -585,7 +641,7 @@ def solve_semigreedy(problem: ConfigProblem, **options) -> ConfigSolution:
     ls_moves = 0
     best_iter = -1
     for it in range(opts.n_iter):
-        s = construct(st, opts.alpha, opts.arm_selection, rng)
+        s = construct(st, opts.alpha, opts.arm_selection, rng, opts.lookahead)
         if not pad(st, s):
             continue  # thesis line 9: only complete solutions go on
         if opts.local_search:

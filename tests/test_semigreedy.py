@@ -7,7 +7,7 @@ import pytest
 from scipy.stats import chisquare
 
 from models.errors import InputError
-from models.incompatibility import PARK, incompatibility_for_targets
+from models.incompatibility import BLANK, PARK, incompatibility_for_targets
 from models.instrument import default_instrument
 from solvers import semigreedy as sg
 from solvers.patrolling import (
@@ -202,7 +202,7 @@ def test_alpha0_is_pure_greedy(seed, patrol):
     p = field(n, seed, priorities=pri)
     matrix = thesis_penalty_matrix() if patrol == "thesis" else workspace_penalty_matrix()
     st = sg.prepare(p, sg.SemiGreedyOptions(gamma=0.0, penalty_matrix=patrol))
-    s = sg.construct(st, 0.0, "gas", np.random.default_rng(99))
+    s = sg.construct(st, 0.0, "gas", np.random.default_rng(99), lookahead=False)
     got = {int(k): int(x) for k, x in enumerate(s.chosen) if x >= 0}
     assert got == _independent_greedy(p, matrix)
 
@@ -348,3 +348,94 @@ def test_warm_start_is_a_feasible_choice():
     assert chosen.shape == (12,) and check_solution(INST, p, chosen) == []
     x = sg.warm_start_vector(p, chosen)
     assert x.sum() == 12 and x[chosen].all()
+
+
+# ------------------------------------------------------------------- padding (Alg. 5)
+
+
+def _blocked_park_case(blank_per_arm: int, seed: int = 0):
+    """A target assignment of some arm that collides with a neighbour's park, but not with
+    all of that neighbour's blank-sky locations: (problem, x, neighbour arm)."""
+    rng = np.random.default_rng(seed)
+    r = 125 * np.sqrt(rng.uniform(0.5, 1.0, 200))
+    th = rng.random(200) * 2 * np.pi
+    x, y = r * np.cos(th), r * np.sin(th)
+    inc = incompatibility_for_targets(INST, x, y, blank_per_arm=blank_per_arm, seed=seed)
+    a = inc.assignments
+    for i in np.flatnonzero(a.target >= 0):
+        nb = inc.neighbours(i)
+        parks = nb[a.target[nb] == PARK]
+        for pk in parks:
+            j = int(a.arm[pk])
+            rest = np.flatnonzero((a.target < 0) & (a.arm != a.arm[i]))
+            free = np.zeros(12, bool)
+            free[a.arm[rest[~np.isin(rest, nb)]]] = True
+            free[a.arm[i]] = True
+            if blank_per_arm == 0 or free.all():  # every other arm has somewhere to go
+                avail = np.zeros(200, bool)
+                avail[a.target[i]] = True
+                p = ConfigProblem(inc, np.full(200, 7, np.int64), avail, INST.park_configuration, _speeds(),
+                                  target_xy_mm=np.column_stack([x, y]))
+                return p, int(i), j
+    raise AssertionError("no blocked-park case found")
+
+
+def test_padding_order_current_park_blank():
+    p, x, j = _blocked_park_case(8)
+    st = sg.prepare(p, sg.SemiGreedyOptions())
+    order = st.rest_order[st.rest_ptr[j]:st.rest_ptr[j + 1]]
+    tg = p.assignments.target[order]
+    assert tg[0] == PARK and (tg[1:] == BLANK).all() and len(tg) == 9  # current == park here
+    s = sg.State.empty(st)
+    s.place(st, x)
+    assert s.blocked[st.park_idx[j]] > 0  # the park of arm j is taken away
+    assert sg.pad(st, s)
+    assert s.chosen[int(p.assignments.arm[x])] == x  # nothing undone
+    assert p.assignments.target[s.chosen[j]] == BLANK
+    assert check_solution(INST, p, s.chosen) == []
+    for k in range(12):  # every other idle arm: park (first compatible in the order)
+        if k not in (j, int(p.assignments.arm[x])) and s.blocked[st.park_idx[k]] == 0:
+            assert s.chosen[k] == st.park_idx[k]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_blocked_park_gets_blank_sky_never_a_collision(seed):
+    p, x, j = _blocked_park_case(8, seed)
+    t = p.assignments.target[x]
+    sol = sg.solve_semigreedy(p, seed=seed, penalty_matrix="workspace")
+    assert check_solution(INST, p, sol.chosen) == []
+    assert sol.arm_yield == 1 and sol.total_priority == 7  # the one target is observed
+    a = p.assignments
+    # whoever took it, every arm whose park it blocks sits on blank sky (or its current spot)
+    held = sol.chosen[a.target[sol.chosen] == t][0]
+    for k in range(12):
+        if a.target[sol.chosen[k]] < 0 and not p.incompatibility.compatible(held, int(sg.prepare(
+                p, sg.SemiGreedyOptions()).park_idx[k])):
+            assert a.target[sol.chosen[k]] == BLANK
+    del t, j
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_dense_field_with_blank_sky_always_verified(seed):
+    rng = np.random.default_rng(50 + seed)
+    n = 300
+    x, y = rng.normal(0, 60, n), rng.normal(0, 60, n)
+    keep = np.hypot(x, y) < 125
+    x, y = x[keep], y[keep]
+    n = len(x)
+    pri = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1])
+    inc = incompatibility_for_targets(INST, x, y, blank_per_arm=6, seed=seed)
+    avail = np.ones(n, bool)
+    q = INST.park_configuration
+    n_blank = 0
+    for _ in range(40):
+        p = ConfigProblem(inc, pri, avail.copy(), q, _speeds(), target_xy_mm=np.column_stack([x, y]))
+        sol = sg.solve_semigreedy(p, seed=seed, n_iter=5)
+        assert check_solution(INST, p, sol.chosen) == []
+        t = inc.assignments.target[sol.chosen]
+        n_blank += int((t == BLANK).sum())
+        if not (t >= 0).any():
+            break
+        avail[t[t >= 0]] = False
+        q = inc.assignments.q[sol.chosen]
+    assert not avail.any() or (t < 0).all()
