@@ -448,7 +448,9 @@ def pad(st: Prepared, s: State) -> bool:
     was built with ``blank_per_arm``; they are tried by increasing displacement (the
     thesis samples the area at random; the sample is already random, and the shorter
     move is what the solution update prefers). All are locations of the structure, so
-    compatibility is the same ``blocked == 0`` test and padding can never collide.
+    compatibility is the same ``blocked == 0`` test and padding can never collide. The
+    pending arms are placed jointly (:func:`_pad_search`, most constrained arm first), since
+    one arm's blank-sky location may take a neighbour's last free one.
 
     Last resort (no blank-sky sample fits, or the structure has none): the assignments
     blocking the arm's preferred rest location are undone and their arms padded in turn
@@ -457,43 +459,66 @@ def pad(st: Prepared, s: State) -> bool:
     False only if no complete solution was reached.
     """
     pending = [int(k) for k in np.flatnonzero(s.chosen < 0)]
-    budget = 4 * st.n_arms
-    order, ptr, blocked = st.rest_order, st.rest_ptr, s.blocked
-    while pending and budget > 0:
-        k = pending.pop(0)
-        opts = order[ptr[k]:ptr[k + 1]]
-        free_opt = opts[blocked[opts] == 0]
-        if len(free_opt):
-            s.place(st, int(free_opt[0]))
-            continue
-        if not len(opts):  # an arm with no rest location: take any compatible location
-            sl = np.arange(int(st.arm_start[k]), int(st.arm_start[k + 1]))
-            ok = sl[st.movable[sl] & (blocked[sl] == 0)]
-            if len(ok):
-                s.place(st, int(ok[0]))
-                continue
+    for k in [k for k in pending if st.rest_ptr[k] == st.rest_ptr[k + 1]]:
+        # an arm with no rest location at all: any compatible location of it
+        sl = np.arange(int(st.arm_start[k]), int(st.arm_start[k + 1]))
+        ok = sl[st.movable[sl] & (s.blocked[sl] == 0)]
+        if not len(ok):
             return False
-        # repair: evict the assignments blocking a rest location (current/park first),
-        # choosing the first one not blocked by an out-of-service arm
-        budget -= 1
-        busy = np.flatnonzero((s.chosen >= 0) & (st.preset < 0))
+        s.place(st, int(ok[0]))
+        pending.remove(k)
+    for _ in range(4 * st.n_arms):
+        if not pending or _pad_search(st, s, pending):
+            return True
+        # last resort: undo the target assignment that blocks the most rest locations of
+        # the pending arms (the lowest priority among equals); its arm is padded in turn
+        busy = [int(j) for j in np.flatnonzero((s.chosen >= 0) & (st.preset < 0)) if st.is_target[s.chosen[j]]]
+        pend_arm = np.zeros(st.n_arms, bool)
+        pend_arm[pending] = True
         best = None
-        for i, r in enumerate(opts.tolist()):
-            nb = st.indices[st.indptr[r]:st.indptr[r + 1]]
-            blockers = busy[np.isin(s.chosen[busy], nb)]
-            if len(blockers) < int(blocked[r]):  # an out-of-service arm is in the way
-                continue
-            cost = (int(st.prio[s.chosen[blockers]].sum()), len(blockers), i)
-            if best is None or cost < best[0]:
-                best = (cost, r, blockers)
-        if best is None:
+        for j in busy:
+            c = int(s.chosen[j])
+            rn = st.rn_idx[st.rn_ptr[c]:st.rn_ptr[c + 1]]
+            hits = int(pend_arm[st.arm[rn]].sum())
+            if hits and (best is None or (-hits, int(st.prio[c])) < best[0]):
+                best = ((-hits, int(st.prio[c])), j)
+        if best is None:  # only out-of-service arms or rest locations in the way
             return False
-        _, r, blockers = best
-        for j in blockers.tolist():
-            s.remove(st, j)
-            pending.append(j)
-        s.place(st, r)
+        s.remove(st, best[1])
+        pending.append(best[1])
     return not pending
+
+
+def _pad_search(st: Prepared, s: State, pending: list[int], max_nodes: int = 2000) -> bool:
+    """Place every pending arm on a free rest location jointly (depth-first, most
+    constrained arm first, each arm's options in padding order). On success the arms are
+    placed and True is returned; on failure ``s`` is left unchanged."""
+    order, ptr, blocked = st.rest_order, st.rest_ptr, s.blocked
+    placed: list[int] = []
+    nodes = 0
+
+    def dfs(left: list[int]) -> bool:
+        nonlocal nodes
+        if not left:
+            return True
+        frees = [order[ptr[j]:ptr[j + 1]][blocked[order[ptr[j]:ptr[j + 1]]] == 0] for j in left]
+        i = min(range(len(left)), key=lambda q: len(frees[q]))
+        rest = left[:i] + left[i + 1:]
+        for r in frees[i].tolist():
+            nodes += 1
+            if nodes > max_nodes:
+                return False
+            s.place(st, r)
+            placed.append(left[i])
+            if dfs(rest):
+                return True
+            s.remove(st, placed.pop())
+        return False
+
+    if dfs(list(pending)):
+        pending.clear()
+        return True
+    return False
 
 
 # ------------------------------------------------------------- local search (5.3.1.3)

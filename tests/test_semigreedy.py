@@ -439,3 +439,25 @@ def test_dense_field_with_blank_sky_always_verified(seed):
         avail[t[t >= 0]] = False
         q = inc.assignments.q[sol.chosen]
     assert not avail.any() or (t < 0).all()
+
+
+def test_padding_keeps_constructed_targets_on_a_dense_field():
+    """Construction look-ahead + joint padding: padding (almost) never undoes a target."""
+    rng = np.random.default_rng(9)
+    x, y = rng.normal(0, 60, 500), rng.normal(0, 60, 500)
+    keep = np.hypot(x, y) < 125
+    x, y = x[keep], y[keep]
+    n = len(x)
+    inc = incompatibility_for_targets(INST, x, y, blank_per_arm=8)
+    p = ConfigProblem(inc, rng.choice([500, 100, 10, 1], n), np.ones(n, bool), INST.park_configuration,
+                      _speeds(), target_xy_mm=np.column_stack([x, y]))
+    st = sg.prepare(p, sg.SemiGreedyOptions(penalty_matrix="workspace"))
+    undone = 0
+    for i in range(60):
+        s = sg.construct(st, 0.8, "pbas", rng)
+        before = s.chosen.copy()
+        assert sg.pad(st, s)
+        undone += int(((before >= 0) & (s.chosen != before)).sum())
+        if i % 10 == 0:
+            assert check_solution(INST, p, s.chosen) == []
+    assert undone <= 2
