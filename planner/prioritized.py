@@ -268,6 +268,7 @@ def plan_motion(
         a, b = (start_q, goal_q) if s == "forward" else (goal_q, start_q)
         orders[s] = conflict_order(instrument, geoms, paths_for(s), a, b, enabled, est, buffer_mm)
     fail_count: dict[int, int] = {}
+    tried: dict[str, set[tuple[int, ...]]] = {s: set() for s in strategies}
     best_failed: list[int] = []
     last_reason: dict[int, str] = {}
 
@@ -277,6 +278,7 @@ def plan_motion(
         direction = strategies[attempt % len(strategies)]
         order = orders[direction]
         paths = paths_for(direction)
+        tried[direction].add(tuple(order))
         a_start = start_q if direction == "forward" else goal_q
         obst = ObstacleTime(m=m, n_steps=params.horizon_steps, buffer_mm=buffer_mm,
                             nb=max(len(a.bodies) for a in instrument.arms))
@@ -314,6 +316,12 @@ def plan_motion(
             last_reason[failed] = "no collision-free trajectory within the horizon"
             order.remove(failed)
             order.insert(0, failed)  # priority rotation: promote the failed arm
+            if tuple(order) in tried[direction]:
+                # rotation cycles (two arms block each other in both orders): perturb the rest
+                rng = np.random.default_rng([seed, attempt])
+                tail = order[1:]
+                rng.shuffle(tail)
+                order[1:] = tail
             continue
         trajs, makespan = _assemble(instrument, plans, start_q, dt_s, direction == "reverse")
         rep = verify_trajectories(instrument, trajs, start_q, goal_q, collision_buffer_mm=buffer_mm,

@@ -132,9 +132,10 @@ class SearchParams:
     max_start_stop: int = 1
     horizon_steps: int = 37  # T_f (thesis table 6.1: 220 s at dt = 6 s)
     alphas: tuple[float, ...] = ALPHAS
-    max_paths: int = 40  # roadmap paths tried per arm
+    max_paths: int = 16  # roadmap paths tried per arm
     max_states_per_path: int = 4000
-    max_states_per_arm: int = 20000
+    max_states_per_departure: int = 400
+    max_states_per_arm: int = 6000
 
     @property
     def m(self) -> int:
@@ -237,9 +238,8 @@ def plan_arm(geom: ArmGeom, paths: list[RoadmapPath], obst: ObstacleTime, params
     bad = chk.static_unsafe_samples(goal_q, 0, last)
     goal_ready_sample = int(bad.max()) + 1 if len(bad) else 0
     cands = []
-    for i, p in enumerate(paths[: params.max_paths]):
-        if p.n_edges - 1 > params.max_start_stop:
-            continue
+    for i in _path_order(geom, paths, obst, chk, params):
+        p = paths[i]
         for a in params.alphas:
             if p.n_edges == 0 and a != params.alphas[0]:
                 continue
@@ -254,6 +254,40 @@ def plan_arm(geom: ArmGeom, paths: list[RoadmapPath], obst: ObstacleTime, params
         if q is not None:
             return ArmPlan(geom.arm, q, i, a)
     return None
+
+
+def _path_order(geom: ArmGeom, paths: list[RoadmapPath], obst: ObstacleTime, chk: _Checker,
+                params: SearchParams, n_first: int = 6, n_screen: int = 120, n_samples: int = 16) -> list[int]:
+    """Indices of the paths to try: the ``n_first`` most promising (eq. 6.23), then, among the
+    next ``n_screen``, those that never touch a planned arm resting at its goal.
+
+    A planned arm stays at its goal for ever, so a path through that goal only works if the
+    arm passes before the other arrives; a path that avoids every planned goal cannot be
+    blocked for good. Screening (a static check of ``n_samples`` configurations per path)
+    lets a detour far down the eq. 6.23 ranking be tried early.
+    """
+    usable = [i for i, p in enumerate(paths) if p.n_edges - 1 <= params.max_start_stop]
+    head, rest = usable[:n_first], usable[n_first:n_first + n_screen]
+    if chk.empty or not rest:
+        return usable[: params.max_paths]
+    # planned arms' final capsules: last sample of each obstacle arm
+    S, E, R, _ = obst.stacked()
+    fs, fe = S[:, -1], E[:, -1]  # (P, nb, 2)
+    s = np.linspace(0.0, 1.0, n_samples)
+    clear = []
+    for i in rest:
+        wp = paths[i].waypoints
+        seg = np.repeat(np.arange(len(wp) - 1), n_samples)
+        f = np.tile(s, len(wp) - 1)
+        q = wp[seg] + f[:, None] * (wp[seg + 1] - wp[seg])
+        cs, ce = geom.segments(q[:, 0], q[:, 1])  # (n, nb, 2)
+        d = segment_distance_xy(
+            cs[None, :, :, None, 0], cs[None, :, :, None, 1], ce[None, :, :, None, 0], ce[None, :, :, None, 1],
+            fs[:, None, None, :, 0], fs[:, None, None, :, 1], fe[:, None, None, :, 0], fe[:, None, None, :, 1],
+        ) - chk.r[None, None, :, None] - R[:, None, None, :]
+        if d.min() >= obst.buffer_mm:
+            clear.append(i)
+    return (head + clear)[: params.max_paths]
 
 
 def _search_path(wp: np.ndarray, chk: _Checker, params: SearchParams, alpha: float,
@@ -305,10 +339,36 @@ def _search_path(wp: np.ndarray, chk: _Checker, params: SearchParams, alpha: flo
             cs, ce = S[k * M:(k + 1) * M][::-1], Ee[k * M:(k + 1) * M][::-1]
         return chk.clear(cs, ce, (t - 1) * M + 1)
 
-    start = (0, 0, 0, 0, 0)
+    # Departure delays are an outer loop (waiting at the start costs no stop): plain DFS tries
+    # "wait at the start" last, after exhausting every subtree of the early departures, so a
+    # bounded search would rarely reach it. Each departure gets its own share of the budget.
+    cache: dict[tuple, bool] = {}
+    total = 0
+    for d in range(0, T + 1):
+        if d + sum(n_e) > T or total >= params.max_states_per_path:
+            return None
+        if d > 0:
+            z0 = (0, 0, 0, 0, d)
+            if z0 not in cache:
+                stats.states_explored += 1
+                total += 1
+                cache[z0] = safe(z0)
+            if not cache[z0]:
+                return None  # the start is hit: the arm cannot wait any longer
+        res, used = _dfs((0, 0, 0, 0, d), safe, cache, n_e, tail, T, n_stop, goal_key, goal_ready_sample, M,
+                         min(params.max_states_per_departure, params.max_states_per_path - total), stats)
+        total += used
+        if res is not None:
+            return _reconstruct(res[0], res[1], eq0, eq1, n_e, wp[0])
+    return None
+
+
+def _dfs(start, safe, cache, n_e, tail, T, n_stop, goal_key, goal_ready_sample, M, budget, stats):
+    """Algorithms 8-11 from ``start``; waiting on at the start (k = 0, m = 0, ns = 0) is excluded
+    because the caller tries every departure time."""
+    E = len(n_e)
     stack: list[tuple[tuple[int, int, int, int, int], tuple | None]] = [(start, None)]
     parent: dict[tuple, tuple | None] = {}
-    budget = params.max_states_per_path
     explored = 0
     while stack:
         z, par = stack.pop()
@@ -318,19 +378,23 @@ def _search_path(wp: np.ndarray, chk: _Checker, params: SearchParams, alpha: flo
         e, k, ns, m, t = z
         if par is not None and par[4] == t:
             ok = True  # way-point transition: same place, same time, already checked
+        elif par is None:
+            ok = True  # the departure node, checked by the caller
         else:
-            explored += 1
-            stats.states_explored += 1
-            ok = safe(z)
+            ok = cache.get(z)
+            if ok is None:
+                explored += 1
+                stats.states_explored += 1
+                ok = cache[z] = safe(z)
         if not ok:
             parent[z] = _UNSAFE
             continue
         if (e, k) == goal_key:
             if t * M >= goal_ready_sample:
-                return _reconstruct(z, parent, eq0, eq1, n_e)
+                return (z, parent), explored
             continue  # arrived too early: a higher-priority arm still passes the goal
         if explored >= budget:
-            return None
+            return None, explored
         if k == n_e[e] and e < E - 1:
             # intermediate way-point: the MCC2 must stop here (3.5.1.2), one start-stop cycle
             ns2 = ns + (1 if m != 0 else 0)
@@ -351,16 +415,18 @@ def _search_path(wp: np.ndarray, chk: _Checker, params: SearchParams, alpha: flo
                 continue  # backing up needs another reversal later: a dead end (Neigh-maxNS)
             if t + 1 + (n_e[e] - k2) + tail[e] > T:
                 continue  # cannot reach the goal before T_f
+            if m2 == 0 and k == 0 and m == 0 and ns == 0 and e == 0:
+                continue  # a later departure: the caller's outer loop
             z2 = (e, k2, ns2, m2, t + 1)
             if z2 not in parent:
                 stack.append((z2, z))
-    return None
+    return None, explored
 
 
 _UNSAFE = ("unsafe",)
 
 
-def _reconstruct(z, parent, eq0, eq1, n_e) -> np.ndarray:
+def _reconstruct(z, parent, eq0, eq1, n_e, q_start) -> np.ndarray:
     chain = []
     while z is not None:
         chain.append(z)
@@ -369,7 +435,7 @@ def _reconstruct(z, parent, eq0, eq1, n_e) -> np.ndarray:
     out: dict[int, np.ndarray] = {}
     for e, k, _, _, t in chain:
         out[t] = eq0[e] + (k / n_e[e]) * (eq1[e] - eq0[e])
-    return np.array([out[t] for t in range(max(out) + 1)])
+    return np.array([out.get(t, q_start) for t in range(max(out) + 1)])
 
 
 def step_samples(q_steps: np.ndarray, m: int, n_steps: int) -> np.ndarray:
