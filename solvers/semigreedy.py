@@ -22,10 +22,19 @@ exact allocator uses): compatibility of a candidate is ``blocked[a] == 0`` where
 ``blocked`` counts the chosen assignments incompatible with ``a``, updated in O(degree)
 per move. No geometry is evaluated while solving.
 
-Two deliberate departures from the thesis pseudo-code, both documented where they occur:
-targets that can no longer be placed are left out of the pool (the thesis draws them, fails
-at line 19 and moves on), and a multistart stops early once a solution reaches the
-collision-free upper bound (bipartite matching) in priority and yield.
+Deliberate departures from the thesis pseudo-code, each documented where it occurs:
+
+* targets that can no longer be placed are left out of the pool (the thesis draws them,
+  fails at line 19 and moves on);
+* padding look-ahead (``lookahead``, default on): construction accepts an arm for a
+  target only if every arm still idle keeps a compatible rest location; the idle arms
+  are then padded jointly (a tiny depth-first search). In the thesis a solution whose
+  padding fails is dropped; here (almost) none fails, so no iteration is wasted;
+* the local search runs replace moves first and the swap moves (which only shorten the
+  total displacement) only on a solution that can still win the update;
+* a multistart stops early once a solution reaches the collision-free upper bound
+  (bipartite matching) in priority and yield; ``max_stall`` optionally after that many
+  iterations without improvement.
 """
 
 from __future__ import annotations

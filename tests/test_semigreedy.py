@@ -461,3 +461,21 @@ def test_padding_keeps_constructed_targets_on_a_dense_field():
         if i % 10 == 0:
             assert check_solution(INST, p, s.chosen) == []
     assert undone <= 2
+
+
+def test_padding_prefers_current_then_park_then_blank():
+    from models.incompatibility import FIXED, sample_blank_sky
+
+    cur = INST.park_configuration.copy()
+    cur[0] = sample_blank_sky(INST, 0, 1, seed=99)[0]  # arm 0 rests off park
+    inc = incompatibility_for_targets(INST, [0.0], [0.0], current=cur, blank_per_arm=4, seed=1)
+    p = ConfigProblem(inc, np.array([5]), np.zeros(1, bool), cur, _speeds(), target_xy_mm=np.zeros((1, 2)))
+    st = sg.prepare(p, sg.SemiGreedyOptions())
+    tg = p.assignments.target
+    o0 = st.rest_order[st.rest_ptr[0]:st.rest_ptr[1]]
+    assert tg[o0].tolist() == [FIXED, PARK, BLANK, BLANK, BLANK, BLANK]
+    o1 = st.rest_order[st.rest_ptr[1]:st.rest_ptr[2]]
+    assert tg[o1].tolist() == [PARK, BLANK, BLANK, BLANK, BLANK]
+    sol = sg.solve_semigreedy(p)
+    assert tg[sol.chosen[0]] == FIXED and (tg[sol.chosen[1:]] == PARK).all()  # nobody moves
+    assert check_solution(INST, p, sol.chosen) == []
