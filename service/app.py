@@ -195,8 +195,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     def plans(req: PlanRequest, st: StateDep) -> dict[str, Any]:
+        """The whole pipeline: segmentation, then per pointing allocation (all
+        configurations) and the motion chain park -> c1 -> ... -> park.
+
+        The request is bounded as a whole by the server's plan budget (`MXS_PLAN_BUDGET_S`,
+        default 120 s): pointings reached after it ran out report their targets `no_time`.
+        Plan big fields with `POST /v1/jobs` (`kind: "plan"`), which is bounded only per
+        solver call. A motion leg that cannot be planned is returned with status "failed".
+        """
         limit = _check_limits(req, st.settings)
-        return pipeline.plan(req, st.instrument, time_limit_s=limit)
+        return pipeline.plan(req, st.instrument, time_limit_s=limit,
+                             budget_s=st.settings.plan_budget_s)
 
     @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
               dependencies=[Auth], responses=ERRORS)

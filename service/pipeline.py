@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import logging
 import math
+import re
+import time
 from collections.abc import Callable, Sequence
 from functools import lru_cache
 from importlib import import_module
@@ -30,6 +33,7 @@ from service.schemas import (
 )
 
 Progress = Callable[[float], None]
+log = logging.getLogger("service")
 
 
 def _noop(_: float) -> None:
@@ -171,11 +175,24 @@ def sky_to_focal(
     targets: Sequence[SkyTarget], ra_deg: float, dec_deg: float, inst: Instrument,
     position_angle_deg: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
+    """Gnomonic projection of ``targets`` about (``ra_deg``, ``dec_deg``) onto the FOV frame.
+
+    A target the projection cannot take (>= 90 deg from the pointing) is a 422 naming
+    ``targets[i]`` (indices of ``targets`` as given)."""
     (sky_to_focal_mm,) = _domain("sky projection", "models.sky", "sky_to_focal_mm")
-    x, y = sky_to_focal_mm(
-        np.array([t.ra_deg for t in targets], float), np.array([t.dec_deg for t in targets], float),
-        ra_deg, dec_deg, inst.plate_scale_arcsec_per_mm, position_angle_deg,
-    )
+    from models.errors import InputError
+
+    try:
+        x, y = sky_to_focal_mm(
+            np.array([t.ra_deg for t in targets], float),
+            np.array([t.dec_deg for t in targets], float),
+            ra_deg, dec_deg, inst.plate_scale_arcsec_per_mm, position_angle_deg,
+        )
+    except InputError as exc:
+        m = re.fullmatch(r"(ra_deg|dec_deg)\[(\d+)\]", str(exc.field))
+        if m is None:
+            raise
+        raise FieldError(("body", "targets", int(m.group(2)), m.group(1)), exc.message) from exc
     return np.asarray(x, float), np.asarray(y, float)
 
 
@@ -230,6 +247,9 @@ def _check_allocation() -> None:
 def allocation(
     req: AllocationRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float
 ) -> dict[str, Any]:
+    """``solvers.allocation.allocate`` on the request's targets (sky targets are projected
+    about ``pointing`` first). ``time_limit_s`` bounds the whole call (already capped by the
+    server's limits in ``app.py``)."""
     (allocate,) = _domain("allocation", "solvers.allocation", "allocate")
     _check_arms(req.start, inst, "start")
     _check_arms(req.disabled_arms, inst, "disabled_arms")
@@ -242,52 +262,94 @@ def allocation(
     else:
         x = np.array([t.x_mm for t in req.targets], float)  # type: ignore[union-attr]
         y = np.array([t.y_mm for t in req.targets], float)  # type: ignore[union-attr]
-    if req.collision_buffer_mm is not None:
-        inst = inst.with_collision_buffer(req.collision_buffer_mm)
     ids = [t.id for t in req.targets]
-    prio = np.array([t.priority for t in req.targets], dtype=np.int64)
-    result = call_domain(
-        allocate, x, y, prio,
-        instrument=inst, ids=ids, method=req.method, solver=req.solver,
+    targets = plane_targets(ids, x, y, [t.priority for t in req.targets])
+    fixed = _states_dict(req.disabled_arms)
+    start_q = _start_q(req.start, inst, fixed)
+    result = _allocate(
+        allocate, inst, targets, method=req.method, solver=req.solver,
         configurations=req.configurations, time_limit_s=time_limit_s, seed=req.seed,
-        start=_states_array(req.start), disabled_arms=_states_array(req.disabled_arms),
+        collision_buffer_mm=req.collision_buffer_mm, start_q=start_q, fixed=fixed,
         progress=progress,
     )
     progress(1.0)
-    return _allocation_out(result, ids, x, y)
+    return allocation_out(result)
 
 
-def _states_array(states: Sequence[ArmState] | None) -> dict[int, tuple[float, float]] | None:
-    if states is None:
+def plane_targets(ids: Sequence[str], x: np.ndarray, y: np.ndarray, priority: Sequence[int]) -> Any:
+    """``models.types.PlaneTargets`` with exact int64 priorities (1..2^32-1 fit)."""
+    from models.types import PlaneTargets
+
+    return PlaneTargets.from_lists(ids, x, y, np.array(priority, dtype=np.int64))
+
+
+def _allocate(
+    allocate: Callable[..., Any], inst: Instrument, targets: Any, *, method: str, solver: str,
+    configurations: str, time_limit_s: float, seed: int | None,
+    collision_buffer_mm: float | None = None, start_q: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None, progress: Progress = _noop,
+) -> Any:
+    def report(p: float, _message: str = "") -> None:
+        progress(min(max(float(p), 0.0), 1.0) * 0.99)
+
+    try:
+        return allocate(
+            inst, targets, method=method, solver=solver, configurations=configurations,
+            time_limit_s=float(time_limit_s), seed=int(seed or 0),
+            collision_buffer_mm=collision_buffer_mm, start_q=start_q, fixed=fixed or None,
+            progress=report,
+        )
+    except NotImplementedError as exc:  # e.g. a back-end that is not installed
+        raise StageUnavailable("allocation", str(exc)) from exc
+
+
+def _states_dict(states: Sequence[ArmState] | None) -> dict[int, tuple[float, float]]:
+    return {s.arm: (s.theta1_rad, s.theta2_rad) for s in states or ()}
+
+
+def _start_q(
+    states: Sequence[ArmState] | None, inst: Instrument, fixed: dict[int, tuple[float, float]]
+) -> np.ndarray | None:
+    """(n_arms, 2) current configuration: listed arms where given, others parked; disabled
+    arms where they are fixed. None when nothing was given (the allocator assumes park)."""
+    if not states and not fixed:
         return None
-    return {s.arm: (s.theta1_rad, s.theta2_rad) for s in states}
+    q = inst.park_configuration.copy()
+    for k, v in _states_dict(states).items():
+        q[k] = v
+    for k, v in fixed.items():
+        q[k] = v
+    return q
 
 
-def _allocation_out(result: Any, ids: list[str], x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    """Domain allocation result -> AllocationResponse dict (adapter; see solvers.allocation)."""
-    data = plain(result)
+def _opt_float(v: Any) -> float | None:
+    return None if v is None else float(v)
+
+
+def allocation_out(result: Any) -> dict[str, Any]:
+    """``models.types.AllocationResult`` -> AllocationResponse dict (one entry per arm).
+
+    Priorities stay Python ints end to end (exact up to 2^32-1 and their sums)."""
     configs = []
-    for i, c in enumerate(data.get("configurations", [])):
-        assignments = []
-        for a in c["assignments"]:
-            t = a.get("target_index")
-            tid = a.get("target_id", ids[t] if t is not None and t >= 0 else None)
-            assignments.append({
-                "arm": a["arm"], "target_id": tid,
-                "theta1_rad": a["theta1_rad"], "theta2_rad": a["theta2_rad"],
-                "x_mm": a.get("x_mm"), "y_mm": a.get("y_mm"),
-            })
+    for c in result.configurations:
         configs.append({
-            "index": c.get("index", i), "status": c.get("status", "feasible"),
-            "total_priority": c["total_priority"], "arm_yield": c["arm_yield"],
-            "assignments": assignments,
+            "index": int(c.index),
+            "status": c.status,
+            "total_priority": int(c.total_priority),
+            "arm_yield": int(c.arm_yield),
+            "assignments": [
+                {
+                    "arm": int(a.arm), "kind": a.kind,
+                    "target_id": None if a.target_id is None else str(a.target_id),
+                    "theta1_rad": float(a.theta1_rad), "theta2_rad": float(a.theta2_rad),
+                    "x_mm": float(a.x_mm), "y_mm": float(a.y_mm),
+                }
+                for a in sorted(c.assignments, key=lambda a: a.arm)
+            ],
+            "stats": plain(c.stats or {}),
         })
-    unalloc = []
-    for u in data.get("unallocated", []):
-        t = u.get("target_index")
-        unalloc.append({"target_id": u.get("target_id", ids[t] if t is not None else ""),
-                        "reason": u.get("reason", "unknown")})
-    return {"configurations": configs, "unallocated": unalloc, "stats": data.get("stats", {})}
+    unalloc = [{"target_id": str(u.target_id), "reason": str(u.reason)} for u in result.unallocated]
+    return {"configurations": configs, "unallocated": unalloc, "stats": plain(result.stats or {})}
 
 
 # -------------------------------------------------------------------- motion plans
@@ -327,11 +389,45 @@ def motion_chain(
     inst: Instrument, configurations: Sequence[np.ndarray], *, seed: int | None,
     time_limit_s: float,
 ) -> list[dict[str, Any]]:
-    """Motion plans park -> c1 -> ... -> park, each leg from where the previous one ended."""
+    """Motion plans park -> c1 -> ... -> park (``planner.plan_chain``: each leg starts where
+    the previous one really ended). ``time_limit_s`` is each leg's planning budget.
+
+    Never raises for a valid chain: a leg that cannot be planned comes back with status
+    "failed" (the planner's own answer); should the planner itself break, every leg is
+    reported failed with the reason in ``stats.error`` rather than an unverified plan."""
     (plan_chain,) = _domain("motion planning", "planner", "plan_chain")
-    plans = call_domain(plan_chain, inst, list(configurations), seed=seed,
-                        time_budget_s=time_limit_s)
+    if not configurations:
+        return [_stationary_plan(inst, inst.park_configuration)]
+    try:
+        plans = plan_chain(inst, [np.asarray(c, float) for c in configurations],
+                           seed=int(seed or 0), time_budget_s=float(time_limit_s))
+    except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
+        log.exception("motion chain planning failed")
+        reason = f"planner error: {type(exc).__name__}: {exc}"
+        return [_failed_motion(inst, reason) for _ in range(len(configurations) + 1)]
     return [_motion_out(p) for p in plans]
+
+
+def _stationary_plan(inst: Instrument, q: np.ndarray) -> dict[str, Any]:
+    """The leg q -> q (no configuration to reach): every arm stays put for 0 s. Checked by
+    the planner's independent verifier like any other plan (the planner's own search would
+    spend ~1 s building roadmaps to find the same answer)."""
+    (verify_trajectories,) = _domain("motion planning", "planner", "verify_trajectories")
+    from models.types import ArmTrajectory, MotionPlan
+
+    trajs = tuple(ArmTrajectory(k, np.array([0.0]), np.array([q[k, 0]]), np.array([q[k, 1]]))
+                  for k in range(inst.n_arms))
+    rep = verify_trajectories(inst, trajs, q, q)
+    if not rep.ok:
+        return _failed_motion(inst, "the arms collide where they stand: "
+                              + "; ".join(v.detail for v in rep.violations[:3]))
+    return _motion_out(MotionPlan("ok", 0.0, trajs, (), {
+        "stationary": True, "min_clearance_mm": rep.min_clearance_mm, "compute_s": 0.0}))
+
+
+def _failed_motion(inst: Instrument, reason: str) -> dict[str, Any]:
+    return {"status": "failed", "makespan_s": None, "trajectories": [],
+            "failed_arms": list(range(inst.n_arms)), "stats": {"error": reason}}
 
 
 def _motion_out(result: Any) -> dict[str, Any]:
@@ -365,54 +461,100 @@ def _check_plan() -> None:
 
 
 def plan(
-    req: PlanRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float
+    req: PlanRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float,
+    budget_s: float | None = None,
 ) -> dict[str, Any]:
-    """Segmentation -> per pointing: allocation (all configurations) -> motion chain."""
+    """Segmentation -> per pointing: projection onto the pointing's own tangent plane
+    (``position_angle_deg``) -> allocation (all configurations) -> motion chain
+    park -> c1 -> ... -> park.
+
+    ``time_limit_s`` bounds every solver call (each pointing's allocation, each motion
+    leg). ``budget_s`` (synchronous HTTP requests) bounds the whole request: it is shared
+    out over the pointings still to do, and a pointing reached after it ran out gets no
+    configurations (its targets ``no_time``). Motion legs that cannot be planned are
+    returned with status "failed", never as an exception."""
     _check_plan()
+    (allocate,) = _domain("allocation", "solvers.allocation", "allocate")
+    t0 = time.monotonic()
+    deadline = None if budget_s is None else t0 + float(budget_s)
+
+    def left() -> float:
+        return math.inf if deadline is None else deadline - time.monotonic()
+
     seg = segmentation(
         SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
                             mode=req.segmentation_mode, seed=req.seed), inst
     )
+    progress(0.05)
     by_id = {t.id: t for t in req.targets}
     n = max(len(seg["pointings"]), 1)
-    progress(0.05)
+    seed = int(req.seed or 0)
     out = []
     for i, p in enumerate(seg["pointings"]):
+        lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
         members = [by_id[t] for t in p["target_ids"]]
-        alloc = allocation(
-            AllocationRequest(
-                targets=members,
-                pointing={"ra_deg": p["ra_deg"] % 360.0, "dec_deg": p["dec_deg"],
-                          "position_angle_deg": req.position_angle_deg},
-                method=req.method, solver=req.solver, configurations="all", seed=req.seed,
-            ),
-            inst, time_limit_s=time_limit_s,
-        )
-        progress(0.05 + 0.95 * (i + 0.5) / n)
-        configs_q = [
-            np.array([[a["theta1_rad"], a["theta2_rad"]] for a in c["assignments"]], float)
-            for c in alloc["configurations"]
-        ]
-        motions = motion_chain(inst, configs_q, seed=req.seed, time_limit_s=time_limit_s)
-        out.append({**p, "configurations": alloc["configurations"], "motions": motions,
-                    "unallocated": alloc["unallocated"]})
-        progress(0.05 + 0.95 * (i + 1) / n)
-    n_cfg = sum(len(p["configurations"]) for p in out)
-    n_alloc = sum(
-        1 for p in out for c in p["configurations"] for a in c["assignments"] if a["target_id"]
-    )
+        ra, dec = p["ra_deg"] % 360.0, p["dec_deg"]
+        x, y = sky_to_focal(members, ra, dec, inst, req.position_angle_deg)
+        share = left() / (n - i)  # this pointing's part of what is left of the budget
+        pstats: dict[str, Any] = {}
+        if share < _MIN_STAGE_S:
+            configs: list[dict[str, Any]] = []
+            unalloc = [{"target_id": t.id, "reason": "no_time"} for t in members]
+            pstats["allocation"] = {"skipped": "request time budget exhausted"}
+        else:
+            result = _allocate(
+                allocate, inst, plane_targets([t.id for t in members], x, y,
+                                              [t.priority for t in members]),
+                method=req.method, solver=req.solver, configurations="all",
+                time_limit_s=min(time_limit_s, 0.5 * share), seed=seed,
+                progress=lambda f, lo=lo, hi=hi: progress(lo + 0.5 * (hi - lo) * f),
+            )
+            alloc = allocation_out(result)
+            configs, unalloc, pstats["allocation"] = (
+                alloc["configurations"], alloc["unallocated"], alloc["stats"])
+        progress(lo + 0.5 * (hi - lo))
+        qs = [np.array([[a["theta1_rad"], a["theta2_rad"]] for a in c["assignments"]], float)
+              for c in configs]
+        legs = len(qs) + 1
+        remaining = deadline - time.monotonic() - (n - i - 1) * share if deadline else math.inf
+        leg_budget = max(min(time_limit_s, remaining / legs), _MIN_STAGE_S)
+        tm = time.monotonic()
+        motions = motion_chain(inst, qs, seed=seed, time_limit_s=leg_budget)
+        pstats["motion"] = {"legs": legs, "leg_budget_s": leg_budget,
+                            "compute_s": time.monotonic() - tm,
+                            "failed_legs": sum(m["status"] != "ok" for m in motions)}
+        out.append({**p, "ra_deg": ra, "configurations": configs, "motions": motions,
+                    "unallocated": unalloc, "stats": pstats})
+        progress(hi)
+    reasons: dict[str, int] = {}
+    for p in out:
+        for u in p["unallocated"]:
+            reasons[u["reason"]] = reasons.get(u["reason"], 0) + 1
+    progress(1.0)
     return {
         "tangent_point": seg["tangent_point"],
         "pointings": out,
-        "stats": {
-            "targets": len(req.targets), "pointings": len(out), "configurations": n_cfg,
-            "allocated_targets": n_alloc,
+        "stats": plain({
+            "targets": len(req.targets), "pointings": len(out),
+            "configurations": sum(len(p["configurations"]) for p in out),
+            "allocated_targets": sum(
+                1 for p in out for c in p["configurations"] for a in c["assignments"]
+                if a["target_id"] is not None
+            ),
+            "unallocated_by_reason": reasons,
+            "motion_plans": sum(len(p["motions"]) for p in out),
             "motion_plans_failed": sum(
                 1 for p in out for m in p["motions"] if m["status"] != "ok"
             ),
+            "time_limit_s": time_limit_s,
+            "budget_s": budget_s,
+            "elapsed_s": time.monotonic() - t0,
             "segmentation": seg["stats"],
-        },
+        }),
     }
+
+
+_MIN_STAGE_S = 0.5  # below this share of the request budget a pointing is not attempted
 
 
 _STAGE_CHECKS: dict[str, Callable[[], None]] = {
@@ -424,7 +566,7 @@ _STAGE_CHECKS: dict[str, Callable[[], None]] = {
 
 
 def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
-        *, time_limit_s: float) -> dict[str, Any]:
+        *, time_limit_s: float, budget_s: float | None = None) -> dict[str, Any]:
     """Run one stage by its job kind on an already validated (or raw dict) request."""
     model = REQUEST_TYPES[kind]
     req = request if isinstance(request, model) else model.model_validate(request)
@@ -434,4 +576,5 @@ def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
         return allocation(req, inst, progress, time_limit_s=time_limit_s)  # type: ignore[arg-type]
     if kind == "motion-plan":
         return motion_plan(req, inst, progress, time_limit_s=time_limit_s)  # type: ignore[arg-type]
-    return plan(req, inst, progress, time_limit_s=time_limit_s)  # type: ignore[arg-type]
+    return plan(req, inst, progress, time_limit_s=time_limit_s,  # type: ignore[arg-type]
+                budget_s=budget_s)

@@ -218,7 +218,11 @@ class PlanRequest(Request):
     method: Method = "ilp"
     solver: Solver = "highs"
     position_angle_deg: PositionAngleDeg = 0.0
-    time_limit_s: TimeLimitS | None = None
+    time_limit_s: TimeLimitS | None = Field(
+        None, description="Time limit of every solver call (each pointing's allocation, each "
+        "motion leg), s. A synchronous POST /v1/plans is also bounded as a whole by the "
+        "server's MXS_PLAN_BUDGET_S; plan big fields with POST /v1/jobs."
+    )
     seed: Seed | None = None
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
@@ -339,20 +343,29 @@ class SegmentationResponse(Response):
 
 
 class AssignmentOut(Response):
+    """Where one arm is in one configuration (tip position in the FOV frame)."""
+
     arm: int
-    target_id: str | None = Field(description="Allocated target; null = parked / blank sky.")
+    target_id: str | None = Field(description="Allocated target; null = parked / blank sky / fixed.")
     theta1_rad: float
     theta2_rad: float
     x_mm: float
     y_mm: float
+    kind: Literal["target", "park", "blank", "fixed"] | None = Field(
+        None,
+        description="'target' (observes target_id), 'park', 'blank' (a blank-sky location), "
+        "'fixed' (a disabled arm left where it is).",
+    )
 
 
 class ConfigurationOut(Response):
     index: int
     status: Literal["optimal", "feasible"]
-    total_priority: int
-    arm_yield: int
-    assignments: list[AssignmentOut]
+    total_priority: int = Field(description="Sum of the allocated targets' priorities (exact).")
+    arm_yield: int = Field(description="Arms observing a target.")
+    assignments: list[AssignmentOut] = Field(description="One entry per arm, sorted by arm.")
+    stats: Stats = Field(default_factory=dict, description="Solve time, solver status, "
+                         "longest move (s) of this configuration.")
 
 
 class Unallocated(Response):
@@ -400,6 +413,8 @@ class PlanPointing(PointingOut):
         description="Motion plans park -> c1 -> ... -> park (len(configurations) + 1)."
     )
     unallocated: list[Unallocated]
+    stats: Stats = Field(default_factory=dict, description="Allocation and motion statistics "
+                         "of this pointing.")
 
 
 class PlanResponse(Response):

@@ -30,6 +30,10 @@ class Settings(BaseSettings):
         30.0, gt=0, description="Solver time limit when a request gives none."
     )
     max_time_limit_s: float = Field(600.0, gt=0, description="Largest time limit a request may ask.")
+    plan_budget_s: float = Field(
+        120.0, gt=0, description="Wall-clock budget of one synchronous POST /v1/plans (the "
+        "whole pipeline); jobs are bounded only per solver call."
+    )
 
     @field_validator("api_token")
     @classmethod

@@ -9,10 +9,14 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from models.collision import colliding_arm_pairs
 from models.instrument import default_instrument
+from models.kinematics import tip_fov
+from models.sky import sky_to_focal_mm
 from service import pipeline
 from service.app import create_app
 from service.settings import Settings
@@ -37,9 +41,56 @@ def park() -> list[dict[str, Any]]:
             for a in default_instrument().arms]
 
 
-def assert_unavailable(r: httpx.Response) -> None:
-    assert r.status_code == 501, r.text
-    assert r.json()["error"] == "stage_unavailable"
+def test_every_stage_is_wired() -> None:
+    """Every stage has landed: a 501 ``stage_unavailable`` would now be a regression."""
+    for kind in ("segmentation", "allocation", "motion-plan", "plan"):
+        pipeline.require_stage(kind)
+
+
+TIP_TOL_MM = 0.01
+
+
+def check_allocation(out: dict[str, Any], targets: dict[str, tuple[float, float, int]], *,
+                     buffer_mm: float | None = None, fixed: dict[int, tuple[float, float]] | None = None
+                     ) -> set[str]:
+    """Full checks of an allocation answer against ``targets`` {id: (x_mm, y_mm, priority)}
+    in the FOV frame. Returns the allocated ids."""
+    inst = default_instrument()
+    seen: set[str] = set()
+    for i, c in enumerate(out["configurations"]):
+        assert c["index"] == i
+        assert c["status"] in ("optimal", "feasible")
+        a = c["assignments"]
+        assert [e["arm"] for e in a] == list(range(12)), "one entry per arm, sorted"
+        th1 = np.array([e["theta1_rad"] for e in a])
+        th2 = np.array([e["theta2_rad"] for e in a])
+        tips = tip_fov(inst, np.arange(12), th1, th2)  # (12, 2), recomputed from the angles
+        got = []
+        for e, tip in zip(a, tips, strict=True):
+            # the reported position is where the tip really is, for every kind of entry
+            assert math.hypot(tip[0] - e["x_mm"], tip[1] - e["y_mm"]) < TIP_TOL_MM, e
+            if e["target_id"] is None:
+                assert e["kind"] in ("park", "blank", "fixed"), e
+                continue
+            assert e["kind"] == "target", e
+            x, y, _ = targets[e["target_id"]]
+            assert math.hypot(tip[0] - x, tip[1] - y) < TIP_TOL_MM, (e, x, y)
+            got.append(e["target_id"])
+        for k, (t1, t2) in (fixed or {}).items():
+            assert a[k]["kind"] == "fixed" and a[k]["target_id"] is None
+            assert (a[k]["theta1_rad"], a[k]["theta2_rad"]) == pytest.approx((t1, t2), abs=1e-9)
+        assert colliding_arm_pairs(inst, np.column_stack([th1, th2]), buffer_mm) == []
+        assert len(got) == len(set(got)) == c["arm_yield"]
+        assert not seen & set(got), "a target observed twice"
+        seen |= set(got)
+        total = sum(targets[t][2] for t in got)
+        assert type(c["total_priority"]) is int and c["total_priority"] == total
+    left = {u["target_id"] for u in out["unallocated"]}
+    assert not seen & left
+    assert seen | left == set(targets)
+    assert all(u["reason"] in ("unreachable", "conflict", "no_time") for u in out["unallocated"])
+    assert isinstance(out["stats"], dict) and out["stats"]
+    return seen
 
 
 # ------------------------------------------------------------------ GET endpoints
@@ -111,8 +162,6 @@ def test_twenty_concurrent_requests(live_server) -> None:
 def test_segmentation_endpoint(live_server) -> None:
     body = example("segmentation")
     r = httpx.post(live_server.url + "/v1/segmentations", json=body, timeout=60)
-    if not pipeline.stage_available("segmentation"):
-        return assert_unavailable(r)
     assert r.status_code == 200, r.text
     out = r.json()
     ids = [t for p in out["pointings"] for t in p["target_ids"]]
@@ -122,73 +171,147 @@ def test_segmentation_endpoint(live_server) -> None:
     assert set(out["tangent_point"]) >= {"ra_deg", "dec_deg"}
 
 
-def _check_configuration(c: dict[str, Any], ids: set[str]) -> None:
-    assert [a["arm"] for a in c["assignments"]] == list(range(12))
-    got = [a["target_id"] for a in c["assignments"] if a["target_id"] is not None]
-    assert len(got) == len(set(got)) == c["arm_yield"]
-    assert set(got) <= ids
-    assert c["status"] in ("optimal", "feasible")
+def plane(body: dict[str, Any]) -> dict[str, tuple[float, float, int]]:
+    return {t["id"]: (t["x_mm"], t["y_mm"], t["priority"]) for t in body["targets"]}
 
 
 def test_allocation_then_motion_plan(live_server) -> None:
-    body = example("allocation")
+    body = example("allocation")  # 24 focal-plane targets, configurations "all"
     r = httpx.post(live_server.url + "/v1/allocations", json=body, timeout=120)
-    if not pipeline.stage_available("allocation"):
-        return assert_unavailable(r)
     assert r.status_code == 200, r.text
     out = r.json()
-    ids = {t["id"] for t in body["targets"]}
-    for c in out["configurations"]:
-        _check_configuration(c, ids)
-    done = {a["target_id"] for c in out["configurations"] for a in c["assignments"]}
-    assert ids <= done | {u["target_id"] for u in out["unallocated"]}
+    done = check_allocation(out, plane(body))
+    assert len(done) == len(body["targets"])  # all reachable: every one gets a configuration
+    assert out["stats"]["n_configurations"] == len(out["configurations"]) >= 2
     goal = [{k: a[k] for k in ("arm", "theta1_rad", "theta2_rad")}
             for a in out["configurations"][0]["assignments"]]
     r = httpx.post(live_server.url + "/v1/motion-plans",
-                   json={"start": park(), "goal": goal, "seed": 1}, timeout=120)
-    if not pipeline.stage_available("motion-plan"):
-        return assert_unavailable(r)
+                   json={"start": park(), "goal": goal, "seed": 1, "time_limit_s": 5}, timeout=120)
     assert r.status_code == 200, r.text
-    plan = r.json()
+    check_motion(r.json(), park(), goal)
+
+
+def check_motion(plan: dict[str, Any], start: list[dict[str, Any]], goal: list[dict[str, Any]]) -> None:
+    """A motion plan is either "ok" (every arm goes from start to goal) or "failed" naming arms."""
     assert plan["status"] in ("ok", "failed")
-    if plan["status"] == "ok":
-        assert plan["failed_arms"] == []
-        for tr in plan["trajectories"]:
-            end = tr["waypoints"][-1]
-            assert end["theta1_rad"] == pytest.approx(goal[tr["arm"]]["theta1_rad"], abs=1e-6)
-            assert math.remainder(end["theta2_rad"] - goal[tr["arm"]]["theta2_rad"],
-                                  2 * math.pi) == pytest.approx(0, abs=1e-6)
+    if plan["status"] == "failed":
+        assert plan["failed_arms"]
+        return
+    assert plan["failed_arms"] == []
+    assert sorted(t["arm"] for t in plan["trajectories"]) == list(range(12))
+    for tr in plan["trajectories"]:
+        first, end = tr["waypoints"][0], tr["waypoints"][-1]
+        s, g = start[tr["arm"]], goal[tr["arm"]]
+        assert first["theta1_rad"] == pytest.approx(s["theta1_rad"], abs=1e-6)
+        assert math.remainder(first["theta2_rad"] - s["theta2_rad"], 2 * math.pi) == pytest.approx(0, abs=1e-6)
+        assert end["theta1_rad"] == pytest.approx(g["theta1_rad"], abs=1e-6)
+        assert math.remainder(end["theta2_rad"] - g["theta2_rad"],
+                              2 * math.pi) == pytest.approx(0, abs=1e-6)
+        assert end["t_s"] <= plan["makespan_s"] + 1e-9
 
 
-def test_motion_plan_endpoint(live_server) -> None:
-    r = httpx.post(live_server.url + "/v1/motion-plans", json=example("motion_plan"), timeout=120)
-    if not pipeline.stage_available("motion-plan"):
-        return assert_unavailable(r)
+def test_allocation_unreachable_priorities_start_and_disabled_arms(live_server) -> None:
+    top = 2**32 - 1
+    body = {
+        "targets": [
+            {"id": "far", "x_mm": 400.0, "y_mm": 0.0, "priority": top},  # outside every arm's reach
+            {"id": "c", "x_mm": 0.0, "y_mm": 0.0, "priority": top},
+            {"id": "d", "x_mm": 60.0, "y_mm": 30.0, "priority": top - 1},
+            {"id": "e", "x_mm": -50.0, "y_mm": -60.0, "priority": top - 2},
+        ],
+        "configurations": "all", "solver": "cpsat", "seed": 3, "time_limit_s": 10,
+        "collision_buffer_mm": 6.0,
+        "start": [{"arm": 2, "theta1_rad": 3.0, "theta2_rad": 0.2}],
+        "disabled_arms": [{"arm": 5, "theta1_rad": 3.0, "theta2_rad": 0.1}],
+    }
+    r = httpx.post(live_server.url + "/v1/allocations", json=body, timeout=120)
     assert r.status_code == 200, r.text
     out = r.json()
-    assert out["status"] == "ok"
-    assert sorted(t["arm"] for t in out["trajectories"]) == list(range(12))
+    done = check_allocation(out, plane(body), buffer_mm=6.0, fixed={5: (3.0, 0.1)})
+    assert done == {"c", "d", "e"}
+    assert out["unallocated"] == [{"target_id": "far", "reason": "unreachable"}]
+    # priorities near 2^32 survive exactly (no float rounding on the way)
+    totals = sorted(c["total_priority"] for c in out["configurations"])
+    assert sum(totals) == 3 * top - 3
+    assert all(a["arm"] != 5 for c in out["configurations"] for a in c["assignments"]
+               if a["target_id"])
 
 
 def test_allocation_sky_targets(live_server) -> None:
-    r = httpx.post(live_server.url + "/v1/allocations", json=example("allocation_sky"),
-                   timeout=120)
-    if not pipeline.stage_available("allocation"):
-        return assert_unavailable(r)
+    body = example("allocation_sky")  # semigreedy, one configuration
+    r = httpx.post(live_server.url + "/v1/allocations", json=body, timeout=120)
     assert r.status_code == 200, r.text
+    out = r.json()
+    p = body["pointing"]
+    inst = default_instrument()
+    x, y = sky_to_focal_mm(np.array([t["ra_deg"] for t in body["targets"]]),
+                           np.array([t["dec_deg"] for t in body["targets"]]),
+                           p["ra_deg"], p["dec_deg"], inst.plate_scale_arcsec_per_mm,
+                           p["position_angle_deg"])
+    targets = {t["id"]: (float(xi), float(yi), t["priority"])
+               for t, xi, yi in zip(body["targets"], x, y, strict=True)}
+    done = check_allocation(out, targets)
+    assert len(out["configurations"]) == 1 and len(done) >= 8
+
+
+def test_allocation_sky_target_behind_the_pointing_is_422(live_server) -> None:
+    body = {"targets": sky(2, ra_deg=214.75, dec_deg=-57.13),
+            "pointing": {"ra_deg": 34.75, "dec_deg": 57.13}}
+    r = httpx.post(live_server.url + "/v1/allocations", json=body, timeout=30)
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "targets", 0, "dec_deg"]
+
+
+def test_motion_plan_endpoint(live_server) -> None:
+    body = example("motion_plan")
+    r = httpx.post(live_server.url + "/v1/motion-plans", json=body, timeout=120)
+    assert r.status_code == 200, r.text
+    out = r.json()
+    assert out["status"] == "ok"
+    check_motion(out, body["start"], body["goal"])
 
 
 def test_plan_endpoint(live_server) -> None:
-    body = {"targets": example("plan")["targets"][:15], "seed": 1, "time_limit_s": 10}
+    """The whole pipeline on the small example field (12 M13 stars, one pointing)."""
+    body = example("plan")
     r = httpx.post(live_server.url + "/v1/plans", json=body, timeout=300)
-    if not pipeline.stage_available("plan"):
-        return assert_unavailable(r)
     assert r.status_code == 200, r.text
     out = r.json()
-    ids = {t["id"] for t in body["targets"]}
-    assert sorted(t for p in out["pointings"] for t in p["target_ids"]) == sorted(ids)
+    inst = default_instrument()
+    by_id = {t["id"]: t for t in body["targets"]}
+    assert sorted(t for p in out["pointings"] for t in p["target_ids"]) == sorted(by_id)
+    n_ok = 0
     for p in out["pointings"]:
+        # members projected onto the pointing's own tangent plane
+        members = [by_id[t] for t in p["target_ids"]]
+        x, y = sky_to_focal_mm(np.array([t["ra_deg"] for t in members]),
+                               np.array([t["dec_deg"] for t in members]), p["ra_deg"], p["dec_deg"],
+                               inst.plate_scale_arcsec_per_mm, body.get("position_angle_deg", 0.0))
+        targets = {t["id"]: (float(xi), float(yi), t["priority"])
+                   for t, xi, yi in zip(members, x, y, strict=True)}
+        check_allocation({"configurations": p["configurations"], "unallocated": p["unallocated"],
+                          "stats": p["stats"]["allocation"]}, targets)
+        # motions: park -> c1 -> ... -> park
         assert len(p["motions"]) == len(p["configurations"]) + 1
+        states = [park()] + [
+            [{k: a[k] for k in ("arm", "theta1_rad", "theta2_rad")} for a in c["assignments"]]
+            for c in p["configurations"]
+        ] + [park()]
+        for leg, m in enumerate(p["motions"]):
+            if leg and p["motions"][leg - 1]["status"] == "ok":
+                prev = p["motions"][leg - 1]["trajectories"]
+                start = [{"arm": t["arm"], **{k: t["waypoints"][-1][k] for k in ("theta1_rad", "theta2_rad")}}
+                         for t in prev]
+            else:
+                start = states[leg]
+            check_motion(m, start, states[leg + 1])
+            n_ok += m["status"] == "ok"
+    s = out["stats"]
+    assert s["pointings"] == len(out["pointings"]) and s["targets"] == len(by_id)
+    assert s["allocated_targets"] == len(by_id)  # a one-pointing field within the FOV
+    assert s["motion_plans"] == sum(len(p["motions"]) for p in out["pointings"])
+    assert s["motion_plans_failed"] == s["motion_plans"] - n_ok
+    assert n_ok >= 1
 
 
 # --------------------------------------------------------------------- bad input
