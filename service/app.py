@@ -200,8 +200,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
         The request is bounded as a whole by the server's plan budget (`MXS_PLAN_BUDGET_S`,
         default 120 s): pointings reached after it ran out report their targets `no_time`.
-        Plan big fields with `POST /v1/jobs` (`kind: "plan"`), which is bounded only per
-        solver call. A motion leg that cannot be planned is returned with status "failed".
+        Plan big fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`,
+        default 1 h). A motion leg that cannot be planned is returned with status "failed".
         """
         limit = _check_limits(req, st.settings)
         return pipeline.plan(req, st.instrument, time_limit_s=limit,
@@ -213,7 +213,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         limit = _check_limits(job.request, st.settings, ("body", job.kind, "request"))
         pipeline.require_stage(job.kind)  # 501 now rather than a job that must fail
         request = job.request.model_dump(mode="json", exclude_none=True)
-        job_id = st.jobs.submit(job.kind, request, limit)
+        job_id = st.jobs.submit(job.kind, request, limit, st.settings.job_budget_s)
         return JSONResponse(status_code=202, content={"job_id": job_id, "status": "queued"})
 
     @app.get("/v1/jobs/{job_id}", operation_id="get_job", response_model=JobStatus, tags=["jobs"],

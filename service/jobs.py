@@ -130,7 +130,8 @@ class _closing:
 
 
 def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
-            instrument_file: str | None, time_limit_s: float) -> str:
+            instrument_file: str | None, time_limit_s: float,
+            budget_s: float | None = None) -> str:
     """Executed in a pool process: run the stage, persist the outcome. Never raises."""
     from models.instrument import InstrumentError
     from service import pipeline
@@ -147,7 +148,8 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
                 store.set_progress(job_id, p)
 
         inst = pipeline.instrument_from(instrument_file)
-        result = pipeline.run(kind, request, inst, progress, time_limit_s=time_limit_s)
+        result = pipeline.run(kind, request, inst, progress, time_limit_s=time_limit_s,
+                              budget_s=budget_s)
         store.set_done(job_id, result)
         return "done"
     except (ServiceError, InstrumentError) as exc:
@@ -184,12 +186,14 @@ class JobManager:
                 )
             return self._pool
 
-    def submit(self, kind: str, request: dict[str, Any], time_limit_s: float) -> str:
+    def submit(self, kind: str, request: dict[str, Any], time_limit_s: float,
+               budget_s: float | None = None) -> str:
+        """Queue a job; ``time_limit_s`` bounds each solver call, ``budget_s`` a whole plan."""
         job_id = self.store.create(kind, request)
         try:
             fut = self._executor().submit(
                 run_job, str(self.store.db_path), job_id, kind, request,
-                self.instrument_file, time_limit_s,
+                self.instrument_file, time_limit_s, budget_s,
             )
         except Exception as exc:  # broken pool: start a fresh one next time
             log.exception("could not submit job %s", job_id)

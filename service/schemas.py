@@ -221,7 +221,7 @@ class PlanRequest(Request):
     time_limit_s: TimeLimitS | None = Field(
         None, description="Time limit of every solver call (each pointing's allocation, each "
         "motion leg), s. A synchronous POST /v1/plans is also bounded as a whole by the "
-        "server's MXS_PLAN_BUDGET_S; plan big fields with POST /v1/jobs."
+        "server's plan budget (MXS_PLAN_BUDGET_S); plan big fields with POST /v1/jobs."
     )
     seed: Seed | None = None
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(

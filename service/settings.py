@@ -32,7 +32,10 @@ class Settings(BaseSettings):
     max_time_limit_s: float = Field(600.0, gt=0, description="Largest time limit a request may ask.")
     plan_budget_s: float = Field(
         120.0, gt=0, description="Wall-clock budget of one synchronous POST /v1/plans (the "
-        "whole pipeline); jobs are bounded only per solver call."
+        "whole pipeline); plan big fields as jobs."
+    )
+    job_budget_s: float = Field(
+        3600.0, gt=0, description="Wall-clock budget of one 'plan' job (the whole pipeline)."
     )
 
     @field_validator("api_token")

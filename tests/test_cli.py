@@ -17,7 +17,6 @@ import pytest
 from astropy.table import Table
 
 from models.instrument import default_instrument
-from service import pipeline
 from service.cli import TargetFileError, main, read_targets
 from service.plots import plot_configuration
 
@@ -100,18 +99,29 @@ def test_plot_configuration(tmp_path: Path) -> None:
 
 
 def test_cli_plan(tmp_path: Path, capsys) -> None:
+    """`plan` on a small one-pointing field (the 12 M13 stars of examples/requests/plan.json)."""
+    from service.schemas import PlanResponse
+
+    rows = json.loads((EXAMPLES / "requests" / "plan.json").read_text())["targets"]
+    t = Table(rows=[(r["id"], r["ra_deg"], r["dec_deg"], r["priority"]) for r in rows],
+              names=["id", "ra_deg", "dec_deg", "priority"])
+    src = tmp_path / "m13_small.ecsv"
+    t.write(src, format="ascii.ecsv")
     out = tmp_path / "out"
-    code = main(["plan", str(EXAMPLES / "m13_targets.csv"), "--out", str(out), "--seed", "1",
-                 "--time-limit", "10", "--quiet"])
-    if not pipeline.stage_available("plan"):
-        assert code == 3
-        assert "not available" in capsys.readouterr().err
-        return
+    code = main(["plan", str(src), "--out", str(out), "--seed", "1", "--time-limit", "5", "--quiet"])
     assert code == 0, capsys.readouterr().err
+    assert "12 targets" in capsys.readouterr().out
     result = json.loads((out / "plan.json").read_text())
+    PlanResponse.model_validate(result)
+    assert sorted(i for p in result["pointings"] for i in p["target_ids"]) == sorted(t["id"])
     n_cfg = sum(len(p["configurations"]) for p in result["pointings"])
+    assert n_cfg >= 1 and result["stats"]["allocated_targets"] == len(rows)
+    for p in result["pointings"]:
+        assert len(p["motions"]) == len(p["configurations"]) + 1
+        assert all(m["status"] in ("ok", "failed") for m in p["motions"])
     pngs = sorted(out.glob("*.png"))
-    assert n_cfg >= 1 and len(pngs) == n_cfg
+    assert len(pngs) == n_cfg
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
 
 
 def _dockerfile_instruction(name: str) -> str:

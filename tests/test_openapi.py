@@ -48,9 +48,15 @@ def test_contract_names() -> None:
 
 @pytest.fixture(scope="module")
 def api_schema(tmp_path_factory: pytest.TempPathFactory):
+    # Every stage runs for real, each call kept short so the run stays well under 60 s.
+    # The coverage phase posts ~20 valid one-target plans; a real plan costs ~2.5 s (two
+    # motion legs), so here the plan budget is below what a pointing needs: /v1/plans runs
+    # segmentation and answers every pointing `no_time` with its verified stationary leg.
+    # Allocation and motion planning are fuzzed through their own endpoints, and the full
+    # /v1/plans answer is checked against PlanResponse in test_service_api.py.
     app = create_app(Settings(
         job_db=tmp_path_factory.mktemp("st") / "jobs.sqlite3", workers=1, max_targets=8,
-        default_time_limit_s=2.0, max_time_limit_s=86400.0,
+        default_time_limit_s=1.0, max_time_limit_s=2.0, plan_budget_s=0.4, job_budget_s=0.4,
     ))
     yield schemathesis.openapi.from_asgi("/openapi.json", app)
     app.state.mxs.close()
@@ -66,8 +72,7 @@ def test_schemathesis(case) -> None:
     from schemathesis.checks import response_schema_conformance
 
     response = case.call()
-    unavailable = response.status_code == 501 and response.json()["error"] == "stage_unavailable"
-    assert response.status_code < 500 or unavailable, (response.status_code, response.text)
+    assert response.status_code < 500, (response.status_code, response.text)
     case.validate_response(response, checks=[response_schema_conformance])
 
 
@@ -89,10 +94,12 @@ def test_generated_client_round_trip(tmp_path: Path, live_server) -> None:
                        timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     report = json.loads(r.stdout.strip().splitlines()[-1])
+    report["kinds"] = set(report["kinds"])
     assert report["health"] == "ok"
     assert report["arms"] == 12
-    assert report["allocation"] in ("ok", "unavailable")
-    assert report["motion"] in ("ok", "failed", "unavailable", "skipped")
+    assert report["allocation"] == "ok"
+    assert report["allocated"] >= 1 and report["kinds"] <= {"target", "park", "blank", "fixed"}
+    assert report["motion"] in ("ok", "failed")
 
 
 CLIENT_SCRIPT = r'''
@@ -111,25 +118,25 @@ targets = [PlaneTarget(id=f"t{{i}}", x_mm=60 * math.cos(i), y_mm=60 * math.sin(i
            for i in range(10)]
 resp = create_allocation.sync_detailed(
     client=client, body=AllocationRequest(targets=targets, time_limit_s=10, seed=1))
-if resp.status_code == 501:
-    report["allocation"] = report["motion"] = "unavailable"
-else:
-    assert resp.status_code == 200, resp.content
-    alloc = resp.parsed
-    report["allocation"] = "ok"
-    cfg = alloc.configurations[0]
-    assert len(cfg.assignments) == 12
-    goal = [ArmState(arm=a.arm, theta1_rad=a.theta1_rad, theta2_rad=a.theta2_rad)
-            for a in cfg.assignments]
-    start = [ArmState(arm=a.arm, theta1_rad=a.park.theta1_rad, theta2_rad=a.park.theta2_rad)
-             for a in inst.arms]
-    m = create_motion_plan.sync_detailed(
-        client=client, body=MotionPlanRequest(start=start, goal=goal, seed=1))
-    if m.status_code == 501:
-        report["motion"] = "unavailable"
-    else:
-        assert m.status_code == 200, m.content
-        report["motion"] = m.parsed.status.value if hasattr(m.parsed.status, "value") else str(m.parsed.status)
-        assert len(m.parsed.trajectories) == 12
+assert resp.status_code == 200, (resp.status_code, resp.content)
+alloc = resp.parsed
+report["allocation"] = "ok"
+cfg = alloc.configurations[0]
+assert [a.arm for a in cfg.assignments] == list(range(12))
+xy = {{t.id: (t.x_mm, t.y_mm) for t in targets}}
+for a in cfg.assignments:
+    if isinstance(a.target_id, str):  # the tip sits on its target
+        assert math.hypot(a.x_mm - xy[a.target_id][0], a.y_mm - xy[a.target_id][1]) < 0.01
+report["allocated"] = sum(isinstance(a.target_id, str) for a in cfg.assignments)
+report["kinds"] = sorted({{str(getattr(a.kind, "value", a.kind)) for a in cfg.assignments}})
+goal = [ArmState(arm=a.arm, theta1_rad=a.theta1_rad, theta2_rad=a.theta2_rad)
+        for a in cfg.assignments]
+start = [ArmState(arm=a.arm, theta1_rad=a.park.theta1_rad, theta2_rad=a.park.theta2_rad)
+         for a in inst.arms]
+m = create_motion_plan.sync_detailed(
+    client=client, body=MotionPlanRequest(start=start, goal=goal, seed=1, time_limit_s=5))
+assert m.status_code == 200, (m.status_code, m.content)
+report["motion"] = m.parsed.status.value if hasattr(m.parsed.status, "value") else str(m.parsed.status)
+assert len(m.parsed.trajectories) == (12 if report["motion"] == "ok" else len(m.parsed.trajectories))
 print(json.dumps(report))
 '''

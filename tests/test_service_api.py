@@ -19,6 +19,7 @@ from models.kinematics import tip_fov
 from models.sky import sky_to_focal_mm
 from service import pipeline
 from service.app import create_app
+from service.schemas import AllocationResponse, MotionPlanResponse, PlanResponse
 from service.settings import Settings
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "requests"
@@ -55,6 +56,7 @@ def check_allocation(out: dict[str, Any], targets: dict[str, tuple[float, float,
                      ) -> set[str]:
     """Full checks of an allocation answer against ``targets`` {id: (x_mm, y_mm, priority)}
     in the FOV frame. Returns the allocated ids."""
+    AllocationResponse.model_validate(out)
     inst = default_instrument()
     seen: set[str] = set()
     for i, c in enumerate(out["configurations"]):
@@ -193,6 +195,7 @@ def test_allocation_then_motion_plan(live_server) -> None:
 
 def check_motion(plan: dict[str, Any], start: list[dict[str, Any]], goal: list[dict[str, Any]]) -> None:
     """A motion plan is either "ok" (every arm goes from start to goal) or "failed" naming arms."""
+    MotionPlanResponse.model_validate(plan)
     assert plan["status"] in ("ok", "failed")
     if plan["status"] == "failed":
         assert plan["failed_arms"]
@@ -277,6 +280,7 @@ def test_plan_endpoint(live_server) -> None:
     r = httpx.post(live_server.url + "/v1/plans", json=body, timeout=300)
     assert r.status_code == 200, r.text
     out = r.json()
+    PlanResponse.model_validate(out)
     inst = default_instrument()
     by_id = {t["id"]: t for t in body["targets"]}
     assert sorted(t for p in out["pointings"] for t in p["target_ids"]) == sorted(by_id)

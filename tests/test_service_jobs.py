@@ -9,7 +9,6 @@ from typing import Any
 import httpx
 from fastapi.testclient import TestClient
 
-from service import pipeline
 from service.app import create_app
 from service.jobs import INTERRUPTED, JobStore
 from service.settings import Settings
@@ -34,9 +33,6 @@ def wait_terminal(get, job_id: str, timeout: float = 60.0) -> dict[str, Any]:
 def test_job_over_http(live_server) -> None:
     r = httpx.post(live_server.url + "/v1/jobs",
                    json={"kind": "segmentation", "request": SEG_REQUEST})
-    if not pipeline.stage_available("segmentation"):
-        assert r.status_code == 501 and r.json()["error"] == "stage_unavailable"
-        return
     assert r.status_code == 202, r.text
     created = r.json()
     assert created["status"] == "queued"
@@ -52,17 +48,13 @@ def test_job_survives_server_restart(tmp_path: Path) -> None:
     db = tmp_path / "jobs.sqlite3"
     settings = Settings(job_db=db, workers=1)
 
-    # first server: one job runs to its end in the process pool (done if the segmentation
-    # stage exists, otherwise failed with the reason), another is left "running"
+    # first server: one job runs to its end in the process pool, another is left "running"
     app1 = create_app(settings)
     with TestClient(app1) as c:
         jobs = app1.state.mxs.jobs
         finished = jobs.submit("segmentation", SEG_REQUEST, 10.0)
         before = wait_terminal(lambda j: c.get(f"/v1/jobs/{j}").json(), finished)
-        if pipeline.stage_available("segmentation"):
-            assert before["status"] == "done" and before["result"]["pointings"]
-        else:
-            assert before["status"] == "failed" and "not available" in before["error"]
+        assert before["status"] == "done" and before["result"]["pointings"]
         store = JobStore(db)
         in_flight = store.create("plan", {"targets": []})
         store.set_running(in_flight)
@@ -104,5 +96,31 @@ def test_invalid_job_request_fails_cleanly_in_worker(tmp_path: Path) -> None:
         j = jobs.submit("segmentation", {"targets": [{"id": "a", "ra_deg": 400}]}, 10.0)
         job = wait_terminal(lambda k: c.get(f"/v1/jobs/{k}").json(), j)
         assert job["status"] == "failed"
-        if pipeline.stage_available("segmentation"):
-            assert "ra_deg" in job["error"]
+        assert "ra_deg" in job["error"]
+
+
+def test_allocation_and_plan_jobs_over_http(live_server) -> None:
+    """The allocation and whole-pipeline stages run in the process pool with progress."""
+    alloc = {"targets": [{"id": f"a{i}", "x_mm": 40.0 * i - 60, "y_mm": 10.0 * i, "priority": 2**32 - 1 - i}
+                         for i in range(4)], "configurations": "all", "seed": 2, "time_limit_s": 5}
+    plan = {"targets": SEG_REQUEST["targets"][:3], "seed": 1, "time_limit_s": 3}
+    ids = {}
+    for kind, req in (("allocation", alloc), ("plan", plan)):
+        r = httpx.post(live_server.url + "/v1/jobs", json={"kind": kind, "request": req})
+        assert r.status_code == 202, r.text
+        ids[kind] = r.json()["job_id"]
+    get = lambda j: httpx.get(f"{live_server.url}/v1/jobs/{j}").json()  # noqa: E731
+    a = wait_terminal(get, ids["allocation"], timeout=120)
+    assert a["status"] == "done", a
+    assert a["progress"] == 1.0
+    res = a["result"]
+    assert {x["target_id"] for c in res["configurations"] for x in c["assignments"]
+            if x["target_id"]} | {u["target_id"] for u in res["unallocated"]} == {t["id"] for t in alloc["targets"]}
+    assert all(type(c["total_priority"]) is int for c in res["configurations"])
+    p = wait_terminal(get, ids["plan"], timeout=120)
+    assert p["status"] == "done", p
+    out = p["result"]
+    assert sorted(t for q in out["pointings"] for t in q["target_ids"]) == sorted(
+        t["id"] for t in plan["targets"])
+    for q in out["pointings"]:
+        assert len(q["motions"]) == len(q["configurations"]) + 1
