@@ -24,11 +24,12 @@ from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing import Progress, sequence_configurations
 
 METHODS = ("ilp", "semigreedy")
-SOLVERS = ("highs", "cpsat")
+SOLVERS = ("highs", "cpsat", "bnb")
 CONFIG_MODES = ("one", "all")
 ILP_OPTIONS = {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level", "interface"}
 SEQ_OPTIONS = {"config_time_limit_s", "mip_rel_gap", "threads", "tie_break", "repack", "repack_max_window",
-               "repack_time_limit_s", "max_configurations"}
+               "repack_time_limit_s", "max_configurations", "adaptive_limits", "lower_bound_flow"}
+BNB_OPTIONS = {"node_limit", "minimize_move", "fallback", "hint", "tie_node_limit", "move_node_limit"}
 
 
 def _solver_fn(method: str, solver: str, options: dict) -> Callable[[ConfigProblem], ConfigSolution]:
@@ -41,6 +42,13 @@ def _solver_fn(method: str, solver: str, options: dict) -> Callable[[ConfigProbl
         return partial(solve_semigreedy, **options)
     from solvers.ilp import solve_ilp_cpsat, solve_ilp_highs
 
+    if solver == "bnb":
+        from solvers.bnb import solve_ilp_bnb
+
+        bad = set(options) - BNB_OPTIONS
+        if bad:
+            raise InputError(f"options.{sorted(bad)[0]}", "not an option of solver 'bnb'")
+        return partial(solve_ilp_bnb, **options)
     if solver == "highs":
         bad = set(options) - {"form", "minimize_move", "candidates_per_arm", "interface"}
         if bad:
@@ -64,7 +72,7 @@ def allocate(
     targets: PlaneTargets,
     *,
     method: str = "ilp",
-    solver: str = "cpsat",
+    solver: str = "bnb",
     configurations: str = "one",
     time_limit_s: float = 10.0,
     seed: int = 0,

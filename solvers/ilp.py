@@ -334,7 +334,8 @@ def greedy_solution(problem: ConfigProblem) -> np.ndarray | None:
 
 
 def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move: bool,
-                candidates_per_arm: int | None, backend: str, max_rounds: int = 6) -> ConfigSolution:
+                candidates_per_arm: int | None, backend: str, max_rounds: int = 6,
+                hint: np.ndarray | None = None) -> ConfigSolution:
     """Lexicographic exact solve with lazy candidate expansion (see build_model_arrays).
 
     Stage 1 maximises the safe weight; whenever the optimum of the relaxation uses a
@@ -353,6 +354,15 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
     deadline = t_start + problem.time_limit_s
     cand = None if candidates_per_arm is None else initial_candidates(problem, candidates_per_arm)
     step = candidates_per_arm or 0
+    hint_ok = hint is not None and np.shape(hint) == (n_arms,) and (np.asarray(hint) >= 0).all()
+    hint = np.asarray(hint, np.int64) if hint_ok else None
+    if hint is not None:
+        if not problem.allowed()[hint].all():
+            hint = None
+        elif cand is not None:
+            cand[hint] = True  # the hint must be representable in the restricted model
+            cand = _close_over_targets(problem, cand)
+    stats["hint"] = hint is not None
 
     def finish(chosen, status, gap):
         stats["total_s"] = time.perf_counter() - t_start
@@ -378,7 +388,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
             remaining = deadline - time.perf_counter()
             if remaining < 0.05:
                 break
-            status, x, gap, s = solve_arrays(m, 1, None, remaining)
+            status, x, gap, s = solve_arrays(m, 1, None, remaining, hint)
             s.update(stage="restricted", n_vars=m.n_vars)
             stats["rounds"].append(s)
             if x is not None:
@@ -395,7 +405,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
         remaining = deadline - time.perf_counter()
         if remaining <= 0.005:
             break
-        status, x, gap, s = solve_arrays(m, stage, w1, remaining)
+        status, x, gap, s = solve_arrays(m, stage, w1, remaining, best[0] if best is not None else hint)
         s.update(stage=stage, n_vars=m.n_vars, n_rows=m.n_rows, nnz=m.nnz, build_s=build_s)
         stats["rounds"].append(s)
         if x is None:
@@ -495,16 +505,27 @@ def _stage_matrix(m: ModelArrays, stage: int, w1: int | None):
 
 
 def _highs_arrays(problem: ConfigProblem, interface: str):
-    def solve(m: ModelArrays, stage: int, w1, time_limit_s: float):
+    def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
         A, row_lo, row_hi, cost, integer, sense_max = _stage_matrix(m, stage, w1)
         col_hi = np.where(integer, 1.0, np.inf)
         if interface == "pyomo":
             return _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s)
-        return _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s)
+        start = _hint_vector(m, hint)
+        if start is not None and stage == 2:
+            start = np.r_[start, float(np.max(m.move_s[start > 0.5], initial=0.0))]
+        return _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start)
     return solve
 
 
-def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s):
+def _hint_vector(m: ModelArrays, hint) -> np.ndarray | None:
+    """0/1 column vector of a hinted choice (None unless every hinted assignment is a column)."""
+    if hint is None:
+        return None
+    x = np.isin(m.var, np.asarray(hint, np.int64)).astype(float)
+    return x if int(x.sum()) == len(hint) else None
+
+
+def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start=None):
     import highspy
 
     h = highspy.Highs()
@@ -529,6 +550,11 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
     lp.a_matrix_.value_ = A.data.astype(float)
     lp.integrality_ = [highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous for i in integer]
     h.passModel(lp)
+    if start is not None:
+        sol = highspy.HighsSolution()
+        sol.col_value = list(start)
+        sol.value_valid = True
+        h.setSolution(sol)
     t0 = time.perf_counter()
     h.run()
     solve_s = time.perf_counter() - t0
@@ -607,17 +633,19 @@ def _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, t
 
 
 def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interface: str = "highspy",
-                    minimize_move: bool = True, candidates_per_arm: int | None = 8) -> ConfigSolution:
+                    minimize_move: bool = True, candidates_per_arm: int | None = 8,
+                    hint: np.ndarray | None = None) -> ConfigSolution:
     """Exact allocation of one configuration with HiGHS (thesis eqs. 5.13–5.18).
 
     ``interface``: ``"highspy"`` (fast path) or ``"pyomo"`` (Pyomo model, APPSI HiGHS).
     ``minimize_move``: lexicographic stage 2 (min longest move, eq. 5.16).
     ``candidates_per_arm``: lazy candidate expansion (None = the full model at once).
+    ``hint``: a feasible choice passed to HiGHS as a MIP start (highspy interface).
     """
     if interface not in ("highspy", "pyomo"):
         raise ValueError(f"interface must be 'highspy' or 'pyomo', got {interface!r}")
     return _lazy_solve(problem, _highs_arrays(problem, interface), form=form, minimize_move=minimize_move,
-                       candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}")
+                       candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=hint)
 
 
 # ---------------------------------------------------------------------------------- CP-SAT
@@ -626,7 +654,7 @@ def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interfa
 def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_level: int):
     from ortools.sat.python import cp_model
 
-    def solve(m: ModelArrays, stage: int, w1, time_limit_s: float):
+    def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
         t0 = time.perf_counter()
         model = cp_model.CpModel()
         n_arms = len(m.eq_indptr) - 1
@@ -648,6 +676,10 @@ def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_lev
                 model.Add(xl >= cp_model.LinearExpr.WeightedSum([x[j] for j in cols],
                                                                 [int(ticks[j]) for j in cols]))
             model.Minimize(xl)
+        start = _hint_vector(m, hint)
+        if start is not None:
+            for j in range(m.n_vars):
+                model.AddHint(x[j], bool(start[j]))
         build_s = time.perf_counter() - t0
         solver = cp_model.CpSolver()
         p = solver.parameters
@@ -674,11 +706,14 @@ def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_lev
 
 def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers: int | None = None,
                     linearization_level: int = 2, minimize_move: bool = True,
-                    candidates_per_arm: int | None = 8) -> ConfigSolution:
+                    candidates_per_arm: int | None = 8, hint: np.ndarray | None = None) -> ConfigSolution:
     """Exact allocation of one configuration with OR-Tools CP-SAT (same model, exact int64).
 
     Aggregated conflict rows are at-most-one constraints, which CP-SAT handles natively.
-    ``workers``: CP-SAT workers (>= 2; default ``problem.threads``).
+    ``workers``: CP-SAT workers (>= 2; default ``problem.threads``).  ``hint``: a feasible
+    choice (assignment index per arm, e.g. solvers.semigreedy.warm_start or the
+    branch-and-bound incumbent) given to CP-SAT as a solution hint.
     """
     return _lazy_solve(problem, _cpsat_arrays(problem, workers, linearization_level), form=form,
-                       minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat")
+                       minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
+                       hint=hint)

@@ -87,11 +87,17 @@ def sequence_configurations(
     repack_time_limit_s: float = 2.0,
     progress: Progress | None = None,
     incompatibility: Incompatibility | None = None,
+    adaptive_limits: bool = True,
+    lower_bound_flow: bool = True,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
     ``time_limit_s`` bounds the whole sequence (pending targets then get reason
-    ``no_time``); ``config_time_limit_s`` each single solve.  ``max_configurations=1`` is
+    ``no_time``); ``config_time_limit_s`` caps each single solve, and with
+    ``adaptive_limits`` each solve gets at most twice its share of the remaining time
+    (remaining / ceil(pending / arms)), so a few hard configurations cannot starve the
+    rest; a solve cut short reports ``feasible`` with its gap.  ``lower_bound_flow`` adds
+    ``stats["lower_bound_configurations_flow"]`` (:func:`matching_lower_bound`).  ``max_configurations=1`` is
     the "one configuration" mode.  Unallocated targets: ``unreachable`` (no enabled arm
     reaches them), ``conflict`` (reachable but no further configuration could take them),
     ``no_time``.
@@ -113,7 +119,9 @@ def sequence_configurations(
     unreachable[inc.reachability.unreachable] = True
     pending = ~unreachable
     n_reachable = int(pending.sum())
-    lower_bound = math.ceil(n_reachable / max(len(_active_arms(inc, n_arms)), 1)) if n_reachable else 0
+    n_active = len(_active_arms(inc, n_arms))
+    lower_bound = math.ceil(n_reachable / max(n_active, 1)) if n_reachable else 0
+    flow_bound = matching_lower_bound(inc, pending) if (n_reachable and lower_bound_flow) else lower_bound
     speeds = joint_speeds(instrument)
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
     tie = hard_to_place(inc, n_arms) if tie_break else None
@@ -129,7 +137,13 @@ def sequence_configurations(
         if remaining <= 0.01:
             stop_reason = "no_time"
             break
-        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, time_limit_s=min(config_time_limit_s, remaining),
+        # per-configuration limit scaled to the remaining budget: what is left, shared by the
+        # configurations still needed at best (ceil(pending / arms)), twice that for slack
+        # (the hard ones are few); never above config_time_limit_s
+        n_left = max(math.ceil(int(pending.sum()) / max(n_active, 1)), 1)
+        limit_i = min(config_time_limit_s, remaining, max(2.0 * remaining / n_left, 0.05)) if adaptive_limits \
+            else min(config_time_limit_s, remaining)
+        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, time_limit_s=limit_i,
                              mip_rel_gap=mip_rel_gap, threads=threads, seed=seed + len(configs),
                              target_xy_mm=xy, tie_break=tie)
         ts = time.perf_counter()
@@ -145,7 +159,8 @@ def sequence_configurations(
         if not len(tg):
             stop_reason = "conflict"
             break
-        stats = {"solve_s": dt, "status": sol.status, "gap": sol.gap, "longest_move_s": sol.longest_move_s}
+        stats = {"solve_s": dt, "status": sol.status, "gap": sol.gap, "longest_move_s": sol.longest_move_s,
+                 "time_limit_s": limit_i}
         configs.append((prob, sol.chosen, sol.status, stats))
         pending[tg] = False
         q = prob.assignments.q[sol.chosen]
@@ -183,6 +198,7 @@ def sequence_configurations(
         "n_configurations": len(out),
         "n_configurations_greedy": greedy_count,
         "lower_bound_configurations": lower_bound,
+        "lower_bound_configurations_flow": flow_bound,
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
         "reachable_completeness": float(allocated.sum() / n_reachable) if n_reachable else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
@@ -195,6 +211,54 @@ def sequence_configurations(
     if progress:
         progress(1.0, "done")
     return AllocationResult(tuple(out), tuple(unalloc), stats)
+
+
+def matching_lower_bound(inc: Incompatibility, targets: np.ndarray) -> int:
+    """True lower bound on the number of configurations, beyond ceil(t / arms).
+
+    Each configuration gives every arm at most one target, so C configurations can only
+    exist if every target can be matched to an arm that reaches it with each arm taking
+    <= C targets (a bipartite b-matching; collisions ignored, hence a lower bound).  The
+    minimum such C is found by max-flow (scipy.sparse.csgraph.maximum_flow) and a binary
+    search starting at ceil(t / arms).  ``targets``: (n_targets,) bool of those to place.
+    """
+    from scipy import sparse as sp
+    from scipy.sparse.csgraph import maximum_flow
+
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    sel = np.flatnonzero(targets)
+    t_all = len(sel)
+    if t_all == 0:
+        return 0
+    m = (a.target >= 0)
+    m[m] = targets[a.target[m]]
+    pairs = np.unique(np.column_stack([a.arm[m], a.target[m]]), axis=0)
+    t_idx = np.searchsorted(sel, pairs[:, 1])
+    reach = np.bincount(pairs[:, 0], minlength=n_arms) > 0
+    n_act = int(reach.sum())
+    # nodes: 0 source, 1..n_arms arms, then targets, then sink
+    src, sink = 0, 1 + n_arms + t_all
+
+    def flow(c: int) -> int:
+        rows = np.r_[np.zeros(n_arms, int), 1 + pairs[:, 0], 1 + n_arms + np.arange(t_all)]
+        cols = np.r_[1 + np.arange(n_arms), 1 + n_arms + t_idx, np.full(t_all, sink)]
+        cap = np.r_[np.full(n_arms, c), np.ones(len(pairs), int), np.ones(t_all, int)].astype(np.int32)
+        g = sp.csr_matrix((cap, (rows, cols)), shape=(sink + 1, sink + 1))
+        return int(maximum_flow(g, src, sink).flow_value)
+
+    placeable = flow(t_all)  # targets some arm reaches
+    lo = math.ceil(placeable / max(n_act, 1))
+    hi = max(lo, 1)
+    while flow(hi) < placeable:
+        lo, hi = hi + 1, hi * 2
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if flow(mid) >= placeable:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
 
 
 def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:

@@ -1,0 +1,384 @@
+"""Exact branch-and-bound for one configuration, specialised to the IPBA structure.
+
+The integer program of :mod:`solvers.ilp` has a special shape: 12 arms, each takes exactly
+ONE location (eq. 5.13), and every other constraint (5.14 same target, 5.15 collisions) is
+a *pairwise* conflict between locations of different arms.  That is a weighted CSP with
+12 variables, which a small depth-first branch-and-bound with forward checking solves
+exactly and fast:
+
+* each arm's locations are ordered by the safe lexicographic weight
+  (:func:`solvers.ilp.safe_weights`: priority, then yield, then the tie-break) from high to
+  low; an arm's *domain* is a Python-int bitset over that order;
+* per location ``a`` and other arm ``k'`` a bitset of ``k'``'s locations in conflict with
+  ``a`` (built once per field with numpy ``packbits``; the weights do not change between
+  the configurations of a sequence, only availability does);
+* assigning ``a`` to its arm removes ``a``'s conflicts from every other domain (forward
+  checking); an empty domain fails;
+* bound = current weight + sum over unassigned arms of the best weight still in their
+  domain = the weight of the *lowest set bit*, found in O(1) by ``(d & -d).bit_length()``;
+* values are tried best first, so the first dive is a greedy solution and the loop stops
+  as soon as ``bound <= incumbent`` (later values weigh no more).
+
+Stage 2 (eq. 5.16, min longest move among maximum-weight solutions) is the same search
+with the weight held at the stage-1 optimum and every location whose move is not strictly
+shorter than the incumbent's longest move removed, restarted after each improvement.
+
+Exact in Python integers (priorities up to 2^32 - 1).  ``node_limit`` bounds the work;
+when it is hit the caller gets the incumbent with status ``feasible`` and a gap against
+the largest open bound (or falls back to CP-SAT, see :func:`solve_ilp_bnb`).
+"""
+
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+
+from solvers.problem import ConfigProblem, ConfigSolution, evaluate
+
+__all__ = ["BnbField", "prepare_field", "solve_bnb_chosen", "solve_ilp_bnb"]
+
+
+@dataclass
+class BnbField:
+    """Per-field, availability-independent data (cached on the incompatibility object)."""
+
+    n_arms: int
+    order: list[np.ndarray]  # per arm: assignment indices, weight descending
+    pos: np.ndarray  # (n_assignments,) bit position of an assignment in its arm's order
+    weights: list[list[int]]  # per arm: Python-int weights in order
+    nconf: list[list[int]]  # per assignment: per arm, ~(bitset of conflicting locations)
+    weight_key: bytes
+    coarse: list[list[int]]  # per arm: weight // tie_mult (priority and yield only)
+    tie_mult: int
+    max_tie: int
+    target_list: list[int]  # per assignment: target index (< 0 for rest locations)
+    target_coarse: np.ndarray  # (n_targets,) coarse weight of an assignment on the target
+    target_full: np.ndarray
+
+
+_CACHE: dict[int, tuple[weakref.ref, BnbField]] = {}
+
+
+def prepare_field(problem: ConfigProblem) -> BnbField:
+    """Bitset conflict tables for ``problem.incompatibility`` under the problem's weights."""
+    from solvers.ilp import safe_weights
+
+    inc = problem.incompatibility
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    w, _, tie_mult = safe_weights(problem, np.arange(len(a)))
+    key = w.tobytes()
+    hit = _CACHE.get(id(inc))
+    if hit is not None and hit[0]() is inc and hit[1].weight_key == key:
+        return hit[1]
+    order = []
+    pos = np.zeros(len(a), np.int64)
+    for k in range(n_arms):
+        idx = np.arange(a.arm_start[k], a.arm_start[k + 1])
+        idx = idx[np.argsort(-w[idx], kind="stable")]
+        order.append(idx)
+        pos[idx] = np.arange(len(idx))
+    perm = np.concatenate(order) if order else np.zeros(0, np.int64)
+    adj = sparse.csr_matrix((np.ones(len(inc.indices), np.bool_), inc.indices, inc.indptr), shape=(len(a), len(a)))
+    weights = [[int(v) for v in w[o]] for o in order]
+    nconf: list[list[int]] = [None] * len(a)  # type: ignore[list-item]
+    for k in range(n_arms):
+        rows = order[k]
+        if not len(rows):
+            continue
+        block = adj[rows][:, perm].toarray()
+        per_arm = []
+        start = 0
+        for kk in range(n_arms):
+            n_k = len(order[kk])
+            packed = np.packbits(block[:, start:start + n_k], axis=1, bitorder="little")
+            start += n_k
+            per_arm.append([~int.from_bytes(r.tobytes(), "little") for r in packed])
+        for i, r in enumerate(rows.tolist()):
+            nconf[r] = [per_arm[kk][i] for kk in range(n_arms)]
+    coarse = [[int(v) for v in w[o] // tie_mult] for o in order]
+    n_t = inc.reachability.n_targets
+    tgt = a.target
+    real = tgt >= 0
+    t_full = np.zeros(n_t, np.int64)
+    np.maximum.at(t_full, tgt[real], w[real])
+    f = BnbField(n_arms, order, pos, weights, nconf, key, coarse, tie_mult, int((w % tie_mult).max(initial=0)),
+                 [int(v) for v in tgt], t_full // tie_mult, t_full)
+    if len(_CACHE) > 8:
+        _CACHE.clear()
+    _CACHE[id(inc)] = (weakref.ref(inc), f)
+    return f
+
+
+def _mask(bits: np.ndarray) -> int:
+    return int.from_bytes(np.packbits(bits, bitorder="little").tobytes(), "little")
+
+
+class _Limit(Exception):
+    pass
+
+
+def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minimize_move: bool = True,
+                     deadline: float | None = None, hint: np.ndarray | None = None,
+                     field: BnbField | None = None, tie_node_limit: int = 3_000,
+                     move_node_limit: int = 30_000, coarse_optimum: tuple[int, np.ndarray] | None = None) -> dict:
+    """The search itself, lexicographic in three exact searches over the same bitsets:
+
+    1. max ``priority * (m + 1) + yield`` (the *coarse* weight) — proven or limit hit;
+    2. min longest move (eq. 5.16) among solutions of that coarse weight, within
+       ``move_node_limit`` nodes (issue 4's order: priority, yield, longest move);
+    3. max full safe weight (adds the optional tie-break) among solutions of that coarse
+       weight and longest move, within ``tie_node_limit`` nodes — the tie-break is a packing
+       heuristic and its per-arm bound is weak (many arms share the same best targets), so
+       it is best effort (``tie_proved``).
+
+    Returns a dict: ``chosen`` (None if infeasible / nothing found), ``weight`` (full),
+    ``proved`` (stage 1), ``tie_proved``, ``move_proved``, ``bound`` (coarse root bound
+    scaled to full weights), ``nodes``.
+    """
+    f = field or prepare_field(problem)
+    n_arms = f.n_arms
+    allowed = problem.allowed()
+    move = problem.move_time_s()
+    order = f.order
+    nconf = f.nconf
+    dom0 = [_mask(allowed[order[k]]) for k in range(n_arms)]
+    out = {"chosen": None, "weight": 0, "proved": True, "tie_proved": True, "move_proved": True, "bound": 0,
+           "nodes": 0}
+    if any(d == 0 for d in dom0):
+        return out
+    state = {"best": -1, "sol": None, "nodes": 0, "limit": 0}
+
+    class _Found(Exception):
+        pass
+
+    tgt_of = f.target_list
+
+    def run(W: list[list[int]], dom: list[int], incumbent: int, sol, target: int, nodes: int):
+        """DFS from the root; returns (completed, best, sol).  ``target >= 0``: stop at the
+        first solution of weight >= target (feasibility mode)."""
+        state.update(best=incumbent, sol=sol, limit=state["nodes"] + nodes)
+        # the best distinct available targets (weight, target): the i-th largest value of
+        # any solution is <= the i-th largest best-in-domain of the free arms AND <= the
+        # i-th largest weight of a distinct target not yet taken (matching bound, O(m))
+        tw = f.target_coarse if W is f.coarse else f.target_full
+        av = np.flatnonzero(problem.available)
+        top_i = av[np.argsort(-tw[av], kind="stable")[:2 * n_arms]]
+        TOP = [(int(tw[t]), int(t)) for t in top_i]
+
+        def capped(cur: int, bl: list[int], taken: list[int]) -> int:
+            bl.sort(reverse=True)
+            tot = cur
+            i = 0
+            n = len(bl)
+            for wt, t in TOP:
+                if i == n:
+                    break
+                if t in taken:
+                    continue
+                b = bl[i]
+                tot += b if b < wt else wt
+                i += 1
+            return tot
+
+        def dfs(dom: list[int], free: list[int], cur: int, bests: dict, pick: list) -> None:
+            state["nodes"] += 1
+            if state["nodes"] > state["limit"] or (deadline is not None and not state["nodes"] & 1023
+                                                    and time.perf_counter() > deadline):
+                raise _Limit
+            if not free:
+                if target >= 0:
+                    state["best"], state["sol"] = cur, list(pick)
+                    raise _Found
+                if cur > state["best"]:
+                    state["best"], state["sol"] = cur, list(pick)
+                return
+            k = min(free, key=lambda j: dom[j].bit_count())  # fail first
+            others = [j for j in free if j != k]
+            rest = cur + sum(bests[j] for j in others)
+            thr = state["best"] if target < 0 else target - 1
+            d = dom[k]
+            Wk = W[k]
+            ok = order[k]
+            while d:
+                low = d & -d
+                i = low.bit_length() - 1
+                d ^= low
+                wv = Wk[i]
+                if rest + wv <= thr:
+                    break  # values are in weight order: nothing later can do better
+                aidx = int(ok[i])
+                nc = nconf[aidx]
+                nd = dom[:]
+                nb = {}
+                tot = cur + wv
+                for j in others:
+                    x = dom[j] & nc[j]
+                    if not x:
+                        break
+                    nd[j] = x
+                    bj = W[j][(x & -x).bit_length() - 1]
+                    nb[j] = bj
+                    tot += bj
+                else:
+                    if tot > thr:
+                        pick[k] = aidx
+                        taken = [tgt_of[p] for p in pick if p >= 0]
+                        if capped(cur + wv, list(nb.values()), taken) > thr:
+                            dfs(nd, others, cur + wv, nb, pick)
+                        pick[k] = -1
+                        thr = state["best"] if target < 0 else target - 1
+
+        bests = {k: W[k][(dom[k] & -dom[k]).bit_length() - 1] for k in range(n_arms)}
+        try:
+            dfs(dom, list(range(n_arms)), 0, bests, [-1] * n_arms)
+        except _Limit:
+            return False, state["best"], state["sol"]
+        except _Found:
+            return True, state["best"], state["sol"]
+        return True, state["best"], state["sol"]
+
+    def full_w(ch) -> int:
+        return sum(f.weights[k][int(f.pos[ch[k]])] for k in range(n_arms))
+
+    def coarse_w(ch) -> int:
+        return sum(f.coarse[k][int(f.pos[ch[k]])] for k in range(n_arms))
+
+    inc_c, sol = -1, None
+    if hint is not None:
+        hint = np.asarray(hint, int)
+        if _consistent(hint, f, dom0):
+            inc_c, sol = coarse_w(hint), [int(v) for v in hint]
+    root_c = sum(f.coarse[k][(dom0[k] & -dom0[k]).bit_length() - 1] for k in range(n_arms))
+    out["bound"] = root_c * f.tie_mult + n_arms * f.max_tie
+    # stage 1: coarse weight (priority, yield); or proven elsewhere (CP-SAT)
+    if coarse_optimum is not None:
+        inc_c, sol = int(coarse_optimum[0]), [int(v) for v in coarse_optimum[1]]
+        done = True
+    elif inc_c < root_c:
+        done, inc_c, sol = run(f.coarse, dom0, inc_c, sol, -1, node_limit)
+    else:
+        done = True
+    out.update(proved=done, nodes=state["nodes"])
+    if sol is None:
+        out.update(tie_proved=done, move_proved=done)
+        return out
+    sol = np.array(sol, np.int64)
+    w_c = inc_c
+    out.update(chosen=sol, weight=full_w(sol))
+    if not done:
+        out.update(tie_proved=False, move_proved=False)
+        return out
+    # stage 2 (eq. 5.16): same coarse weight, strictly shorter longest move; restart after
+    # each improvement (the coarse bound is tight, so these searches are short)
+    mv_best = float(move[sol].max())
+    move_proved = True
+    if minimize_move:
+        budget_end = state["nodes"] + move_node_limit
+        while True:
+            keep = [_mask(allowed[order[k]] & (move[order[k]] < mv_best)) for k in range(n_arms)]
+            if any(d == 0 for d in keep):
+                break
+            if sum(f.coarse[k][(keep[k] & -keep[k]).bit_length() - 1] for k in range(n_arms)) < w_c:
+                break
+            left = budget_end - state["nodes"]
+            if left <= 0:
+                move_proved = False
+                break
+            done2, _, s2 = run(f.coarse, keep, -1, None, w_c, left)
+            if not done2:
+                move_proved = False
+                break
+            if s2 is None:
+                break
+            sol = np.array(s2, np.int64)
+            mv_best = float(move[sol].max())
+    else:
+        move_proved = False
+    # stage 3: the tie-break, among solutions of that coarse weight and longest move
+    w_full = full_w(sol)
+    tie_proved = True
+    if f.tie_mult > 1:
+        lim = mv_best if minimize_move else np.inf
+        keep = [_mask(allowed[order[k]] & (move[order[k]] <= lim)) for k in range(n_arms)]
+        tie_proved, w_full, s3 = run(f.weights, keep, w_full, [int(v) for v in sol], -1, tie_node_limit)
+        sol = np.array(s3, np.int64)
+    out.update(chosen=sol, weight=w_full, move_proved=move_proved, tie_proved=tie_proved, nodes=state["nodes"])
+    return out
+
+
+def _consistent(chosen: np.ndarray, f: BnbField, dom: list[int]) -> bool:
+    if chosen.shape != (f.n_arms,) or (chosen < 0).any():
+        return False
+    for k in range(f.n_arms):
+        b = int(f.pos[chosen[k]])
+        if not (dom[k] >> b) & 1 or int(f.order[k][b]) != int(chosen[k]):
+            return False
+        for j in range(k + 1, f.n_arms):
+            if not (f.nconf[int(chosen[k])][j] >> int(f.pos[chosen[j]])) & 1:
+                return False
+    return True
+
+
+def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_move: bool = True,
+                  fallback: str | None = "cpsat", hint: str | None = None, tie_node_limit: int = 2_000,
+                  move_node_limit: int = 5_000) -> ConfigSolution:
+    """Exact allocation of one configuration: bitset branch-and-bound, CP-SAT for hard proofs.
+
+    Lexicographic: priority, then arm yield (stage 1, proven → status ``optimal``), then
+    the longest move (``stats["move_optimal"]``), then the optional tie-break
+    (``stats["tie_optimal"]``) — stages 2 and 3 are exact searches with node budgets.
+    When stage 1 is not proven within ``node_limit`` nodes (tier transitions where
+    collisions decide the optimum and the per-arm bound is weak), ``fallback="cpsat"``
+    solves the problem with CP-SAT on the priority/yield objective (then its exact stage 2
+    for the longest move), hinted with the incumbent; the tie-break is then not applied.  ``fallback=None``:
+    the incumbent is returned as ``feasible`` with a gap against the root bound.
+    ``hint="semigreedy"`` seeds the incumbent with solvers.semigreedy.warm_start.
+    """
+    import dataclasses
+
+    from solvers.ilp import _exact_weight, _validate_problem
+
+    _validate_problem(problem)
+    t0 = time.perf_counter()
+    n_arms = len(problem.assignments.arm_start) - 1
+    deadline = t0 + problem.time_limit_s
+    f = prepare_field(problem)
+    stats: dict = {"backend": "bnb", "prepare_s": time.perf_counter() - t0}
+    h = None
+    if hint == "semigreedy":
+        from solvers.semigreedy import warm_start
+
+        h = warm_start(problem)
+    kw = dict(minimize_move=minimize_move, hint=h, field=f, tie_node_limit=tie_node_limit,
+              move_node_limit=move_node_limit)
+    r = solve_bnb_chosen(problem, node_limit=node_limit, deadline=t0 + (0.3 if fallback else 1.0)
+                         * problem.time_limit_s, **kw)
+    stats["nodes"] = r["nodes"]
+    if not r["proved"] and fallback == "cpsat" and deadline - time.perf_counter() > 0.05:
+        from solvers.ilp import solve_ilp_cpsat
+
+        # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
+        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - time.perf_counter(), 0.05))
+        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"])
+        stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
+        if sol.status in ("optimal", "feasible") and (
+                r["chosen"] is None or sol.status == "optimal"
+                or _exact_weight(coarse, sol.chosen) > _exact_weight(coarse, r["chosen"])):
+            r = {**r, "chosen": sol.chosen, "proved": sol.status == "optimal",
+                 "move_proved": bool(sol.stats.get("move_optimal")), "tie_proved": False}
+        elif sol.status == "infeasible":
+            r = {**r, "chosen": None, "proved": True}
+    stats.update(move_optimal=bool(r["move_proved"]), tie_optimal=bool(r["tie_proved"]),
+                 total_s=time.perf_counter() - t0)
+    if r["chosen"] is None:
+        return ConfigSolution(np.full(n_arms, -1), "infeasible" if r["proved"] else "timeout", 0, 0, 0.0, None, stats)
+    total, yld, longest = evaluate(problem, r["chosen"])
+    if r["proved"]:
+        return ConfigSolution(r["chosen"], "optimal", total, yld, longest, None, stats)
+    w = _exact_weight(problem, r["chosen"])
+    return ConfigSolution(r["chosen"], "feasible", total, yld, longest, max(r["bound"] - w, 0) / max(w, 1), stats)
