@@ -43,7 +43,7 @@ BufferMm = Annotated[
     float, Field(ge=0.0, le=100.0, strict=True, allow_inf_nan=False, description="Collision buffer, mm.")
 ]
 Method = Literal["ilp", "semigreedy"]
-Solver = Literal["highs", "cpsat"]
+Solver = Literal["highs", "cpsat", "bnb"]  # bnb: exact bitset branch-and-bound (extension)
 SegmentationMode = Literal["complete-linkage", "balanced"]
 Stats = dict[str, Any]
 
