@@ -43,11 +43,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--smoke", action="store_true")
     ap.add_argument("--instances", type=int, default=20)
-    ap.add_argument("--solver", default="cpsat")
+    ap.add_argument("--solver", default="bnb")
     ap.add_argument("--sizes", default="96,192,384")
     ap.add_argument("--dists", default="uniform,heavy,weak")
     ap.add_argument("--dense", type=int, default=1200)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--dense-time-limit", type=float, default=20.0)
     args = ap.parse_args()
     ins = default_instrument()
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -58,7 +59,7 @@ def main() -> None:
     for dist in args.dists.split(","):
         for n in sizes:
             rng = np.random.default_rng(1000 * n + hash(dist) % 997)
-            counts, greedy, walls, lb = [], [], [], []
+            counts, greedy, walls, lb, lbf = [], [], [], [], []
             for _ in range(n_inst):
                 f = make_field(n, dist, rng)
                 t = time.perf_counter()
@@ -68,10 +69,13 @@ def main() -> None:
                 counts.append(r.stats["n_configurations"])
                 greedy.append(r.stats["n_configurations_greedy"])
                 lb.append(r.stats["lower_bound_configurations"])
+                lbf.append(r.stats["lower_bound_configurations_flow"])
             out["protocol"][f"{dist}_{n}"] = {
                 "instances": n_inst, "mean_configurations": statistics.mean(counts),
                 "mean_configurations_before_repack": statistics.mean(greedy),
                 "ceil_t_over_12": math.ceil(n / 12), "mean_lower_bound": statistics.mean(lb),
+                "mean_lower_bound_flow": statistics.mean(lbf),
+                "instances_flow_above_ceil": sum(f > c for f, c in zip(lbf, lb, strict=True)),
                 "max_configurations": max(counts), "median_wall_s": statistics.median(walls),
             }
             print(json.dumps({f"{dist}_{n}": out["protocol"][f"{dist}_{n}"]}), flush=True)
@@ -87,11 +91,12 @@ def main() -> None:
     for i in range(args.repeats):
         f = make_field(args.dense, "weak", np.random.default_rng(100 + i))
         t = time.perf_counter()
-        r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=120.0)
+        r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=args.dense_time_limit)
         walls.append(time.perf_counter() - t)
         counts.append(r.stats["n_configurations"])
         out["dense"].setdefault("runs", []).append({k: r.stats[k] for k in (
-            "n_configurations", "n_configurations_greedy", "lower_bound_configurations", "field_completeness",
+            "n_configurations", "n_configurations_greedy", "lower_bound_configurations",
+            "lower_bound_configurations_flow", "field_completeness",
             "priority_completeness", "timers_s", "stop_reason")})
     out["dense"].update({"targets": args.dense, "median_wall_s": statistics.median(walls), "configurations": counts,
                          "ceil_t_over_12": math.ceil(args.dense / 12)})

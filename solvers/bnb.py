@@ -364,7 +364,7 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
 
         # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
         coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - time.perf_counter(), 0.05))
-        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"])
+        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"], candidates_per_arm=None)
         stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
         if sol.status in ("optimal", "feasible") and (
                 r["chosen"] is None or sol.status == "optimal"
@@ -373,6 +373,13 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
                  "move_proved": bool(sol.stats.get("move_optimal")), "tie_proved": False}
         elif sol.status == "infeasible":
             r = {**r, "chosen": None, "proved": True}
+    if r["chosen"] is None and not r["proved"]:
+        from solvers.ilp import greedy_solution
+
+        g = greedy_solution(problem)  # limit hit before any incumbent: the quick greedy choice
+        if g is not None:
+            r = {**r, "chosen": g}
+            stats["fallback"] = "greedy"
     stats.update(move_optimal=bool(r["move_proved"]), tie_optimal=bool(r["tie_proved"]),
                  total_s=time.perf_counter() - t0)
     if r["chosen"] is None:
