@@ -131,7 +131,7 @@ def protocol(sizes, dists, instances, sg_opts, with_exact, gap_sizes, time_limit
                         float(np.mean(np.asarray(d["gap"]) <= 1e-12)) if d["gap"] else None)
                     row[key]["configurations_compared"] = len(d["gap"])
             rows.append(row)
-            print(json.dumps({"progress": f"{dist}_{n}"}), flush=True)
+            print(json.dumps({"row": row}, default=float), flush=True)  # partial results as they come
     return rows
 
 
