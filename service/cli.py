@@ -152,6 +152,15 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"{s['targets']} targets, {s['pointings']} pointings, {s['configurations']} "
           f"configurations, {s['allocated_targets']} targets allocated; wrote {out / 'plan.json'}"
           f" and {len(pictures)} pictures")
+    # never fail silently: name every target left out and every motion leg not planned
+    for reason, n in sorted(s.get("unallocated_by_reason", {}).items()):
+        print(f"warning: {n} targets not allocated ({reason}); see 'unallocated' in plan.json",
+              file=sys.stderr)
+    for p in result["pointings"]:
+        for i, m in enumerate(p.get("motions", [])):
+            if m.get("status") != "ok":
+                print(f"warning: pointing {p['id']} motion leg {i} not planned "
+                      f"(arms {m.get('failed_arms')}); do not execute it", file=sys.stderr)
     return 0
 
 
