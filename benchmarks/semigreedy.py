@@ -14,13 +14,15 @@ Sections:
 
 * ``protocol``: per (distribution, size 96/192/384), over ``--instances`` fields:
   configurations to 100 % completeness, before (``greedy``) and after the driver's tail
-  repacking, for the exact allocator (``allocate(method="ilp")``, CP-SAT) and for SGPBTA
+  repacking, for the exact allocator (``allocate(method="ilp")`` with the driver's default
+  exact back-end) and for SGPBTA
   alpha = 0.2 / 0.8 with the thesis settings (eq. 5.21 matrix, 30 runs, gamma 0.1, PBAS)
   -- ``sg*`` through ``allocate(method="semigreedy")`` (the driver's own structure, no
   blank-sky locations) and ``sg*_blank`` on the same driver with a structure holding 8
   blank-sky locations per arm (thesis Alg. 5 padding). For ``sg*_blank`` every
   configuration is also solved exactly on the very same problem: ``avg_gap_vs_exact`` is
   the mean relative total-priority gap per configuration (0 = optimal).
+* ``warm_start``: CP-SAT on one configuration, cold and with SGPBTA's solution as hint.
 * ``dense``: 1,200 targets (sigma 60 mm), the fast settings (workspace patrolling,
   ``max_stall`` 5), whole sequence to completeness without repacking: wall time (median of
   runs), configurations; incompatibility build time reported separately and in a total.
@@ -172,6 +174,37 @@ def dense(n, runs, sg_opts, with_exact, time_limit_s):
     return out
 
 
+def warm_starts(cases, seeds):
+    """CP-SAT on one configuration, cold and hinted with SGPBTA's solution (``warm_start``)."""
+    from solvers.ilp import solve_ilp_cpsat
+    from solvers.problem import ConfigProblem
+    from solvers.semigreedy import warm_start
+    from solvers.sequencing import joint_speeds
+
+    rows = []
+    for n, dist in cases:
+        for sd in seeds:
+            t = make_field(n, dist, field_rng(n, dist, 1000 + sd))
+            inc = incompatibility_for_targets(INST, t.x_mm, t.y_mm)
+            p = ConfigProblem(inc, np.asarray(t.priority, np.int64), np.ones(n, bool), INST.park_configuration,
+                              joint_speeds(INST), target_xy_mm=np.column_stack([t.x_mm, t.y_mm]),
+                              time_limit_s=30.0, seed=sd)
+            t0 = time.perf_counter()
+            h = warm_start(p, seed=sd)
+            t_h = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            cold = solve_ilp_cpsat(p)
+            t_cold = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            warm = solve_ilp_cpsat(p, hint=h)
+            t_warm = time.perf_counter() - t0
+            rows.append({"targets": n, "distribution": dist, "seed": sd, "heuristic_s": t_h,
+                         "heuristic_priority": p.assignment_priority()[h].sum(),
+                         "cold_s": t_cold, "cold_status": cold.status, "cold_priority": cold.total_priority,
+                         "warm_s": t_warm, "warm_status": warm.status, "warm_priority": warm.total_priority})
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, for CI")
@@ -183,7 +216,7 @@ def main() -> None:
     ap.add_argument("--no-exact", action="store_true", help="skip the exact allocator in the protocol")
     ap.add_argument("--dense-runs", type=int, default=3)
     ap.add_argument("--dense-exact", action="store_true", help="also run the exact allocator on the dense field")
-    ap.add_argument("--skip", default="", help="comma list of sections to skip: protocol,dense")
+    ap.add_argument("--skip", default="", help="comma list of sections to skip: protocol,warm_start,dense")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     out: dict = {"machine_note": "2 cores shared with other jobs; wall times are noisy"}
@@ -197,6 +230,9 @@ def main() -> None:
         out["protocol"] = {"sg_options": THESIS, "blank_per_arm": BLANK_PER_ARM,
                            "rows": protocol(sizes, dists, args.instances, THESIS, not args.no_exact, gap_sizes,
                                             120.0)}
+    if "warm_start" not in skip:
+        out["warm_start"] = warm_starts([(96, "uniform")] if args.smoke else
+                                        [(384, "uniform"), (384, "heavy"), (1200, "weak")], [0] if args.smoke else [0, 1])
     if "dense" not in skip:
         out["dense"] = dense(300 if args.smoke else 1200, 1 if args.smoke else args.dense_runs, FAST,
                              args.dense_exact, 600.0)
