@@ -40,6 +40,7 @@ from models.instrument import Instrument
 from models.kinematics import direct_move_time_s
 from models.types import ArmTrajectory, MotionPlan
 from planner.commands import compress_waypoints, controller_commands
+from planner.delays import DelayStats, plan_delays, trajectory_points
 from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapParams, RoadmapPath, candidate_paths
 from planner.single_arm import (
@@ -173,6 +174,71 @@ def _assemble(instrument: Instrument, plans: dict[int, ArmPlan], start_q: np.nda
     return tuple(out), T * dt_s
 
 
+def _delay_trajectories(assignment: dict[int, tuple[int, int]], options, n: int,
+                        dt_s: float) -> tuple[ArmTrajectory, ...]:
+    """Way-points and controller commands of a delay-CSP assignment (option, departure step)."""
+    out = []
+    for k in range(n):
+        p, tau = assignment[k]
+        t, q = trajectory_points(options[k][p], tau * dt_s)
+        t, q = compress_waypoints(t, q)
+        out.append(ArmTrajectory(k, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1])))
+    return tuple(out)
+
+
+def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray,
+                enabled: list[int], dt_s: float, dt_col_s: float, horizon_s: float, buffer_mm: float,
+                max_start_stop: int, grid: tuple[int, int], stats: dict,
+                deadline: float) -> tuple[MotionPlan | None, list[int]]:
+    """First strategy: straight moves with departure delays (+ one-stop detours), verified."""
+    dst = DelayStats()
+    last: dict = {}
+
+    def check(assignment, options) -> list[tuple[int, int]]:
+        trajs = _delay_trajectories(assignment, options, len(start_q), dt_s)
+        rep = verify_trajectories(instrument, trajs, start_q, goal_q, collision_buffer_mm=buffer_mm,
+                                  max_start_stop=max_start_stop)
+        last["rep"], last["trajs"] = rep, trajs
+        if rep.ok:
+            return []
+        pairs = [tuple(v.arms) for v in rep.violations if v.kind == "collision" and len(v.arms) == 2]
+        return pairs or [(-1, -1)]
+
+    def safe_check(assignment, options):
+        pairs = check(assignment, options)
+        if pairs == [(-1, -1)]:  # a non-collision violation: cannot be repaired by delays
+            raise _Unrepairable
+        return pairs
+
+    try:
+        res = plan_delays(geoms, start_q, goal_q, dt_s=dt_s, dt_col_s=dt_col_s, horizon_s=horizon_s,
+                          buffer_mm=buffer_mm, max_start_stop=max_start_stop, movable=enabled, stats=dst,
+                          grid=grid, deadline=deadline, check=safe_check)
+    except _Unrepairable:
+        res = None
+    stats["collision_checks"] += dst.pair_samples
+    stats["states_explored"] += dst.nodes
+    stats["delay_csp"] = {"pair_tables": dst.tables, "nodes": dst.nodes, "repairs": dst.repairs,
+                          "rounds": getattr(res, "rounds", 0)}
+    if res is None or res.assignment is None:
+        stats["attempt_log"].append({"direction": "delays", "failed_arms": list(getattr(res, "blamed", []))})
+        return None, list(getattr(res, "blamed", []))
+    rep, trajs = last["rep"], last["trajs"]
+    if not rep.ok:  # cannot happen: plan_delays only returns checked assignments
+        return None, list(rep.arms)
+    stats["attempts"] = 1
+    stats["attempt_log"].append({"direction": "delays", "verified": True})
+    stats["strategy"] = "delays"
+    stats["min_clearance_mm"] = rep.min_clearance_mm
+    stats["verify_pair_samples"] = rep.pair_samples_checked
+    stats["max_stops"] = max(res.options[k][p].stops for k, (p, _) in res.assignment.items())
+    return MotionPlan("ok", float(res.makespan_s), trajs, (), stats), []
+
+
+class _Unrepairable(Exception):
+    pass
+
+
 def plan_motion(
     instrument: Instrument,
     start_q: np.ndarray,
@@ -187,7 +253,7 @@ def plan_motion(
     max_attempts: int = 10,
     time_budget_s: float = 10.0,
     grid: tuple[int, int] = (8, 6),
-    strategies: Sequence[str] = ("forward", "reverse"),
+    strategies: Sequence[str] = ("delays", "forward", "reverse"),
     rpp: bool = False,
     rpp_max_paths: int = 8,
     turn_sense: int = 1,
@@ -243,6 +309,19 @@ def plan_motion(
     enabled = [k for k in instrument.enabled_arms]
     disabled = [k for k in range(n) if k not in set(enabled)]
 
+    blamed: list[int] = []
+    if "delays" in strategies:
+        ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
+                                      buffer_mm, max_start_stop, grid, stats, t0 + time_budget_s)
+        if ok_plan is not None:
+            stats["compute_s"] = time.perf_counter() - t0
+            return ok_plan
+        strategies = [s for s in strategies if s != "delays"]
+        if not strategies:
+            stats["reasons"] = {int(a): "no collision-free departure-delay schedule" for a in blamed}
+            stats["compute_s"] = time.perf_counter() - t0
+            return _failed(instrument, start_q, blamed or enabled, stats)
+
     paths_cache: dict[str, list[list[RoadmapPath]]] = {}
 
     def paths_for(direction: str) -> list[list[RoadmapPath]]:
@@ -267,6 +346,11 @@ def plan_motion(
     for s in strategies:
         a, b = (start_q, goal_q) if s == "forward" else (goal_q, start_q)
         orders[s] = conflict_order(instrument, geoms, paths_for(s), a, b, enabled, est, buffer_mm)
+    for s in strategies:  # the arms the delay CSP blamed go first
+        for a in reversed(blamed):
+            if a in orders[s]:
+                orders[s].remove(a)
+                orders[s].insert(0, a)
     fail_count: dict[int, int] = {}
     tried: dict[str, set[tuple[int, ...]]] = {s: set() for s in strategies}
     best_failed: list[int] = []

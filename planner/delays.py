@@ -1,0 +1,561 @@
+"""Straight moves with departure delays: a pairwise-table CSP over motion options.
+
+The MCC2 controllers cannot blend way-points, so the ideal motion of a probe arm is one
+straight joint-space move from start to goal (both joints linear, arriving together, the
+slower joint scaled down; zero intermediate stops). Conflicts between such moves can very
+often be resolved by *when* each arm departs, not by where it goes. This module plans all
+arms at once:
+
+* every arm has a few **options** (:class:`Option`): the straight move either way round in
+  theta2 (a direction whose segment crosses the ZoA is discarded), and, when asked for,
+  one-stop detours start -> v -> goal with a wait at v (v a roadmap vertex or a side-step
+  near the start), or a step-aside start -> v -> start for an arm that does not move;
+* every option departs after a delay tau in {0, dt, 2 dt, ...} and must arrive within the
+  horizon;
+* for every arm pair and option pair, the set of collision-free *relative* delays
+  tau_j - tau_i is computed vectorised (:func:`pair_table`): both motions sampled every
+  dt_col, including the rests before departure and after arrival, clearance >= buffer +
+  a Lipschitz margin that makes the dt_col sampling exact in continuous time (clearance
+  of two arms changes no faster than the sum of their body-point speed bounds);
+* the delay assignment is a small CSP (:func:`solve`): backtracking with forward checking,
+  most-constrained arm first, values by earliest arrival, and branch-and-bound on the
+  makespan max_k(tau_k + T_k).
+
+Everything is deterministic (no randomness). The result is still handed to the independent
+verifier by :func:`planner.prioritized.plan_motion` before it is returned.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.geometry import ArmGeom, body_speed_bound_mm_s, clearance_between, edges_in_zoa
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass
+class Option:
+    """One motion of one arm, relative to its departure: way-points at times ``t_rel``."""
+
+    arm: int
+    waypoints: np.ndarray  # (n, 2), theta2 unwrapped, waypoints[0] == start
+    t_rel: np.ndarray  # (n,), t_rel[0] == 0
+    stops: int
+    kind: str  # straight | detour | stay | aside
+    # filled by prepare()
+    samples: np.ndarray | None = None  # (N + 1, 2) every dt_col from departure, last = end
+    seg: tuple[np.ndarray, np.ndarray] | None = None
+    box: np.ndarray | None = None  # (N + 1, 4)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_rel[-1])
+
+    @property
+    def n(self) -> int:
+        return len(self.samples) - 1
+
+
+@dataclass
+class DelayStats:
+    pair_samples: int = 0  # arm-pair x dt_col-sample clearances computed (thesis table 6.2 "checks")
+    nodes: int = 0  # CSP nodes (assignments tried)
+    tables: int = 0
+    repairs: int = 0  # verifier rejections repaired by forbidding the offending relative delay
+
+
+def straight_options(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray) -> list[Option]:
+    """Straight moves start -> goal, both theta2 directions, ZoA-free only."""
+    ccw = float(np.mod(qg[1] - qs[1], TWO_PI))
+    if abs(qg[0] - qs[0]) <= 1e-12 and min(ccw, TWO_PI - ccw) <= 1e-12:
+        return [Option(geom.arm, qs[None].copy(), np.zeros(1), 0, "stay")]
+    turns = [ccw] if ccw <= 1e-12 else [ccw, ccw - TWO_PI]
+    out = []
+    for tr in turns:
+        e = np.array([qg[0], qs[1] + tr])
+        if edges_in_zoa(geom, qs[None], e[None])[0]:
+            continue
+        T = float(geom.move_time_s(qs, e))
+        out.append(Option(geom.arm, np.array([qs, e]), np.array([0.0, T]), 0, "straight"))
+    out.sort(key=lambda o: o.duration_s)
+    return out
+
+
+def detour_options(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, vertices: np.ndarray, waits_s: tuple[float, ...],
+                   max_vertices: int, horizon_s: float) -> list[Option]:
+    """One-stop options start -> v -> goal (or start -> v -> start when the arm stays), waiting at v."""
+    ccw = float(np.mod(qg[1] - qs[1], TWO_PI))
+    stay = abs(qg[0] - qs[0]) <= 1e-12 and min(ccw, TWO_PI - ccw) <= 1e-12
+    V = np.asarray(vertices, float)
+    if len(V) == 0:
+        return []
+    cand = []
+    for sgn in (1, -1):
+        t1 = np.mod(V[:, 1] - qs[1], TWO_PI)
+        turn1 = np.where(sgn > 0, t1, t1 - TWO_PI)
+        v = np.column_stack([V[:, 0], qs[1] + turn1])
+        ok1 = ~edges_in_zoa(geom, np.broadcast_to(qs, v.shape), v)
+        for sgn2 in (1, -1):
+            t2 = np.mod(qg[1] - v[:, 1], TWO_PI)
+            turn2 = np.where(sgn2 > 0, t2, t2 - TWO_PI)
+            g = np.column_stack([np.full(len(v), qg[0]), v[:, 1] + turn2])
+            ok2 = ~edges_in_zoa(geom, v, g)
+            T1 = geom.move_time_s(np.broadcast_to(qs, v.shape), v)
+            T2 = geom.move_time_s(v, g)
+            for i in np.flatnonzero(ok1 & ok2):
+                cand.append((float(T1[i] + T2[i]), float(T1[i]), float(T2[i]), v[i], g[i]))
+    cand.sort(key=lambda c: c[0])
+    out: list[Option] = []
+    seen = set()
+    for tot, T1, T2, v, g in cand:
+        key = (round(v[0], 6), round(v[1], 6), round(g[1], 6))
+        if key in seen or T1 < 1e-9 or (T2 < 1e-9 and not stay):
+            continue
+        seen.add(key)
+        for w in waits_s:
+            if tot + w > horizon_s:
+                continue
+            if w > 0:
+                wp = np.array([qs, v, v, g])
+                tr = np.array([0.0, T1, T1 + w, T1 + w + T2])
+            else:
+                wp = np.array([qs, v, g])
+                tr = np.array([0.0, T1, T1 + T2])
+            out.append(Option(geom.arm, wp, tr, 1, "aside" if stay else "detour"))
+        if len(seen) >= max_vertices:
+            break
+    return out
+
+
+def prepare(option: Option, geom: ArmGeom, dt_col_s: float) -> None:
+    """Sample an option every dt_col from its departure until it rests at its end."""
+    T = option.duration_s
+    n = int(math.ceil(T / dt_col_s - 1e-9)) if T > 0 else 0
+    t = np.minimum(np.arange(n + 1) * dt_col_s, T)
+    q = np.column_stack([np.interp(t, option.t_rel, option.waypoints[:, 0]),
+                         np.interp(t, option.t_rel, option.waypoints[:, 1])])
+    option.samples = q
+    s, e = geom.segments(q[:, 0], q[:, 1])
+    option.seg = (s, e)
+    r = geom.radius[None, :, None]
+    lo = np.minimum(s, e) - r
+    hi = np.maximum(s, e) + r
+    option.box = np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
+
+
+def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
+    return ((ba[..., 0] - pad <= bb[..., 2]) & (bb[..., 0] - pad <= ba[..., 2])
+            & (ba[..., 1] - pad <= bb[..., 3]) & (bb[..., 1] - pad <= ba[..., 3]))
+
+
+def _box_gap(ba: np.ndarray, bb: np.ndarray) -> np.ndarray:
+    """Lower bound of the clearance of two arms from their (radius-padded) bounding boxes."""
+    gx = np.maximum(ba[..., 0] - bb[..., 2], bb[..., 0] - ba[..., 2])
+    gy = np.maximum(ba[..., 1] - bb[..., 3], bb[..., 1] - ba[..., 3])
+    return np.maximum(gx, gy)
+
+
+def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib: np.ndarray,
+           pos: np.ndarray, last: np.ndarray, lip_mm: float, thr: float, stats: DelayStats,
+           stride: int = 10) -> np.ndarray:
+    """True where option a at sample ia and option b at sample ib keep clearance >= thr.
+
+    The pairs form sequences consecutive in time (``pos`` the position in its sequence,
+    ``last`` the sequence's last position); clearance changes by at most ``lip_mm`` per
+    sample. Exact clearances are computed on every ``stride``-th sample (or a bounding-box
+    lower bound where that is far enough); a sample within Lipschitz reach of a certified
+    coarse neighbour is certified, the rest are computed exactly.
+    """
+    n = len(ia)
+    ok = np.ones(n, bool)
+    if n == 0:
+        return ok
+    sa, ea = oa.seg
+    sb, eb = ob.seg
+
+    def exact(idx: np.ndarray) -> np.ndarray:
+        c = _box_gap(oa.box[ia[idx]], ob.box[ib[idx]])
+        need = np.flatnonzero(c < thr + lip_mm * stride)
+        if len(need):
+            j = idx[need]
+            c[need] = clearance_between(sa[ia[j]], ea[ia[j]], ga.radius, sb[ib[j]], eb[ib[j]], gb.radius)
+            stats.pair_samples += len(need)
+        return c
+
+    r = pos % stride
+    coarse = (r == 0) | (pos == last)
+    c = np.full(n, np.nan)
+    ci = np.flatnonzero(coarse)
+    c[ci] = exact(ci)
+    fine = np.flatnonzero(~coarse)
+    if len(fine):
+        e_prev = fine - r[fine]
+        e_next = fine + np.minimum(stride - r[fine], last[fine] - pos[fine])
+        lb = np.maximum(c[e_prev] - lip_mm * r[fine], c[e_next] - lip_mm * (e_next - fine))
+        unsure = fine[lb < thr]
+        if len(unsure):
+            c[unsure] = exact(unsure)
+        ok[fine] = (lb >= thr)
+        ok[unsure] = c[unsure] >= thr
+    ok[ci] = c[ci] >= thr
+    return ok
+
+
+def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int, thr: float,
+               lip: tuple[float, float], stats: DelayStats) -> np.ndarray:
+    """ok[k + K] for relative delays k in [-K, K] (b departs k dt after a), both arms resting
+    at their starts before departure and at their ends after arrival."""
+    Na, Nb = oa.n, ob.n
+    la, lb = lip
+    ar_a, ar_b = np.arange(Na + 1), np.arange(Nb + 1)
+    fa, fb = np.full(Na + 1, Na), np.full(Nb + 1, Nb)
+    # a moving vs b at rest at its start / end, and b moving vs a at rest
+    a_bs = _clear(oa, ga, ar_a, ob, gb, np.zeros(Na + 1, int), ar_a, fa, la, thr, stats)
+    a_be = _clear(oa, ga, ar_a, ob, gb, fb[:1].repeat(Na + 1), ar_a, fa, la, thr, stats)
+    b_as = _clear(ob, gb, ar_b, oa, ga, np.zeros(Nb + 1, int), ar_b, fb, lb, thr, stats)
+    b_ae = _clear(ob, gb, ar_b, oa, ga, fa[:1].repeat(Nb + 1), ar_b, fb, lb, thr, stats)
+    cs = lambda ok: np.concatenate([[0], np.cumsum(~ok)])  # noqa: E731 - prefix counts of bad samples
+    c_a_bs, c_a_be, c_b_as, c_b_ae = cs(a_bs), cs(a_be), cs(b_as), cs(b_ae)
+
+    def bad(c: np.ndarray, lo: int, hi: int) -> bool:  # any bad sample in [lo, hi]
+        lo, hi = max(lo, 0), min(hi, len(c) - 2)
+        return hi >= lo and c[hi + 1] - c[lo] > 0
+
+    ks = np.arange(-K, K + 1)
+    ok = np.ones(2 * K + 1, bool)
+    # moving-moving diagonals a - b = M k
+    kmin, kmax = max(-K, -(Nb // M) - 1), min(K, Na // M + 1)
+    ia_l, ib_l, kk_l, pos_l, last_l = [], [], [], [], []
+    for k in range(kmin, kmax + 1):
+        a0, a1 = max(0, M * k), min(Na, Nb + M * k)
+        if a1 < a0:
+            continue
+        a = np.arange(a0, a1 + 1)
+        ia_l.append(a)
+        ib_l.append(a - M * k)
+        kk_l.append(np.full(len(a), k + K))
+        pos_l.append(a - a0)
+        last_l.append(np.full(len(a), a1 - a0))
+    if ia_l:
+        ia, ib, kk = np.concatenate(ia_l), np.concatenate(ib_l), np.concatenate(kk_l)
+        mm = _clear(oa, ga, ia, ob, gb, ib, np.concatenate(pos_l), np.concatenate(last_l), la + lb, thr, stats)
+        badk = np.bincount(kk[~mm], minlength=2 * K + 1) > 0
+        ok &= ~badk
+    for idx, k in enumerate(ks):
+        if not ok[idx]:
+            continue
+        Mk = M * int(k)
+        if (bad(c_a_bs, 0, Mk - 1) or bad(c_a_be, Nb + Mk + 1, Na)
+                or bad(c_b_as, 0, -Mk - 1) or bad(c_b_ae, Na - Mk + 1, Nb)):
+            ok[idx] = False
+    stats.tables += 1
+    return ok
+
+
+@dataclass
+class DelayProblem:
+    """Options per arm and pairwise tables tab[(i, j)][p_i, p_j, k + K] (i != j, both orders)."""
+
+    options: list[list[Option]]
+    K: int  # horizon in dt steps
+    dt_s: float
+    horizon_s: float
+    tables: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
+    neighbours: list[list[int]] = field(default_factory=list)
+
+
+def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float, dt_col_s: float,
+                  horizon_s: float, buffer_mm: float, stats: DelayStats,
+                  old: DelayProblem | None = None, margin_mm: float = 0.0) -> DelayProblem:
+    """Pairwise relative-delay tables of every arm pair whose options can come close.
+
+    With ``old`` (same arms, options extended by appending), tables of option pairs already
+    computed are reused.
+    """
+    n = len(options)
+    M = max(1, int(round(dt_s / dt_col_s)))
+    K = int(math.floor(horizon_s / dt_s + 1e-9))
+    for k in range(n):
+        for o in options[k]:
+            if o.samples is None:
+                prepare(o, geoms[k], dt_col_s)
+    vmax = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
+    prob = DelayProblem(options, K, dt_s, horizon_s, {}, [[] for _ in range(n)])
+    arm_box = []
+    for k in range(n):
+        b = np.concatenate([o.box for o in options[k]])
+        arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
+    for i in range(n):
+        for j in range(i + 1, n):
+            if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
+                continue
+            thr = buffer_mm + margin_mm
+            lip = (vmax[i] * dt_col_s, vmax[j] * dt_col_s)
+            Pi, Pj = len(options[i]), len(options[j])
+            tab = np.ones((Pi, Pj, 2 * K + 1), bool)
+            prev = old.tables.get((i, j)) if old is not None else None
+            for a in range(Pi):
+                for b in range(Pj):
+                    if prev is not None and a < prev.shape[0] and b < prev.shape[1]:
+                        tab[a, b] = prev[a, b]
+                    else:
+                        tab[a, b] = pair_table(options[i][a], geoms[i], options[j][b], geoms[j], M, K, thr, lip, stats)
+            if tab.all():
+                continue
+            prob.tables[(i, j)] = tab
+            prob.tables[(j, i)] = tab.transpose(1, 0, 2)[:, :, ::-1]
+            prob.neighbours[i].append(j)
+            prob.neighbours[j].append(i)
+    return prob
+
+
+def _support(tab: np.ndarray, dom_j: np.ndarray, K: int) -> np.ndarray:
+    """support[p, t]: value (p, t) of arm i has a compatible value in arm j's domain.
+
+    ``tab`` is (Pi, Pj, 2K + 1) over k = t_j - t_i; ``dom_j`` is (Pj, K + 1).
+    """
+    Pi = tab.shape[0]
+    out = np.zeros((Pi, K + 1), bool)
+    tj = np.flatnonzero(dom_j.any(0))
+    if len(tj) == 0:
+        return out
+    lo, hi = int(tj.min()), int(tj.max())
+    dj = dom_j[:, lo:hi + 1]
+    for t in range(K + 1):
+        win = tab[:, :, K - t + lo: K - t + hi + 1]  # k = tj - t for tj in [lo, hi]
+        out[:, t] = (win & dj[None]).any(axis=(1, 2))
+    return out
+
+
+def arc_consistency(prob: DelayProblem, doms: list[np.ndarray], blame: np.ndarray | None = None,
+                    max_rounds: int = 20) -> list[np.ndarray] | None:
+    """AC-3 style pruning of every arm's (option, delay) domain; None when a domain empties."""
+    doms = list(doms)
+    queue = list(range(len(doms)))
+    rounds = 0
+    while queue and rounds < max_rounds * len(doms):
+        rounds += 1
+        j = queue.pop(0)
+        for i in prob.neighbours[j]:
+            sup = _support(prob.tables[(i, j)], doms[j], prob.K)
+            nd = doms[i] & sup
+            if not nd.any():
+                if blame is not None:
+                    blame[i] += 1
+                    blame[j] += 1
+                return None
+            if (nd != doms[i]).any():
+                doms[i] = nd
+                if i not in queue:
+                    queue.append(i)
+    return doms
+
+
+def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
+          fixed: dict[int, tuple[int, int]] | None = None) -> tuple[dict[int, tuple[int, int]] | None, list[int]]:
+    """Assign (option, delay) to every arm minimising the makespan (branch and bound).
+
+    Returns (assignment or None, the arms most often found with an empty domain).
+    """
+    n = len(prob.options)
+    K = prob.K
+    dt = prob.dt_s
+    dur = [np.array([o.duration_s for o in opts]) for opts in prob.options]
+    # finish[k][p, tau]
+    finish = [d[:, None] + dt * np.arange(K + 1)[None, :] for d in dur]
+    stays = [[o.kind == "stay" for o in opts] for opts in prob.options]
+    base = []
+    for k in range(n):
+        m = finish[k] <= prob.horizon_s + 1e-9
+        for p, s in enumerate(stays[k]):
+            if s:  # an arm that stays has no departure: one value
+                m[p, 1:] = False
+        base.append(m)
+    if fixed:
+        for k, (p, t) in fixed.items():
+            m = np.zeros_like(base[k])
+            m[p, t] = True
+            base[k] = m
+    blame = np.zeros(n, int)
+    best: dict[int, tuple[int, int]] | None = None
+    nodes = 0
+
+    def search(bound: float) -> dict[int, tuple[int, int]] | None:
+        nonlocal nodes
+        doms = [b & (f <= bound) for b, f in zip(base, finish, strict=True)]
+        if any(not d.any() for d in doms):
+            return None
+        doms = arc_consistency(prob, doms, blame)
+        if doms is None:
+            return None
+        assign: dict[int, tuple[int, int]] = {}
+
+        def rec(doms: list[np.ndarray]) -> bool:
+            nonlocal nodes
+            if len(assign) == n:
+                return True
+            free = [k for k in range(n) if k not in assign]
+            # most constrained first; then most neighbours; then index
+            k = min(free, key=lambda a: (int(doms[a].sum()), -len(prob.neighbours[a]), a))
+            vals = np.argwhere(doms[k])
+            order = np.lexsort((vals[:, 0], finish[k][vals[:, 0], vals[:, 1]]))
+            for p, t in vals[order]:
+                nodes += 1
+                if nodes > node_budget:
+                    return False
+                new = list(doms)
+                dead = None
+                for j in prob.neighbours[k]:
+                    if j in assign:
+                        continue
+                    tab = prob.tables[(k, j)][p]  # (Pj, 2K + 1)
+                    allowed = tab[:, K - t: 2 * K - t + 1]
+                    nd = new[j] & allowed
+                    if not nd.any():
+                        dead = j
+                        break
+                    new[j] = nd
+                if dead is not None:
+                    blame[dead] += 1
+                    blame[k] += 1
+                    continue
+                assign[k] = (int(p), int(t))
+                if rec(new):
+                    return True
+                del assign[k]
+                if nodes > node_budget:
+                    return False
+            return False
+
+        return dict(assign) if rec(doms) else None
+
+    bound = prob.horizon_s + 1e-9
+    while nodes <= node_budget:
+        sol = search(bound)
+        if sol is None:
+            break
+        ms = max(float(finish[k][p, t]) for k, (p, t) in sol.items())
+        best = sol
+        bound = ms - 1e-6
+    stats.nodes += nodes
+    worst = list(np.argsort(-blame, kind="stable")[: max(1, int((blame > 0).sum()))]) if best is None else []
+    return best, [int(a) for a in worst if blame[a] > 0]
+
+
+def trajectory_points(option: Option, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Way-point times and configurations of an option departing at ``tau_s``."""
+    if option.kind == "stay":
+        return np.zeros(1), option.waypoints[:1].copy()
+    t = option.t_rel + tau_s
+    q = option.waypoints
+    if tau_s > 0:
+        t = np.concatenate([[0.0], t])
+        q = np.concatenate([q[:1], q])
+    return t, q.copy()
+
+
+def detour_vertices(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, grid: tuple[int, int],
+                    rings_rad: tuple[float, ...] = (0.3, 0.6, 1.0)) -> np.ndarray:
+    """Candidate stop vertices: rings around the start (side-steps) and the goal (approach
+    from another direction), the two one-joint-at-a-time corners, a retract vertex
+    (theta1 = theta1_max) and the roadmap grid (thesis fig. 6.8); all outside the ZoA."""
+    from planner.roadmap import grid_vertices
+
+    pts = [[qs[0], qg[1]], [qg[0], qs[1]], [geom.theta1_max, qs[1]], [geom.theta1_max, qg[1]]]
+    for c in (qg, qs):
+        for r in rings_rad:
+            for a in np.arange(8) * np.pi / 4:
+                pts.append([c[0] + r * np.cos(a), c[1] + r * np.sin(a)])
+    v = np.concatenate([np.asarray(pts, float), grid_vertices(geom, grid)])
+    v[:, 1] = np.mod(v[:, 1], TWO_PI)
+    return v[~geom.in_zoa(v[:, 0], v[:, 1])]
+
+
+@dataclass
+class DelayResult:
+    assignment: dict[int, tuple[int, int]] | None
+    options: list[list[Option]]
+    blamed: list[int]
+    rounds: int
+    makespan_s: float = math.nan
+
+
+def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
+                horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int], stats: DelayStats,
+                grid: tuple[int, int] = (8, 6), max_rounds: int = 3, max_detour_vertices: int = 10,
+                detour_waits_steps: tuple[int, ...] = (0, 1, 2, 4, 7), node_budget: int = 20000,
+                deadline: float | None = None, check=None, max_repairs: int = 5) -> DelayResult:
+    """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
+
+    ``check(assignment, options)``, when given, is the independent verifier: it returns the
+    arm pairs it found colliding (empty when the plan passes); their (option, relative
+    delay) entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
+
+    Round 0: each movable arm's shortest straight move (and the other theta2 direction when
+    it is not longer than the lower bound, so it cannot raise the makespan). Later rounds
+    add, for the arms the CSP blames, both straight directions and (if ``max_start_stop`` >= 1)
+    one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
+    of ``detour_waits_steps`` x dt. Tables of option pairs already computed are reused.
+    """
+    import time as _time
+
+    n = len(geoms)
+    mv = set(movable)
+    opts: list[list[Option]] = []
+    for k in range(n):
+        if k in mv:
+            o = straight_options(geoms[k], start_q[k], goal_q[k])
+        else:
+            o = [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")]
+        opts.append(o)
+    if any(not o for o in opts):
+        return DelayResult(None, opts, [k for k in range(n) if not opts[k]], 0)
+    lb = max(o[0].duration_s for o in opts)
+    cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= lb + 1e-9] for op in opts]
+    prob = None
+    extended: set[int] = set()
+    blamed: list[int] = []
+    for rnd in range(max_rounds):
+        prob = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob)
+        sol, blamed = solve(prob, stats, node_budget=node_budget)
+        repairs = 0
+        while sol is not None and check is not None and repairs < max_repairs:
+            bad_pairs = check(sol, cur)
+            if not bad_pairs:
+                break
+            repairs += 1
+            stats.repairs += 1
+            for a, b in bad_pairs:
+                (pa, ta), (pb, tb) = sol[a], sol[b]
+                if (a, b) not in prob.tables:  # the table said "never close": make it explicit
+                    Pa, Pb = len(cur[a]), len(cur[b])
+                    prob.tables[(a, b)] = np.ones((Pa, Pb, 2 * prob.K + 1), bool)
+                    prob.tables[(b, a)] = prob.tables[(a, b)].transpose(1, 0, 2)[:, :, ::-1]
+                    prob.neighbours[a].append(b)
+                    prob.neighbours[b].append(a)
+                prob.tables[(a, b)][pa, pb, tb - ta + prob.K] = False  # the (b, a) view shares memory
+            sol, blamed = solve(prob, stats, node_budget=node_budget)
+        if sol is not None and (check is None or repairs < max_repairs):
+            ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
+            return DelayResult(sol, cur, [], rnd + 1, ms)
+        if deadline is not None and _time.perf_counter() > deadline:
+            break
+        new = [k for k in blamed if k in mv and k not in extended]
+        if not new:
+            break
+        for k in new:
+            extended.add(k)
+            have = {(round(float(o.t_rel[-1]), 9), o.kind) for o in cur[k]}
+            for o in opts[k]:
+                if (round(o.duration_s, 9), o.kind) not in have:
+                    cur[k].append(o)
+            if max_start_stop >= 1:
+                V = detour_vertices(geoms[k], start_q[k], goal_q[k], grid)
+                cur[k].extend(detour_options(geoms[k], start_q[k], goal_q[k], V,
+                                             tuple(w * dt_s for w in detour_waits_steps),
+                                             max_detour_vertices, horizon_s))
+    return DelayResult(None, cur, blamed, max_rounds)
