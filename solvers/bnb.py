@@ -311,6 +311,67 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     return out
 
 
+def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField | None = None,
+                  max_passes: int = 4) -> np.ndarray:
+    """Exact column fixing for the coarse (priority, yield) objective: drop every allowed
+    assignment ``a`` of arm ``k`` whose *probing bound* ``w(a) + sum_{j != k} max{w(b) : b in
+    dom_j, b compatible with a}`` is strictly below ``incumbent_coarse``; repeated on the
+    reduced domains until nothing changes (at most ``max_passes``).
+
+    No solution of coarse weight >= the incumbent uses a dropped column (its weight is at
+    most that bound), so a model restricted to the kept columns has the same optimum AND the
+    same set of optimal solutions (the longest-move stage stays exact).  Returns the
+    (n_assignments,) bool mask of kept columns (rest locations are kept regardless).
+    """
+    f = field or prepare_field(problem)
+    allowed = problem.allowed()
+    n_arms = f.n_arms
+    W = f.coarse
+    dom = [_mask(allowed[f.order[k]]) for k in range(n_arms)]
+    if any(d == 0 for d in dom):
+        return allowed.copy()
+    for _ in range(max_passes):
+        changed = False
+        for k in range(n_arms):
+            bests = [W[j][(dom[j] & -dom[j]).bit_length() - 1] for j in range(n_arms)]
+            others = [j for j in range(n_arms) if j != k]
+            rest_max = sum(bests[j] for j in others)
+            d = dom[k]
+            keep = 0
+            ok = f.order[k]
+            Wk = W[k]
+            while d:
+                low = d & -d
+                i = low.bit_length() - 1
+                d ^= low
+                wv = Wk[i]
+                if wv + rest_max < incumbent_coarse:
+                    break  # weight order: every later value is pruned as well
+                nc = f.nconf[int(ok[i])]
+                tot = wv
+                for j in others:
+                    x = dom[j] & nc[j]
+                    if not x:
+                        tot = -1
+                        break
+                    tot += W[j][(x & -x).bit_length() - 1]
+                if tot >= incumbent_coarse:
+                    keep |= low
+            if keep != dom[k]:
+                changed = True
+                dom[k] = keep
+                if not keep:
+                    return np.zeros(len(allowed), bool)
+        if not changed:
+            break
+    out = np.zeros(len(allowed), bool)
+    for k in range(n_arms):
+        bits = np.unpackbits(np.frombuffer(dom[k].to_bytes((len(f.order[k]) + 7) // 8, "little"), np.uint8),
+                             bitorder="little")[:len(f.order[k])].astype(bool)
+        out[f.order[k][bits]] = True
+    return out | (allowed & (problem.assignments.target < 0))
+
+
 def _consistent(chosen: np.ndarray, f: BnbField, dom: list[int]) -> bool:
     if chosen.shape != (f.n_arms,) or (chosen < 0).any():
         return False
@@ -363,8 +424,19 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
         from solvers.ilp import solve_ilp_cpsat
 
         # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
+        cols = None
+        if r["chosen"] is not None:
+            # exact column fixing against the incumbent: the CP-SAT model shrinks to the
+            # assignments that can still reach the incumbent's priority/yield
+            tp = time.perf_counter()
+            inc_c = sum(f.coarse[k][int(f.pos[r["chosen"][k]])] for k in range(n_arms))
+            cols = prune_columns(problem, inc_c, f)
+            cols[np.asarray(r["chosen"], np.int64)] = True
+            stats.update(prune_s=time.perf_counter() - tp, columns=int(cols.sum()),
+                         columns_allowed=int(problem.allowed().sum()))
         coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - time.perf_counter(), 0.05))
-        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"], candidates_per_arm=None)
+        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"], candidates_per_arm=None,
+                              columns=cols)
         stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
         if sol.status in ("optimal", "feasible") and (
                 r["chosen"] is None or sol.status == "optimal"

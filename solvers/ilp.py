@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -121,6 +122,23 @@ def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[
     return w, yield_mult, tie_mult
 
 
+_ADJ: dict[int, tuple[weakref.ref, sparse.csr_matrix]] = {}
+
+
+def _adjacency(inc) -> sparse.csr_matrix:
+    """The incompatibility as a CSR matrix, built once per structure (it does not change
+    between the configurations of a sequence; 4 M entries on a dense 1,200-target field)."""
+    hit = _ADJ.get(id(inc))
+    if hit is not None and hit[0]() is inc:
+        return hit[1]
+    n = len(inc.assignments)
+    adj = sparse.csr_matrix((np.ones(len(inc.indices), np.int8), inc.indices, inc.indptr), shape=(n, n))
+    if len(_ADJ) > 8:
+        _ADJ.clear()
+    _ADJ[id(inc)] = (weakref.ref(inc), adj)
+    return adj
+
+
 def build_model_arrays(problem: ConfigProblem, form: str = "aggregated",
                        candidates: np.ndarray | None = None, wildcards: bool = True) -> ModelArrays:
     """Rows of eqs. 5.13–5.15 for the allowed assignments, vectorised (no loop over pairs).
@@ -172,12 +190,11 @@ def build_model_arrays(problem: ConfigProblem, form: str = "aggregated",
     t_indices = order[keep]
     t_indptr = np.r_[0, np.cumsum(sizes[sizes >= 2])].astype(np.int64)
     # conflicts restricted to allowed columns
-    adj = sparse.csr_matrix((np.ones(len(inc.indices), np.int8), inc.indices, inc.indptr),
-                            shape=(len(a), len(a)))
-    sub = adj[var][:, var].tocoo()
-    r, c = sub.row.astype(np.int64), sub.col.astype(np.int64)
-    o = np.lexsort((c, r))
-    r, c = r[o], c[o]
+    adj = _adjacency(inc)
+    sub = adj[var][:, var]
+    sub.sort_indices()  # rows ascending by construction; columns sorted within each row
+    r = np.repeat(np.arange(sub.shape[0], dtype=np.int64), np.diff(sub.indptr))
+    c = sub.indices.astype(np.int64)
     t_mid = time.perf_counter()
     if form == "pairwise":
         geometric = tgt[r] != tgt[c]
@@ -335,7 +352,7 @@ def greedy_solution(problem: ConfigProblem) -> np.ndarray | None:
 
 def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move: bool,
                 candidates_per_arm: int | None, backend: str, max_rounds: int = 6,
-                hint: np.ndarray | None = None) -> ConfigSolution:
+                hint: np.ndarray | None = None, columns: np.ndarray | None = None) -> ConfigSolution:
     """Lexicographic exact solve with lazy candidate expansion (see build_model_arrays).
 
     Stage 1 maximises the safe weight; whenever the optimum of the relaxation uses a
@@ -345,6 +362,9 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
     ``stats["move_optimal"]`` says whether the longest move is proven minimal).  After
     ``max_rounds`` stage-1 rounds or half the time limit, the restricted model without
     wildcards is solved instead: status "feasible", gap against the last relaxation bound.
+    ``columns``: an (n_assignments,) bool mask of columns the caller has PROVEN to contain
+    every solution at least as good as its hint (solvers.bnb.prune_columns); the model is
+    restricted to them without wildcards (no lazy expansion) and remains exact.
     """
     _validate_problem(problem)
     t_start = time.perf_counter()
@@ -352,6 +372,8 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
     n_arms = len(a.arm_start) - 1
     stats: dict = {"backend": backend, "form": form, "rounds": []}
     deadline = t_start + problem.time_limit_s
+    if columns is not None:
+        candidates_per_arm = None
     cand = None if candidates_per_arm is None else initial_candidates(problem, candidates_per_arm)
     step = candidates_per_arm or 0
     hint_ok = hint is not None and np.shape(hint) == (n_arms,) and (np.asarray(hint) >= 0).all()
@@ -398,7 +420,8 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
                 gap = None if relax_bound is None else max(relax_bound - w, 0) / max(w, 1)
                 best, status1, gap1 = (chosen, w), "feasible", gap
             break
-        m = build_model_arrays(problem, form, cand)
+        m = build_model_arrays(problem, form, cand) if columns is None or cand is not None else \
+            build_model_arrays(problem, form, np.asarray(columns, bool), wildcards=False)
         build_s = time.perf_counter() - tb
         if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
             return finish(None, "infeasible", None)
@@ -706,7 +729,8 @@ def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_lev
 
 def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers: int | None = None,
                     linearization_level: int = 2, minimize_move: bool = True,
-                    candidates_per_arm: int | None = 8, hint: np.ndarray | None = None) -> ConfigSolution:
+                    candidates_per_arm: int | None = 8, hint: np.ndarray | None = None,
+                    columns: np.ndarray | None = None) -> ConfigSolution:
     """Exact allocation of one configuration with OR-Tools CP-SAT (same model, exact int64).
 
     Aggregated conflict rows are at-most-one constraints, which CP-SAT handles natively.
@@ -716,4 +740,4 @@ def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers
     """
     return _lazy_solve(problem, _cpsat_arrays(problem, workers, linearization_level), form=form,
                        minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
-                       hint=hint)
+                       hint=hint, columns=columns)

@@ -19,6 +19,7 @@ pending ones until every target is observed.  Here:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable
@@ -89,6 +90,7 @@ def sequence_configurations(
     incompatibility: Incompatibility | None = None,
     adaptive_limits: bool = True,
     lower_bound_flow: bool = True,
+    rescue: bool = True,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
@@ -98,7 +100,10 @@ def sequence_configurations(
     (remaining / ceil(pending / arms)), so a few hard configurations cannot starve the
     rest; a solve cut short reports ``feasible`` with its gap.  ``lower_bound_flow`` adds
     ``stats["lower_bound_configurations_flow"]`` (:func:`matching_lower_bound`).  ``max_configurations=1`` is
-    the "one configuration" mode.  Unallocated targets: ``unreachable`` (no enabled arm
+    the "one configuration" mode.  ``rescue``: targets left as ``conflict`` (reachable only by
+    arms that collide with a neighbour's rest location, e.g. a target on another arm's park
+    spot) get extra configurations in which idle arms may rest on already observed targets
+    (:func:`_rescue_conflicts`).  Unallocated targets: ``unreachable`` (no enabled arm
     reaches them), ``conflict`` (reachable but no further configuration could take them),
     ``no_time``.
     """
@@ -178,6 +183,22 @@ def sequence_configurations(
     out = []
     for i, (prob, chosen, status, stats) in enumerate(configs):
         out.append(make_configuration(i, prob, chosen, targets, status, stats))
+    if rescue and stop_reason == "conflict" and pending.any() and (max_configurations is None
+                                                                   or len(out) < max_configurations):
+        tr = time.perf_counter()
+        q_last = configs[-1][0].assignments.q[configs[-1][1]] if configs else q
+        extra = _rescue_conflicts(instrument, targets, priority, np.flatnonzero(pending), ~pending & ~unreachable,
+                                  q_last, solve_one, fixed, buffer_mm, speeds, len(out),
+                                  t0 + time_limit_s, config_time_limit_s, threads, seed,
+                                  None if max_configurations is None else max_configurations - len(out))
+        out.extend(extra)
+        timers["rescue_s"] = time.perf_counter() - tr
+        for c in extra:
+            for a_ in c.assignments:
+                if a_.target_index is not None:
+                    pending[a_.target_index] = False
+        if not pending.any():
+            stop_reason = "complete"
     allocated = np.zeros(n, bool)
     for c in out:
         for a in c.assignments:
@@ -369,3 +390,69 @@ def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
         configs = head + new
         window = 2
     return configs
+
+
+# ------------------------------------------------------------------------ conflict rescue
+
+
+def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
+                      first_index, deadline, config_time_limit_s, threads, seed, max_configs,
+                      n_fill: int = 160) -> list[Configuration]:
+    """Configurations for targets no configuration of the main structure can take.
+
+    Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
+    inside the FOV ring), and park is the only rest location of the main model.  Here the
+    structure is rebuilt for the leftovers plus the ``n_fill`` nearest already observed
+    targets at priority 0: an idle arm may rest on one of those (reported as kind
+    ``"blank"``: it points at sky already observed) and so make room.  Exact per
+    configuration like the main loop (same back-end, verified); stops when a configuration
+    takes no leftover target.
+    """
+    x = np.asarray(targets.x_mm, float)
+    y = np.asarray(targets.y_mm, float)
+    fill = np.flatnonzero(done)
+    if len(fill):
+        d = np.min(np.hypot(x[fill, None] - x[None, left], y[fill, None] - y[None, left]), axis=1)
+        fill = fill[np.argsort(d, kind="stable")[:n_fill]]
+    sub = np.r_[left, fill].astype(np.int64)
+    nl = len(left)
+    inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed)
+    pr = np.r_[priority[left], np.zeros(len(fill), np.int64)]
+    pend = np.zeros(len(sub), bool)
+    pend[:nl] = True
+    pend[:nl] &= inc.reachability.arms_per_target[:nl] > 0
+    xy = np.column_stack([x[sub], y[sub]])
+    sub_targets = targets.subset(sub)
+    out: list[Configuration] = []
+    while pend[:nl].any() and (max_configs is None or len(out) < max_configs):
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0.01:
+            break
+        avail = pend.copy()
+        avail[nl:] = True
+        prob = ConfigProblem(inc, pr, avail, q, speeds, time_limit_s=min(config_time_limit_s, remaining),
+                             threads=threads, seed=seed + first_index + len(out), target_xy_mm=xy)
+        ts = time.perf_counter()
+        sol = solve_one(prob)
+        dt = time.perf_counter() - ts
+        if sol.status in ("timeout", "infeasible") or (sol.chosen < 0).any():
+            break
+        _verify(instrument, prob, sol.chosen)
+        tg = prob.assignments.target[sol.chosen]
+        real = tg[(tg >= 0) & (tg < nl)]
+        if not len(real):
+            break
+        pend[real] = False
+        c = make_configuration(first_index + len(out), prob, sol.chosen, sub_targets, sol.status,
+                               {"solve_s": dt, "status": sol.status, "gap": sol.gap,
+                                "longest_move_s": sol.longest_move_s, "rescue": True})
+        assigns = []
+        for a_ in c.assignments:
+            if a_.target_index is not None and a_.target_index >= nl:  # resting on an observed target
+                a_ = dataclasses.replace(a_, kind="blank", target_index=None, target_id=None)
+            elif a_.target_index is not None:
+                a_ = dataclasses.replace(a_, target_index=int(sub[a_.target_index]))
+            assigns.append(a_)
+        out.append(dataclasses.replace(c, assignments=tuple(assigns), arm_yield=len(real)))
+        q = prob.assignments.q[sol.chosen]
+    return out
