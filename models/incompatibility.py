@@ -198,30 +198,43 @@ def build_assignments(
 
 
 def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) -> np.ndarray:
-    """``n`` feasible configurations of ``arm`` whose tip lies in the outer FOV ring in
-    front of its base (between its neighbours), for blank-sky exposures (thesis Algorithm 5).
+    """``n`` feasible, retracted configurations of ``arm`` for blank-sky exposures (thesis
+    Algorithm 5 padding): the tip stays in the outer ring of the FOV or just outside it,
+    out of the crowded centre.
 
-    Deterministic for a given seed; drawn by rejection in joint space around the park
-    configuration so the arm stays retracted and out of the crowded centre.
+    Candidates are drawn (deterministically for a seed) in joint space around the park
+    configuration, including sideways poses, then spread out by farthest-point selection
+    on the tip position. The spread matters: a rim target right in front of an arm's park
+    is reachable only by its neighbours, and the arm then needs a pose that is not in front
+    of its park.
     """
     from models.kinematics import Links, in_zoa
 
+    if n <= 0:
+        return np.zeros((0, 2))
     rng = np.random.default_rng([seed, arm])
     links = Links.of(instrument, arm)
     a = instrument.arms[arm]
-    out = np.zeros((0, 2))
     r_fov = instrument.fov_radius_mm
-    for _ in range(50):
-        t1 = rng.uniform(max(a.theta1_min_rad, a.park_theta1_rad - 0.6), a.park_theta1_rad, 8 * n)
-        t2 = a.park_theta2_rad + rng.uniform(-0.8, 0.8, 8 * n)
-        ok = ~in_zoa(t1, t2, links)
-        tip = tip_fov(instrument, arm, t1, t2)
-        r = np.hypot(tip[:, 0], tip[:, 1])
-        ok &= (r > 0.6 * r_fov) & (r < r_fov)
-        out = np.vstack([out, np.column_stack([t1[ok], t2[ok]])])
-        if len(out) >= n:
-            break
-    return out[:n]
+    m = 64 * n
+    t1 = rng.uniform(max(a.theta1_min_rad, a.park_theta1_rad - 1.2), a.park_theta1_rad, m)
+    t2 = a.park_theta2_rad + rng.uniform(-np.pi, np.pi, m)
+    ok = ~in_zoa(t1, t2, links)
+    tip = tip_fov(instrument, arm, t1, t2)
+    r = np.hypot(tip[:, 0], tip[:, 1])
+    ok &= (r > 0.75 * r_fov) & (r < 1.3 * r_fov)
+    q, tip = np.column_stack([t1[ok], t2[ok]]), tip[ok]
+    if len(q) <= n:
+        return q
+    # farthest-point selection, starting from the pose closest to park
+    park_tip = tip_fov(instrument, arm, a.park_theta1_rad, a.park_theta2_rad)
+    chosen = [int(np.argmin(np.hypot(*(tip - park_tip).T)))]
+    d = np.hypot(*(tip - tip[chosen[0]]).T)
+    for _ in range(n - 1):
+        nxt = int(np.argmax(d))
+        chosen.append(nxt)
+        d = np.minimum(d, np.hypot(*(tip - tip[nxt]).T))
+    return q[chosen]
 
 
 def _joint_bounds(instrument: Instrument, k: int) -> dict[str, tuple[np.ndarray, float]]:

@@ -134,6 +134,22 @@ def test_blank_sky_locations_are_feasible_and_deterministic() -> None:
         assert q.shape == (6, 2)
         assert not in_zoa(q[:, 0], q[:, 1], Links.of(INS, k)).any()
         tip = tip_fov(INS, k, q[:, 0], q[:, 1])
-        assert (np.hypot(tip[:, 0], tip[:, 1]) < INS.fov_radius_mm).all()
+        r = np.hypot(tip[:, 0], tip[:, 1])
+        assert ((r > 0.7 * INS.fov_radius_mm) & (r < 1.3 * INS.fov_radius_mm)).all()
         assert np.array_equal(q, sample_blank_sky(INS, k, 6, seed=3))
         assert not np.array_equal(q, sample_blank_sky(INS, k, 6, seed=4))
+
+
+def test_blank_sky_frees_an_arm_whose_park_blocks_a_rim_target() -> None:
+    """A rim target right in front of arm 0's park is reachable only by other arms; with
+    blank-sky poses arm 0 still has somewhere to rest while a neighbour observes it."""
+    x, y = np.array([124.0]), np.array([0.0])
+    assert not inverse_fov(INS, 0, 124.0, 0.0).valid.any()
+    inc = incompatibility_for_targets(INS, x, y, blank_per_arm=6)
+    a = inc.assignments
+    arm0 = np.flatnonzero(a.arm == 0)
+    park0 = arm0[a.target[arm0] == PARK][0]
+    for t in np.flatnonzero(a.target == 0):
+        assert park0 in inc.neighbours(t), "the park of arm 0 blocks the rim target"
+        free = [i for i in arm0 if i not in inc.neighbours(t)]
+        assert free and all(a.target[i] == BLANK for i in free)
