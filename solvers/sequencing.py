@@ -91,6 +91,8 @@ def sequence_configurations(
     adaptive_limits: bool = True,
     lower_bound_flow: bool = True,
     rescue: bool = True,
+    blank_per_arm: int = 0,
+    tail_fraction: float = 0.0,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
@@ -114,7 +116,8 @@ def sequence_configurations(
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
     if incompatibility is None:
-        incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed)
+        incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed,
+                                                      blank_per_arm=blank_per_arm, seed=seed)
     inc = incompatibility
     timers["incompatibility_s"] = time.perf_counter() - t0
     if progress:
@@ -169,13 +172,24 @@ def sequence_configurations(
         configs.append((prob, sol.chosen, sol.status, stats))
         pending[tg] = False
         q = prob.assignments.q[sol.chosen]
+        if rescue and len(tg) < n_active and 0 < pending.sum() <= tail_fraction * n_reachable:
+            # the under-filled tail: what is left is mostly blocked by parked neighbours;
+            # finish it where idle arms may rest on observed targets (_rescue_conflicts)
+            stop_reason = "tail"
+            break
         if progress:
             progress(0.05 + 0.85 * (1 - pending.sum() / max(n_reachable, 1)), f"configuration {len(configs)}")
     timers["sequence_s"] = t_solve
     greedy_count = len(configs)
-    if repack and stop_reason == "complete" and len(configs) > lower_bound:
+    if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) > lower_bound:
         tr = time.perf_counter()
         budget = min(time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
+        n0 = len(configs)
+        configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
+                               0.4 * budget, seed, threads)
+        timers["repack_bulk_s"] = time.perf_counter() - tr
+        timers["repack_bulk_saved"] = n0 - len(configs)
+        budget = min(time_limit_s - (time.perf_counter() - t0), budget - (time.perf_counter() - tr))
         configs = _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
                                repack_max_window, repack_time_limit_s, budget, seed, threads)
         timers["repack_s"] = time.perf_counter() - tr
@@ -183,7 +197,7 @@ def sequence_configurations(
     out = []
     for i, (prob, chosen, status, stats) in enumerate(configs):
         out.append(make_configuration(i, prob, chosen, targets, status, stats))
-    if rescue and stop_reason == "conflict" and pending.any() and (max_configurations is None
+    if rescue and stop_reason in ("conflict", "tail") and pending.any() and (max_configurations is None
                                                                    or len(out) < max_configurations):
         tr = time.perf_counter()
         q_last = configs[-1][0].assignments.q[configs[-1][1]] if configs else q
@@ -197,8 +211,7 @@ def sequence_configurations(
             for a_ in c.assignments:
                 if a_.target_index is not None:
                     pending[a_.target_index] = False
-        if not pending.any():
-            stop_reason = "complete"
+        stop_reason = "complete" if not pending.any() else "conflict"
     allocated = np.zeros(n, bool)
     for c in out:
         for a in c.assignments:
@@ -349,6 +362,67 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     return out
 
 
+def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool):
+    """The last ``window`` configurations replaced by the verified ``packed`` ones."""
+    a = inc.assignments
+    head = configs[:-window]
+    q = head[-1][0].assignments.q[head[-1][1]] if head else instrument.park_configuration
+    pending = np.zeros(len(priority), bool)
+    pending[pool] = True
+    packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
+    new = []
+    for ch in packed:
+        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, target_xy_mm=xy, tie_break=tie)
+        _verify(instrument, prob, ch)
+        tg = a.target[ch]
+        pending[tg[tg >= 0]] = False
+        new.append((prob, ch, "feasible", {"solve_s": dt / len(packed), "status": "repacked",
+                                            "longest_move_s": evaluate(prob, ch)[2]}))
+        q = a.q[ch]
+    return head + new
+
+
+def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, budget_s, seed, threads):
+    """Re-pack the whole under-filled tail at once.
+
+    One-at-a-time sequencing leaves the hard-to-place targets (few arms reach them) for
+    the end, where they fill configurations one or two at a time.  The tail is the longest
+    suffix whose configurations are not all full (plus the one before it); its targets are
+    packed by :func:`pack_targets` into as few configurations as the b-matching bound
+    (:func:`matching_lower_bound`) allows, then one more at a time while it fails.
+    """
+    t0 = time.perf_counter()
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    yields = [int((a.target[ch] >= 0).sum()) for _, ch, _, _ in configs]
+    full = max(yields, default=0)
+    w = 0
+    while w < len(configs) and yields[len(configs) - 1 - w] < full:
+        w += 1
+    window = min(w + 1, len(configs))
+    if w < 2:
+        return configs
+    tail = configs[-window:]
+    pool = np.concatenate([a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in tail])
+    mask = np.zeros(inc.reachability.n_targets, bool)
+    mask[pool] = True
+    need = max(matching_lower_bound(inc, mask), math.ceil(len(pool) / max(n_arms, 1)),
+               lower_bound - (len(configs) - window))
+    c = need
+    while c < window:
+        left = budget_s - (time.perf_counter() - t0)
+        if left <= 0.1:
+            break
+        ts = time.perf_counter()
+        packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), 0.5)),
+                              seed=seed, threads=threads, hint=[ch for _, ch, _, _ in tail])
+        if packed is not None:
+            return _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
+                                 time.perf_counter() - ts, pool)
+        c += 1
+    return configs
+
+
 def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, max_window,
                  attempt_s, budget_s, seed, threads):
     """Re-pack the targets of the last W configurations into W - 1 while it succeeds."""
@@ -397,7 +471,7 @@ def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
 
 def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
-                      n_fill: int = 160) -> list[Configuration]:
+                      n_fill: int = 200) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
@@ -408,12 +482,14 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
     configuration like the main loop (same back-end, verified); stops when a configuration
     takes no leftover target.
     """
+    from solvers.ilp import solve_ilp_cpsat
+
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
     fill = np.flatnonzero(done)
     if len(fill):
         d = np.min(np.hypot(x[fill, None] - x[None, left], y[fill, None] - y[None, left]), axis=1)
-        fill = fill[np.argsort(d, kind="stable")[:n_fill]]
+        fill = fill[np.argsort(d, kind="stable")[:max(n_fill, 2 * len(left))]]
     sub = np.r_[left, fill].astype(np.int64)
     nl = len(left)
     inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed)
@@ -441,7 +517,26 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
         tg = prob.assignments.target[sol.chosen]
         real = tg[(tg >= 0) & (tg < nl)]
         if not len(real):
-            break
+            # nothing jointly: one leftover target at a time, by CP-SAT (a node-limited
+            # branch-and-bound wanders in the zero-weight rest placements and may miss it)
+            for i in np.flatnonzero(pend[:nl]):
+                if deadline - time.perf_counter() <= 0.01:
+                    break
+                av1 = np.zeros(len(sub), bool)
+                av1[i] = True
+                av1[nl:] = True
+                p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
+                                                                              deadline - time.perf_counter()))
+                s1 = solve_ilp_cpsat(p1, minimize_move=False, candidates_per_arm=None)  # exact, small
+                if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
+                        i in p1.assignments.target[s1.chosen]:
+                    prob, sol = p1, s1
+                    _verify(instrument, prob, sol.chosen)
+                    tg = prob.assignments.target[sol.chosen]
+                    real = tg[(tg >= 0) & (tg < nl)]
+                    break
+            if not len(real):
+                break
         pend[real] = False
         c = make_configuration(first_index + len(out), prob, sol.chosen, sub_targets, sol.status,
                                {"solve_s": dt, "status": sol.status, "gap": sol.gap,
