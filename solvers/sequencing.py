@@ -186,7 +186,7 @@ def sequence_configurations(
         budget = min(time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
         n0 = len(configs)
         configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
-                               0.4 * budget, seed, threads)
+                               min(0.4 * budget, 3 * repack_time_limit_s), seed, threads)
         timers["repack_bulk_s"] = time.perf_counter() - tr
         timers["repack_bulk_saved"] = n0 - len(configs)
         budget = min(time_limit_s - (time.perf_counter() - t0), budget - (time.perf_counter() - tr))
