@@ -179,3 +179,25 @@ def test_adaptive_limits_never_exceed_the_cap() -> None:
     r = sequence_configurations(INS, t, solve_ilp_bnb, time_limit_s=30.0, config_time_limit_s=1.5)
     assert r.stats["field_completeness"] == 1.0 or r.unallocated
     assert all(0 < c.stats["time_limit_s"] <= 1.5 for c in r.configurations if "time_limit_s" in c.stats)
+
+
+def test_column_fixing_keeps_the_optimum_and_the_longest_move() -> None:
+    """prune_columns against a node-limited incumbent: CP-SAT on the kept columns has the
+    same priority, yield and minimal longest move as on the full model."""
+    from solvers.bnb import prepare_field, prune_columns
+
+    rng = np.random.default_rng(21)
+    for _ in range(2):
+        x, y = _field(rng, 40, radius=70.0)
+        p = _problem(x, y, rng.choice([500, 100, 10, 1], size=40))
+        f = prepare_field(p)
+        r = solve_bnb_chosen(p, node_limit=30, minimize_move=False)
+        inc_c = sum(f.coarse[k][int(f.pos[r["chosen"][k]])] for k in range(INS.n_arms))
+        cols = prune_columns(p, inc_c, f)
+        assert cols[r["chosen"]].all() and cols.sum() <= p.allowed().sum()
+        full = solve_ilp_cpsat(p, candidates_per_arm=None)
+        cut = solve_ilp_cpsat(p, columns=cols)
+        if full.status == cut.status == "optimal":
+            assert (cut.total_priority, cut.arm_yield) == (full.total_priority, full.arm_yield)
+            if full.stats["move_optimal"] and cut.stats["move_optimal"]:
+                assert cut.longest_move_s == pytest.approx(full.longest_move_s, abs=2e-6)

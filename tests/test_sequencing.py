@@ -103,3 +103,27 @@ def test_repacking_never_increases_configurations() -> None:
     assert b.stats["n_configurations"] <= b.stats["n_configurations_greedy"]
     assert b.stats["field_completeness"] == 1.0
     assert b.stats["n_configurations"] >= b.stats["lower_bound_configurations"]
+
+
+def test_rescue_places_targets_on_park_spots() -> None:
+    """Targets on the ring of park tips (r ~ 122 mm) are reachable only by neighbours of
+    an arm whose park spot blocks them: without the rescue they stay ``conflict``; with it
+    idle arms rest on already observed targets (kind "blank") and every target is
+    observed exactly once in verified configurations."""
+    from solvers.bnb import solve_ilp_bnb
+
+    rng = np.random.default_rng(0)
+    n = 40
+    r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
+    f = partial(solve_ilp_bnb, fallback=None)
+    off = sequence_configurations(INS, t, f, rescue=False, repack=False, **LIM)
+    assert any(u.reason == "conflict" for u in off.unallocated)
+    on = sequence_configurations(INS, t, f, rescue=True, repack=False, **LIM)
+    assert on.stats["reachable_completeness"] == 1.0 and on.stats["stop_reason"] == "complete"
+    seen = [x.target_index for c in on.configurations for x in c.assignments if x.target_index is not None]
+    assert len(seen) == len(set(seen)) == on.stats["n_reachable"]
+    for c in on.configurations:
+        assert fcl_configuration_collisions(INS, c.q) == []
+        assert c.arm_yield == sum(x.kind == "target" for x in c.assignments)
+        assert all(x.target_index is None for x in c.assignments if x.kind == "blank")
