@@ -471,14 +471,15 @@ def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
 
 def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
-                      n_fill: int = 200) -> list[Configuration]:
+                      n_fill: int = 200, blank_per_arm: int = 8) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
     inside the FOV ring), and park is the only rest location of the main model.  Here the
     structure is rebuilt for the leftovers plus the ``n_fill`` nearest already observed
     targets at priority 0: an idle arm may rest on one of those (reported as kind
-    ``"blank"``: it points at sky already observed) and so make room.  Exact per
+    ``"blank"``: it points at sky already observed) or on ``blank_per_arm`` sampled
+    blank-sky locations, and so make room.  Exact per
     configuration like the main loop (same back-end, verified); stops when a configuration
     takes no leftover target.
     """
@@ -492,7 +493,8 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
         fill = fill[np.argsort(d, kind="stable")[:max(n_fill, 2 * len(left))]]
     sub = np.r_[left, fill].astype(np.int64)
     nl = len(left)
-    inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed)
+    inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed,
+                                      blank_per_arm=blank_per_arm, seed=seed)
     pr = np.r_[priority[left], np.zeros(len(fill), np.int64)]
     pend = np.zeros(len(sub), bool)
     pend[:nl] = True
