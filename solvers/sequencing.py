@@ -149,7 +149,9 @@ def sequence_configurations(
         # configurations still needed at best (ceil(pending / arms)), twice that for slack
         # (the hard ones are few); never above config_time_limit_s
         n_left = max(math.ceil(int(pending.sum()) / max(n_active, 1)), 1)
-        limit_i = min(config_time_limit_s, remaining, max(2.0 * remaining / n_left, 0.05)) if adaptive_limits \
+        # 10 % of the budget is held back for the repacking / rescue passes at the end
+        share = max(remaining - 0.1 * time_limit_s, 0.05)
+        limit_i = min(config_time_limit_s, remaining, max(2.0 * share / n_left, 0.05)) if adaptive_limits \
             else min(config_time_limit_s, remaining)
         prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, time_limit_s=limit_i,
                              mip_rel_gap=mip_rel_gap, threads=threads, seed=seed + len(configs),
