@@ -486,8 +486,9 @@ class DelayResult:
 
 def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
                 horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int], stats: DelayStats,
-                grid: tuple[int, int] = (8, 6), max_rounds: int = 3, max_detour_vertices: int = 10,
-                detour_waits_steps: tuple[int, ...] = (0, 1, 2, 4, 7), node_budget: int = 20000,
+                grid: tuple[int, int] = (8, 6), max_rounds: int = 4, max_detour_vertices: int = 8,
+                detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
+                node_budget: int = 20000,
                 deadline: float | None = None, check=None, max_repairs: int = 5) -> DelayResult:
     """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
 
@@ -499,7 +500,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     it is not longer than the lower bound, so it cannot raise the makespan). Later rounds
     add, for the arms the CSP blames, both straight directions and (if ``max_start_stop`` >= 1)
     one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
-    of ``detour_waits_steps`` x dt. Tables of option pairs already computed are reused.
+    of ``detour_waits_steps`` x dt, the detour (wait included) at most ``detour_extra_s`` longer
+    than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
     """
     import time as _time
 
@@ -544,7 +546,9 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
             return DelayResult(sol, cur, [], rnd + 1, ms)
         if deadline is not None and _time.perf_counter() > deadline:
             break
-        new = [k for k in blamed if k in mv and k not in extended]
+        # one arm per round (usually one arm getting out of the way suffices): tables grow as
+        # options_i x options_j, so extending both arms of a conflict at once costs far more
+        new = [k for k in blamed if k in mv and k not in extended][:1]
         if not new:
             break
         for k in new:
@@ -555,7 +559,9 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     cur[k].append(o)
             if max_start_stop >= 1:
                 V = detour_vertices(geoms[k], start_q[k], goal_q[k], grid)
+                t_direct = min((o.duration_s for o in opts[k]), default=0.0)
                 cur[k].extend(detour_options(geoms[k], start_q[k], goal_q[k], V,
                                              tuple(w * dt_s for w in detour_waits_steps),
-                                             max_detour_vertices, horizon_s))
+                                             max_detour_vertices,
+                                             min(horizon_s, max(lb, t_direct) + detour_extra_s)))
     return DelayResult(None, cur, blamed, max_rounds)

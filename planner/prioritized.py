@@ -258,6 +258,7 @@ def plan_motion(
     rpp_max_paths: int = 8,
     turn_sense: int = 1,
     turn_bias_s: float = 0.0,
+    via: np.ndarray | None | str = "park",
 ) -> MotionPlan:
     """Collision-free, verified trajectories of all arms from ``start_q`` to ``goal_q`` (thesis 6.3).
 
@@ -273,6 +274,13 @@ def plan_motion(
     collision-check step (a sub-multiple of ``dt_s``), ``max_start_stop`` the stops allowed
     per arm, ``horizon_s`` T_f. Replanning (priority rotation, time reversal) runs within
     ``max_attempts`` and ``time_budget_s``. Same input and ``seed`` -> same plan.
+
+    Strategies, in order: "delays" (straight moves with departure delays, then one-stop
+    detours for the arms in conflict; :mod:`planner.delays`), then prioritized state-time
+    planning "forward" / "reverse". If all fail and ``via`` is given ("park" or an
+    (n_arms, 2) configuration) and differs from both ends, the move is planned as two legs
+    start -> via -> goal with zero-stop legs (each arm then stops at most once, at ``via``)
+    and the concatenation is verified as a whole.
     """
     t0 = time.perf_counter()
     start_q = _check_q(instrument, start_q, "start_q")
@@ -428,8 +436,65 @@ def plan_motion(
 
     failed_arms = sorted(fail_count, key=lambda a: (-fail_count[a], a)) or best_failed
     stats["reasons"] = {int(a): last_reason.get(a, "not planned") for a in failed_arms}
+    via_q = instrument.park_configuration if isinstance(via, str) and via == "park" else via
+    if via_q is not None and not isinstance(via_q, str) and max_start_stop >= 1:
+        two = _plan_via(instrument, start_q, np.asarray(via_q, float), goal_q, buffer_mm, max_start_stop,
+                        dict(dt_s=dt_s, dt_col_s=dt_col_s, seed=seed, horizon_s=horizon_s, grid=grid,
+                             time_budget_s=max(0.5, time_budget_s - (time.perf_counter() - t0))), stats)
+        if two is not None:
+            stats["compute_s"] = time.perf_counter() - t0
+            return two
     stats["compute_s"] = time.perf_counter() - t0
     return _failed(instrument, start_q, failed_arms, stats)
+
+
+def _same_configuration(a: np.ndarray, b: np.ndarray) -> bool:
+    return bool(np.all(np.abs(a[:, 0] - b[:, 0]) <= 1e-9)
+                and all(_same_angle(x, y) for x, y in zip(a[:, 1], b[:, 1], strict=True)))
+
+
+def _plan_via(instrument: Instrument, start_q: np.ndarray, via_q: np.ndarray, goal_q: np.ndarray,
+              buffer_mm: float, max_start_stop: int, kw: dict, stats: dict) -> MotionPlan | None:
+    """start -> via -> goal as two zero-stop legs (e.g. through park for a chained move).
+
+    Each leg has no intermediate stop, so an arm that moves in both legs stops once (at
+    ``via``) and the whole respects ``max_start_stop`` >= 1. Time reversal would give the
+    same first leg (a verified via -> start plan played backwards has the same clearances,
+    speeds and stops); the delay CSP plans start -> via directly just as well.
+    """
+    if _same_configuration(via_q, start_q) or _same_configuration(via_q, goal_q):
+        return None
+    if _precheck(instrument, [ArmGeom.of(instrument, k) for k in range(instrument.n_arms)], via_q, via_q, buffer_mm):
+        return None
+    legs = []
+    cur = start_q
+    for target in (via_q, goal_q):
+        p = plan_motion(instrument, cur, target, max_start_stop=0, collision_buffer_mm=buffer_mm,
+                        strategies=("delays",), via=None, **kw)
+        if p.status != "ok":
+            stats.setdefault("attempt_log", []).append({"direction": "via", "failed_arms": list(p.failed_arms)})
+            return None
+        legs.append(p)
+        cur = np.array([[tr.theta1_rad[-1], tr.theta2_rad[-1]] for tr in p.trajectories])
+    T1 = legs[0].makespan_s
+    trajs = []
+    for k in range(instrument.n_arms):
+        a, b = legs[0].trajectories[k], legs[1].trajectories[k]
+        t = np.concatenate([a.t_s, b.t_s + T1])
+        q = np.column_stack([np.concatenate([a.theta1_rad, b.theta1_rad]), np.concatenate([a.theta2_rad, b.theta2_rad])])
+        keep = np.concatenate([np.diff(t) > 1e-12, [True]])  # drop the duplicated junction point
+        t, q = compress_waypoints(t[keep], q[keep])
+        trajs.append(ArmTrajectory(k, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1])))
+    rep = verify_trajectories(instrument, trajs, start_q, goal_q, collision_buffer_mm=buffer_mm,
+                              max_start_stop=max_start_stop)
+    stats.setdefault("attempt_log", []).append({"direction": "via", "verified": rep.ok})
+    if not rep.ok:
+        return None
+    for key in ("collision_checks", "states_explored"):
+        stats[key] = stats.get(key, 0) + sum(leg.stats.get(key, 0) for leg in legs)
+    stats["strategy"] = "via"
+    stats["min_clearance_mm"] = rep.min_clearance_mm
+    return MotionPlan("ok", float(T1 + legs[1].makespan_s), tuple(trajs), (), stats)
 
 
 def plan_chain(instrument: Instrument, configurations: Sequence[np.ndarray], *,

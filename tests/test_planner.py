@@ -24,6 +24,12 @@ A, B = 0, 1
 GOAL_CONFLICT = [[3.0136971541900013, 0.18301607390023514], [1.928770938121543, 2.7180407071074124]]
 ARM0_ON_ARM1_PARK = (1.81205646, 3.80872934)
 THIN = [[1.5068486993930823, 2.592683017496547], [1.3948972100113546, 2.6121715572481228]]
+# en-route conflict between arms 0 and 3 (found by a seeded search over crossing tip paths near the
+# FOV centre): starts and goals are collision-free, neither straight move sweeps the other arm's
+# start or goal, yet the two straight moves started together collide mid-way (t ~ 3.5 s of 7 / 11 s)
+EN_ROUTE_ARMS = (0, 3)
+EN_ROUTE_START = [[0.878773072458201, 2.867705337737001], [1.4550251279736608, 2.3495517334077203]]
+EN_ROUTE_GOAL = [[1.1008431294640253, 2.92703963520059], [1.3759905077268153, 2.70159732393187]]
 
 
 def _two_arm(goals):
@@ -47,19 +53,31 @@ def _straight_all(start, goal):
     return [_straight(k, start[k], goal[k]) for k in range(len(start))]
 
 
-@pytest.mark.parametrize("goals", [
-    GOAL_CONFLICT,
-    # the en-route scenario found so far is blocked by a parked, disabled neighbour (arm 11
-    # or 2 cannot move out of the way): a better scenario is still to be constructed
-    pytest.param(THIN, marks=pytest.mark.xfail(reason="scenario blocked by a disabled parked arm", strict=False)),
-], ids=["goal_conflict", "en_route"])
-def test_conflict_solved_and_verified(goals):
-    inst, goal = _two_arm(goals)
-    naive = verify_trajectories(inst, _straight_all(PARK, goal), PARK, goal)
-    assert any(v.kind == "collision" and v.arms == (A, B) for v in naive.violations), "straight motion must collide"
-    plan = plan_motion(inst, PARK, goal)
+def _en_route():
+    inst = INST.with_arms_disabled([k for k in range(12) if k not in EN_ROUTE_ARMS])
+    start, goal = PARK.copy(), PARK.copy()
+    start[list(EN_ROUTE_ARMS)] = EN_ROUTE_START
+    goal[list(EN_ROUTE_ARMS)] = EN_ROUTE_GOAL
+    return inst, start, goal
+
+
+@pytest.mark.parametrize("case", ["goal_conflict", "en_route"])
+def test_conflict_solved_and_verified(case):
+    if case == "goal_conflict":
+        inst, goal = _two_arm(GOAL_CONFLICT)
+        start, pair = PARK, (A, B)
+    else:
+        inst, start, goal = _en_route()
+        pair = EN_ROUTE_ARMS
+    naive = verify_trajectories(inst, _straight_all(start, goal), start, goal)
+    hits = [v for v in naive.violations if v.kind == "collision" and v.arms == pair]
+    assert hits, "straight motion must collide"
+    if case == "en_route":  # the collision is strictly en route: not at departure, not at arrival
+        T = [_straight(k, start[k], goal[k]).t_s[-1] for k in pair]
+        assert 0.0 < hits[0].t_s < min(T)
+    plan = plan_motion(inst, start, goal)
     assert plan.status == "ok", plan.stats
-    rep = verify_trajectories(inst, plan.trajectories, PARK, goal, exhaustive=True)
+    rep = verify_trajectories(inst, plan.trajectories, start, goal, exhaustive=True)
     assert rep.ok and rep.min_clearance_mm >= 5.0
     for tr in plan.trajectories:
         assert stop_count(tr.t_s, tr.theta1_rad, tr.theta2_rad) <= 1
