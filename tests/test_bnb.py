@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from functools import partial
 
 import numpy as np
 import pytest
@@ -165,8 +166,8 @@ def test_matching_lower_bound_beats_ceil_when_few_arms_reach() -> None:
     n_reach = len(np.unique(a.arm[a.target >= 0]))
     assert lb >= math.ceil(30 / n_reach) > math.ceil(30 / 12)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(30)], x, y, np.ones(30, np.int64))
-    r = sequence_configurations(INS, t, solve_ilp_bnb, incompatibility=inc, time_limit_s=600.0,
-                                config_time_limit_s=60.0)
+    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None), incompatibility=inc,
+                                time_limit_s=600.0, config_time_limit_s=60.0, repack=False, rescue=False)
     assert r.stats["lower_bound_configurations_flow"] == lb
     if r.stats["reachable_completeness"] == 1.0:
         assert r.stats["n_configurations"] >= lb
