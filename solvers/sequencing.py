@@ -183,6 +183,22 @@ def sequence_configurations(
             progress(0.05 + 0.85 * (1 - pending.sum() / max(n_reachable, 1)), f"configuration {len(configs)}")
     timers["sequence_s"] = t_solve
     greedy_count = len(configs)
+    # rescue BEFORE the tail repacking: completeness first, the configuration count second
+    extra: list[Configuration] = []
+    if rescue and stop_reason in ("conflict", "tail") and pending.any() and (max_configurations is None
+                                                                   or len(configs) < max_configurations):
+        tr = time.perf_counter()
+        q_last = configs[-1][0].assignments.q[configs[-1][1]] if configs else q
+        extra = _rescue_conflicts(instrument, targets, priority, np.flatnonzero(pending), ~pending & ~unreachable,
+                                  q_last, solve_one, fixed, buffer_mm, speeds, len(configs),
+                                  t0 + time_limit_s, config_time_limit_s, threads, seed,
+                                  None if max_configurations is None else max_configurations - len(configs))
+        timers["rescue_s"] = time.perf_counter() - tr
+        for c in extra:
+            for a_ in c.assignments:
+                if a_.target_index is not None:
+                    pending[a_.target_index] = False
+        stop_reason = "complete" if not pending.any() else "conflict"
     if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) > lower_bound:
         tr = time.perf_counter()
         budget = min(time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
@@ -199,21 +215,8 @@ def sequence_configurations(
     out = []
     for i, (prob, chosen, status, stats) in enumerate(configs):
         out.append(make_configuration(i, prob, chosen, targets, status, stats))
-    if rescue and stop_reason in ("conflict", "tail") and pending.any() and (max_configurations is None
-                                                                   or len(out) < max_configurations):
-        tr = time.perf_counter()
-        q_last = configs[-1][0].assignments.q[configs[-1][1]] if configs else q
-        extra = _rescue_conflicts(instrument, targets, priority, np.flatnonzero(pending), ~pending & ~unreachable,
-                                  q_last, solve_one, fixed, buffer_mm, speeds, len(out),
-                                  t0 + time_limit_s, config_time_limit_s, threads, seed,
-                                  None if max_configurations is None else max_configurations - len(out))
-        out.extend(extra)
-        timers["rescue_s"] = time.perf_counter() - tr
-        for c in extra:
-            for a_ in c.assignments:
-                if a_.target_index is not None:
-                    pending[a_.target_index] = False
-        stop_reason = "complete" if not pending.any() else "conflict"
+    for i, c in enumerate(extra):
+        out.append(dataclasses.replace(c, index=len(configs) + i))
     allocated = np.zeros(n, bool)
     for c in out:
         for a in c.assignments:
