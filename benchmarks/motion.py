@@ -9,6 +9,10 @@ configuration keeps the buffer to the arms already placed; checked with
 * park -> configuration for every allocation (thesis: 97 % in one pass, median 102.55 s);
 * chained configuration i -> i + 1 (thesis: 93 %).
 
+The planner's first strategy is "delays" (straight moves with departure delays and, for
+arms in conflict, one-stop detours; planner/delays.py); "forward" / "reverse" are the
+prioritized state-time fallbacks and "via" the two-leg fallback through park.
+
 Reported: success rates (within the retry budget and at the first attempt), compute time
 (median, p90, max), makespan (median, ratio to the lower bound max_k direct-move time,
 share <= 120 s), collision checks and states explored (as thesis table 6.2).
@@ -122,6 +126,11 @@ def _summary(plans, lbs) -> dict:
         "states_explored_median": float(np.median([p.stats["states_explored"] for p in plans])),
         "attempts_mean": float(np.mean([p.stats["attempts"] for p in plans])),
         "reverse_strategy_used": sum(1 for p in ok if p.stats.get("strategy") == "reverse"),
+        "strategy_counts": {s: sum(1 for p in ok if p.stats.get("strategy") == s)
+                            for s in sorted({str(p.stats.get("strategy")) for p in ok})},
+        "plans_with_a_stop": sum(1 for p in ok if p.stats.get("max_stops", 0) > 0),
+        "compute_s_median_failed": (float(np.median([p.stats["compute_s"] for p in plans if p.status != "ok"]))
+                                    if len(ok) < len(plans) else None),
         "failed_arms": [list(p.failed_arms) for p in plans if p.status != "ok"],
     }
 

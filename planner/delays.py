@@ -66,6 +66,7 @@ class DelayStats:
     nodes: int = 0  # CSP nodes (assignments tried)
     tables: int = 0
     repairs: int = 0  # verifier rejections repaired by forbidding the offending relative delay
+    log: list = field(default_factory=list)
 
 
 def straight_options(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray) -> list[Option]:
@@ -270,7 +271,8 @@ class DelayProblem:
 
 def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float, dt_col_s: float,
                   horizon_s: float, buffer_mm: float, stats: DelayStats,
-                  old: DelayProblem | None = None, margin_mm: float = 0.0) -> DelayProblem:
+                  old: DelayProblem | None = None, margin_mm: float = 0.0,
+                  deadline: float | None = None) -> DelayProblem | None:
     """Pairwise relative-delay tables of every arm pair whose options can come close.
 
     With ``old`` (same arms, options extended by appending), tables of option pairs already
@@ -289,7 +291,11 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
     for k in range(n):
         b = np.concatenate([o.box for o in options[k]])
         arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
+    import time as _time
+
     for i in range(n):
+        if deadline is not None and _time.perf_counter() > deadline:
+            return None  # out of time: the caller falls back
         for j in range(i + 1, n):
             if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
                 continue
@@ -442,8 +448,16 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
         best = sol
         bound = ms - 1e-6
     stats.nodes += nodes
-    worst = list(np.argsort(-blame, kind="stable")[: max(1, int((blame > 0).sum()))]) if best is None else []
-    return best, [int(a) for a in worst if blame[a] > 0]
+    if best is not None:
+        return best, []
+    # blame first the arms of pairs that are infeasible on their own (a cycle between two arms:
+    # no relative delay of any option pair works); AC wipe-outs elsewhere may be propagated
+    pair_bad: list[int] = []
+    for (i, j) in sorted(prob.tables):
+        if i < j and not (base[i] & _support(prob.tables[(i, j)], base[j], K)).any():
+            pair_bad += [a for a in (i, j) if a not in pair_bad]
+    worst = [int(a) for a in np.argsort(-blame, kind="stable") if blame[a] > 0]
+    return None, pair_bad + [a for a in worst if a not in pair_bad]
 
 
 def trajectory_points(option: Option, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -522,7 +536,11 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     extended: set[int] = set()
     blamed: list[int] = []
     for rnd in range(max_rounds):
-        prob = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob)
+        nxt = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob,
+                            deadline=None if rnd == 0 else deadline)
+        if nxt is None:
+            break
+        prob = nxt
         sol, blamed = solve(prob, stats, node_budget=node_budget)
         repairs = 0
         while sol is not None and check is not None and repairs < max_repairs:
@@ -549,6 +567,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         # one arm per round (usually one arm getting out of the way suffices): tables grow as
         # options_i x options_j, so extending both arms of a conflict at once costs far more
         new = [k for k in blamed if k in mv and k not in extended][:1]
+        stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
         if not new:
             break
         for k in new:

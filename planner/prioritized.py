@@ -320,7 +320,8 @@ def plan_motion(
     blamed: list[int] = []
     if "delays" in strategies:
         ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
-                                      buffer_mm, max_start_stop, grid, stats, t0 + time_budget_s)
+                                      buffer_mm, max_start_stop, grid, stats,
+                                      t0 + 0.4 * time_budget_s)
         if ok_plan is not None:
             stats["compute_s"] = time.perf_counter() - t0
             return ok_plan
