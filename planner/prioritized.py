@@ -1,4 +1,10 @@
-"""Prioritized multi-arm motion planning with replanning, and chains of configurations.
+"""Multi-arm motion planning: departure-delay CSP first, prioritized planning as fallback; chains.
+
+``plan_motion`` tries, in order: (1) "delays" (:mod:`planner.delays`): every arm makes one
+straight joint-space move (zero stops, the MCC2 ideal) departing after a delay chosen by a
+small CSP over pairwise relative-delay tables, extended with one-stop detours for the arms
+in conflict; (2) the prioritized state-time planning below; (3) two zero-stop legs through
+park (or another ``via`` configuration). Every result passes the verifier before "ok".
 
 Thesis Algorithm 6: arms are planned one at a time in priority order, each against the
 obstacle-time set of the arms planned before it (:mod:`planner.single_arm`). Priorities
