@@ -500,7 +500,7 @@ class DelayResult:
 
 def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
                 horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int], stats: DelayStats,
-                grid: tuple[int, int] = (8, 6), max_rounds: int = 4, max_detour_vertices: int = 8,
+                grid: tuple[int, int] = (8, 6), max_rounds: int = 5, max_detour_vertices: int = 8,
                 detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
                 node_budget: int = 20000,
                 deadline: float | None = None, check=None, max_repairs: int = 5) -> DelayResult:
@@ -511,8 +511,9 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     delay) entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
 
     Round 0: each movable arm's shortest straight move (and the other theta2 direction when
-    it is not longer than the lower bound, so it cannot raise the makespan). Later rounds
-    add, for the arms the CSP blames, both straight directions and (if ``max_start_stop`` >= 1)
+    it is not longer than the lower bound, so it cannot raise the makespan). Round 1: both
+    theta2 directions for every arm. Later rounds add, for the arms the CSP blames (if
+    ``max_start_stop`` >= 1)
     one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
     of ``detour_waits_steps`` x dt, the detour (wait included) at most ``detour_extra_s`` longer
     than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
@@ -535,6 +536,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     prob = None
     extended: set[int] = set()
     blamed: list[int] = []
+    seen_blamed: list[int] = []
     for rnd in range(max_rounds):
         nxt = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob,
                             deadline=None if rnd == 0 else deadline)
@@ -564,17 +566,30 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
             return DelayResult(sol, cur, [], rnd + 1, ms)
         if deadline is not None and _time.perf_counter() > deadline:
             break
-        # one arm per round (usually one arm getting out of the way suffices): tables grow as
-        # options_i x options_j, so extending both arms of a conflict at once costs far more
-        new = [k for k in blamed if k in mv and k not in extended][:1]
+        if rnd == 0:
+            seen_blamed += blamed
+            # round 1: both theta2 directions for every arm (a row of neighbours all swinging J2
+            # the same long way blocks itself in a chain; some swinging the other way frees it)
+            grown = False
+            for k in mv:
+                for o in opts[k]:
+                    if not any(o is c for c in cur[k]):
+                        cur[k].append(o)
+                        grown = True
+            stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "both directions"})
+            if grown:
+                continue
+        # then one arm per round (usually one arm getting out of the way suffices): tables grow
+        # as options_i x options_j, so extending both arms of a conflict at once costs far more
+        seen_blamed += [k for k in blamed if k not in seen_blamed]
+        new = [k for k in seen_blamed if k in mv and k not in extended][:1]
         stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
         if not new:
             break
         for k in new:
             extended.add(k)
-            have = {(round(float(o.t_rel[-1]), 9), o.kind) for o in cur[k]}
             for o in opts[k]:
-                if (round(o.duration_s, 9), o.kind) not in have:
+                if not any(o is c for c in cur[k]):
                     cur[k].append(o)
             if max_start_stop >= 1:
                 V = detour_vertices(geoms[k], start_q[k], goal_q[k], grid)
