@@ -20,7 +20,12 @@ from functools import lru_cache
 import numpy as np
 from scipy import sparse
 
-from models.collision import body_segments_mm, segment_distance_mm, segment_distance_xy
+from models.collision import (
+    arm_pair_clearance_mm,
+    body_segments_mm,
+    segment_distance_mm,
+    segment_distance_xy,
+)
 from models.instrument import Instrument
 from models.kinematics import inverse_fov, tip_fov
 
@@ -199,14 +204,15 @@ def build_assignments(
 
 def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) -> np.ndarray:
     """``n`` feasible, retracted configurations of ``arm`` for blank-sky exposures (thesis
-    Algorithm 5 padding): the tip stays in the outer ring of the FOV or just outside it,
-    out of the crowded centre.
+    Algorithm 5 padding), out of the crowded FOV centre.
 
-    Candidates are drawn (deterministically for a seed) in joint space around the park
-    configuration, including sideways poses, then spread out by farthest-point selection
-    on the tip position. The spread matters: a rim target right in front of an arm's park
-    is reachable only by its neighbours, and the arm then needs a pose that is not in front
-    of its park.
+    Every pose leaves all other arms' park positions free. Half of them lie just in front
+    of the park position (tip in the outer FOV ring between
+    the neighbours: the poses least likely to block anybody); the other half are spread
+    out, sideways poses included, by farthest-point selection on the tip position. The
+    spread matters: a rim target right in front of an arm's park is reachable only by its
+    neighbours, and the arm then needs a pose that is not in front of its park.
+    Deterministic for a given seed.
     """
     from models.kinematics import Links, in_zoa
 
@@ -219,22 +225,32 @@ def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) ->
     m = 64 * n
     t1 = rng.uniform(max(a.theta1_min_rad, a.park_theta1_rad - 1.2), a.park_theta1_rad, m)
     t2 = a.park_theta2_rad + rng.uniform(-np.pi, np.pi, m)
-    ok = ~in_zoa(t1, t2, links)
     tip = tip_fov(instrument, arm, t1, t2)
     r = np.hypot(tip[:, 0], tip[:, 1])
-    ok &= (r > 0.75 * r_fov) & (r < 1.3 * r_fov)
-    q, tip = np.column_stack([t1[ok], t2[ok]]), tip[ok]
-    if len(q) <= n:
-        return q
-    # farthest-point selection, starting from the pose closest to park
-    park_tip = tip_fov(instrument, arm, a.park_theta1_rad, a.park_theta2_rad)
-    chosen = [int(np.argmin(np.hypot(*(tip - park_tip).T)))]
-    d = np.hypot(*(tip - tip[chosen[0]]).T)
-    for _ in range(n - 1):
-        nxt = int(np.argmax(d))
-        chosen.append(nxt)
-        d = np.minimum(d, np.hypot(*(tip - tip[nxt]).T))
-    return q[chosen]
+    ok = ~in_zoa(t1, t2, links) & (r > 0.6 * r_fov) & (r < 1.3 * r_fov)
+    # a blank pose must leave every other arm's park free, or resting would cascade
+    park = instrument.park_configuration
+    cand = np.flatnonzero(ok)
+    for other in range(instrument.n_arms):
+        if other != arm and len(cand):
+            c = arm_pair_clearance_mm(instrument, arm, np.column_stack([t1[cand], t2[cand]]), other, park[other])
+            cand = cand[c >= instrument.collision_buffer_mm]
+    ok = np.zeros_like(ok)
+    ok[cand] = True
+    front = ok & (t1 > a.park_theta1_rad - 0.6) & (np.abs(t2 - a.park_theta2_rad) < 0.8) & (r < r_fov)
+    q = np.column_stack([t1, t2])
+    n_front = min(int(front.sum()), (n + 1) // 2)
+    chosen = list(np.flatnonzero(front)[:n_front])
+    pool = np.flatnonzero(ok & ~front)
+    if len(pool):
+        d = np.full(len(pool), np.inf)
+        for c in chosen:
+            d = np.minimum(d, np.hypot(*(tip[pool] - tip[c]).T))
+        for _ in range(min(n - len(chosen), len(pool))):
+            nxt = int(np.argmax(d)) if chosen else 0
+            chosen.append(int(pool[nxt]))
+            d = np.minimum(d, np.hypot(*(tip[pool] - tip[pool[nxt]]).T))
+    return q[np.asarray(chosen, dtype=int)]
 
 
 def _joint_bounds(instrument: Instrument, k: int) -> dict[str, tuple[np.ndarray, float]]:
