@@ -28,6 +28,7 @@ verifier by :func:`planner.prioritized.plan_motion` before it is returned.
 from __future__ import annotations
 
 import math
+import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -297,6 +298,8 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
         if deadline is not None and _time.perf_counter() > deadline:
             return None  # out of time: the caller falls back
         for j in range(i + 1, n):
+            if deadline is not None and _time.perf_counter() > deadline:
+                return None
             if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
                 continue
             thr = buffer_mm + margin_mm
@@ -362,7 +365,8 @@ def arc_consistency(prob: DelayProblem, doms: list[np.ndarray], blame: np.ndarra
 
 
 def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
-          fixed: dict[int, tuple[int, int]] | None = None) -> tuple[dict[int, tuple[int, int]] | None, list[int]]:
+          fixed: dict[int, tuple[int, int]] | None = None,
+          deadline: float | None = None) -> tuple[dict[int, tuple[int, int]] | None, list[int]]:
     """Assign (option, delay) to every arm minimising the makespan (branch and bound).
 
     Returns (assignment or None, the arms most often found with an empty domain).
@@ -395,6 +399,8 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
         doms = [b & (f <= bound) for b, f in zip(base, finish, strict=True)]
         if any(not d.any() for d in doms):
             return None
+        if deadline is not None and _time.perf_counter() > deadline:
+            return None
         doms = arc_consistency(prob, doms, blame)
         if doms is None:
             return None
@@ -411,7 +417,8 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
             order = np.lexsort((vals[:, 0], finish[k][vals[:, 0], vals[:, 1]]))
             for p, t in vals[order]:
                 nodes += 1
-                if nodes > node_budget:
+                if nodes > node_budget or (deadline is not None and _time.perf_counter() > deadline):
+                    nodes = node_budget + 1
                     return False
                 new = list(doms)
                 dead = None
@@ -543,7 +550,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         if nxt is None:
             break
         prob = nxt
-        sol, blamed = solve(prob, stats, node_budget=node_budget)
+        sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
         repairs = 0
         while sol is not None and check is not None and repairs < max_repairs:
             bad_pairs = check(sol, cur)
@@ -560,7 +567,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     prob.neighbours[a].append(b)
                     prob.neighbours[b].append(a)
                 prob.tables[(a, b)][pa, pb, tb - ta + prob.K] = False  # the (b, a) view shares memory
-            sol, blamed = solve(prob, stats, node_budget=node_budget)
+            sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
         if sol is not None and (check is None or repairs < max_repairs):
             ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
             return DelayResult(sol, cur, [], rnd + 1, ms)

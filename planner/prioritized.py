@@ -198,6 +198,7 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
                 deadline: float) -> tuple[MotionPlan | None, list[int]]:
     """First strategy: straight moves with departure delays (+ one-stop detours), verified."""
     dst = DelayStats()
+    t_d = time.perf_counter()
     last: dict = {}
 
     def check(assignment, options) -> list[tuple[int, int]]:
@@ -225,7 +226,7 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
     stats["collision_checks"] += dst.pair_samples
     stats["states_explored"] += dst.nodes
     stats["delay_csp"] = {"pair_tables": dst.tables, "nodes": dst.nodes, "repairs": dst.repairs,
-                          "rounds": getattr(res, "rounds", 0)}
+                          "rounds": getattr(res, "rounds", 0), "compute_s": time.perf_counter() - t_d}
     if res is None or res.assignment is None:
         stats["attempt_log"].append({"direction": "delays", "failed_arms": list(getattr(res, "blamed", []))})
         return None, list(getattr(res, "blamed", []))
@@ -327,7 +328,7 @@ def plan_motion(
     if "delays" in strategies:
         ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
                                       buffer_mm, max_start_stop, grid, stats,
-                                      t0 + 0.4 * time_budget_s)
+                                      t0 + min(0.25 * time_budget_s, 2.5))
         if ok_plan is not None:
             stats["compute_s"] = time.perf_counter() - t0
             return ok_plan
@@ -361,11 +362,6 @@ def plan_motion(
     for s in strategies:
         a, b = (start_q, goal_q) if s == "forward" else (goal_q, start_q)
         orders[s] = conflict_order(instrument, geoms, paths_for(s), a, b, enabled, est, buffer_mm)
-    for s in strategies:  # the arms the delay CSP blamed go first
-        for a in reversed(blamed):
-            if a in orders[s]:
-                orders[s].remove(a)
-                orders[s].insert(0, a)
     fail_count: dict[int, int] = {}
     tried: dict[str, set[tuple[int, ...]]] = {s: set() for s in strategies}
     best_failed: list[int] = []
