@@ -308,6 +308,10 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
             tab = np.ones((Pi, Pj, 2 * K + 1), bool)
             prev = old.tables.get((i, j)) if old is not None else None
             for a in range(Pi):
+                # detour options multiply the option pairs of one arm pair: honour the
+                # deadline inside a pair too, or one crowded pair overruns the whole budget
+                if a and deadline is not None and _time.perf_counter() > deadline:
+                    return None
                 for b in range(Pj):
                     if prev is not None and a < prev.shape[0] and b < prev.shape[1]:
                         tab[a, b] = prev[a, b]
