@@ -332,7 +332,6 @@ def compute_incompatibility(
     buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
     asg = reachability.assignments
     seg_s, seg_e, seg_r = body_segments_mm(instrument, asg.arm, asg.theta1_rad, asg.theta2_rad)
-    n_b = seg_s.shape[1]
     # per body, contiguous coordinate arrays (assignment axis last) for cheap slicing
     sx, sy = np.ascontiguousarray(seg_s[..., 0].T), np.ascontiguousarray(seg_s[..., 1].T)
     ex, ey = np.ascontiguousarray(seg_e[..., 0].T), np.ascontiguousarray(seg_e[..., 1].T)
@@ -410,7 +409,6 @@ def compute_incompatibility(
                             shape=(n, n)).tocsr()
     adj.sort_indices()
     t_end = time.perf_counter()
-    del n_b
     return Incompatibility(
         reachability=reachability, pairs=pairs, same_target=same_target,
         indptr=adj.indptr.astype(np.int64), indices=adj.indices.astype(np.int32), buffer_mm=buffer_mm,

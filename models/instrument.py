@@ -110,7 +110,7 @@ class Instrument:
         out["enabled"] = np.array([a.enabled for a in self.arms], dtype=bool)
         return out
 
-    @property
+    @cached_property
     def uniform_bodies(self) -> bool:
         """True when every arm has the same body list (enables the vectorised fast path)."""
         first = self.arms[0].bodies

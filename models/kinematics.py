@@ -271,7 +271,6 @@ def joint_positions_fov(instrument: Instrument, arm, theta1_rad, theta2_rad) -> 
     arm = np.asarray(arm, dtype=int)
     p = joint_positions(theta1_rad, theta2_rad, Links.of(instrument, arm))
     base, ex, ey = arm_axes(instrument, arm)
-    base, ex, ey = base, ex, ey
     out = {}
     for name, v in p.items():
         out[name] = base + v[..., :1] * ex + v[..., 1:] * ey

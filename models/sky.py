@@ -27,8 +27,8 @@ from astropy.coordinates import angular_separation
 from astropy.wcs import WCS
 
 from models.errors import InputError
+from models.types import MAX_PRIORITY
 
-MAX_PRIORITY = 2**32 - 1
 _ARCSEC_PER_RAD = 180.0 / math.pi * 3600.0
 
 

@@ -11,7 +11,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-PRIORITY_MAX = 2**32 - 1
+from models.types import MAX_PRIORITY as PRIORITY_MAX
+
 N_ARMS = 12
 
 FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]

@@ -368,7 +368,8 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
 
 
 def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool):
-    """The last ``window`` configurations replaced by the verified ``packed`` ones."""
+    """The last ``window`` configurations replaced by the verified ``packed`` ones, highest
+    priority first, each starting where the previous one left the arms."""
     a = inc.assignments
     head = configs[:-window]
     q = head[-1][0].assignments.q[head[-1][1]] if head else instrument.park_configuration
@@ -452,21 +453,7 @@ def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
             window += 1
             continue
         # rebuild the tail as verified configurations, highest priority first
-        head = configs[:-window]
-        q = head[-1][0].assignments.q[head[-1][1]] if head else instrument.park_configuration
-        pending = np.zeros(len(priority), bool)
-        pending[pool] = True
-        packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
-        new = []
-        for ch in packed:
-            prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, target_xy_mm=xy, tie_break=tie)
-            _verify(instrument, prob, ch)
-            tg = a.target[ch]
-            pending[tg[tg >= 0]] = False
-            new.append((prob, ch, "feasible", {"solve_s": dt / len(packed), "status": "repacked",
-                                                "longest_move_s": evaluate(prob, ch)[2]}))
-            q = a.q[ch]
-        configs = head + new
+        configs = _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool)
         window = 2
     return configs
 
