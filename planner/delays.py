@@ -507,6 +507,10 @@ class DelayResult:
     blamed: list[int]
     rounds: int
     makespan_s: float = math.nan
+    # the last problem with straight options only (both theta2 directions once round 1 ran):
+    # the cluster strategy (planner.cluster) reuses its tables
+    straight: DelayProblem | None = None
+    external: object = None  # what ``on_straight_fail`` found instead (e.g. a cluster plan)
 
 
 def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
@@ -514,7 +518,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                 grid: tuple[int, int] = (8, 6), max_rounds: int = 5, max_detour_vertices: int = 8,
                 detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
                 node_budget: int = 20000,
-                deadline: float | None = None, check=None, max_repairs: int = 5) -> DelayResult:
+                deadline: float | None = None, check=None, max_repairs: int = 5,
+                prefer=None, on_straight_fail=None) -> DelayResult:
     """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
 
     ``check(assignment, options)``, when given, is the independent verifier: it returns the
@@ -545,6 +550,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     lb = max(o[0].duration_s for o in opts)
     cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= lb + 1e-9] for op in opts]
     prob = None
+    straight = None
     extended: set[int] = set()
     blamed: list[int] = []
     seen_blamed: list[int] = []
@@ -554,6 +560,9 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         if nxt is None:
             break
         prob = nxt
+        if not extended:  # a snapshot: later rounds append options to the same lists
+            straight = DelayProblem([list(o) for o in prob.options], prob.K, prob.dt_s, prob.horizon_s,
+                                    prob.tables, prob.neighbours)
         sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
         repairs = 0
         while sol is not None and check is not None and repairs < max_repairs:
@@ -574,9 +583,19 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
             sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
         if sol is not None and (check is None or repairs < max_repairs):
             ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
-            return DelayResult(sol, cur, [], rnd + 1, ms)
+            return DelayResult(sol, cur, [], rnd + 1, ms, straight)
         if deadline is not None and _time.perf_counter() > deadline:
             break
+        if on_straight_fail is not None and straight is not None and not extended and (rnd >= 1 or not any(
+                len(cur[k]) < len(opts[k]) for k in mv)):
+            # every straight option failed: let the caller try something else before the
+            # (expensive) detour rounds; a non-None answer ends the delay stage
+            ext = on_straight_fail(straight, list(blamed))
+            on_straight_fail = None
+            if ext is not None:
+                return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
+            if deadline is not None and _time.perf_counter() > deadline:
+                break
         if rnd == 0:
             seen_blamed += blamed
             # round 1: both theta2 directions for every arm (a row of neighbours all swinging J2
@@ -593,6 +612,10 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         # then one arm per round (usually one arm getting out of the way suffices): tables grow
         # as options_i x options_j, so extending both arms of a conflict at once costs far more
         seen_blamed += [k for k in blamed if k not in seen_blamed]
+        if prefer is not None and straight is not None and not extended:
+            # extend first the arms whose removal makes the straight CSP solvable
+            first = [k for k in prefer(straight, list(seen_blamed)) if k in mv]
+            seen_blamed[:] = first + [k for k in seen_blamed if k not in first]
         new = [k for k in seen_blamed if k in mv and k not in extended][:1]
         stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
         if not new:
@@ -609,4 +632,4 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                                              tuple(w * dt_s for w in detour_waits_steps),
                                              max_detour_vertices,
                                              min(horizon_s, max(lb, t_direct) + detour_extra_s)))
-    return DelayResult(None, cur, blamed, max_rounds)
+    return DelayResult(None, cur, blamed, max_rounds, straight=straight)

@@ -45,7 +45,8 @@ from models.errors import InputError
 from models.instrument import Instrument
 from models.kinematics import direct_move_time_s
 from models.types import ArmTrajectory, MotionPlan
-from planner.commands import compress_waypoints, controller_commands
+from planner.cluster import ClusterStats, plan_cluster, removal_sets
+from planner.commands import compress_waypoints, controller_commands, stop_count
 from planner.delays import DelayStats, plan_delays, trajectory_points
 from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapParams, RoadmapPath, candidate_paths
@@ -195,11 +196,30 @@ def _delay_trajectories(assignment: dict[int, tuple[int, int]], options, n: int,
 def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray,
                 enabled: list[int], dt_s: float, dt_col_s: float, horizon_s: float, buffer_mm: float,
                 max_start_stop: int, grid: tuple[int, int], stats: dict,
-                deadline: float) -> tuple[MotionPlan | None, list[int]]:
-    """First strategy: straight moves with departure delays (+ one-stop detours), verified."""
+                deadline: float, cluster: dict | None = None) -> tuple[MotionPlan | None, list[int]]:
+    """First strategy: straight moves with departure delays (+ one-stop detours), verified.
+
+    With ``cluster`` (keyword arguments of :func:`_try_cluster` plus ``share_s``), when every
+    straight option fails the cluster strategy runs before the detour rounds, and the detour
+    rounds extend first the arms of the smallest removal set (:mod:`planner.cluster`).
+    """
     dst = DelayStats()
     t_d = time.perf_counter()
     last: dict = {}
+    hooks: dict = {}
+    if cluster is not None:
+        def on_straight_fail(straight, blamed):
+            c_dl = min(deadline, time.perf_counter() + cluster["share_s"])
+            return _try_cluster(instrument, geoms, start_q, goal_q, straight, blamed, enabled, buffer_mm,
+                                max_start_stop, stats, c_dl, **cluster["kw"])
+
+        def prefer(straight, blamed):
+            for R, _ in removal_sets(straight, start_q, enabled, max_size=2, max_sets=1, first=blamed,
+                                     deadline=deadline):
+                return R
+            return []
+
+        hooks = dict(on_straight_fail=on_straight_fail, prefer=prefer)
 
     def check(assignment, options) -> list[tuple[int, int]]:
         trajs = _delay_trajectories(assignment, options, len(start_q), dt_s)
@@ -220,9 +240,15 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
     try:
         res = plan_delays(geoms, start_q, goal_q, dt_s=dt_s, dt_col_s=dt_col_s, horizon_s=horizon_s,
                           buffer_mm=buffer_mm, max_start_stop=max_start_stop, movable=enabled, stats=dst,
-                          grid=grid, deadline=deadline, check=safe_check)
+                          grid=grid, deadline=deadline, check=safe_check, **hooks)
     except _Unrepairable:
         res = None
+    if res is not None and res.external is not None:
+        stats["collision_checks"] += dst.pair_samples
+        stats["states_explored"] += dst.nodes
+        stats["delay_csp"] = {"pair_tables": dst.tables, "nodes": dst.nodes, "repairs": dst.repairs,
+                              "rounds": res.rounds, "compute_s": time.perf_counter() - t_d}
+        return res.external, []
     stats["collision_checks"] += dst.pair_samples
     stats["states_explored"] += dst.nodes
     stats["delay_csp"] = {"pair_tables": dst.tables, "nodes": dst.nodes, "repairs": dst.repairs,
@@ -240,6 +266,63 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
     stats["verify_pair_samples"] = rep.pair_samples_checked
     stats["max_stops"] = max(res.options[k][p].stops for k, (p, _) in res.assignment.items())
     return MotionPlan("ok", float(res.makespan_s), trajs, (), stats), []
+
+
+def _try_cluster(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray,
+                 straight, blamed: list[int], enabled: list[int], buffer_mm: float, max_start_stop: int,
+                 stats: dict, deadline: float, *, params: SearchParams, rparams: RoadmapParams,
+                 seed: int) -> MotionPlan | None:
+    """Cluster strategy (:mod:`planner.cluster`): straight delayed moves for all arms but the
+    smallest removal set R, state-time detours for R (forward, reverse, then with a head
+    start), verified."""
+    t_c = time.perf_counter()
+    cst = ClusterStats()
+    st = SearchStats()
+    plan = None
+    try:
+        sets = list(removal_sets(straight, start_q, enabled, max_size=3, max_sets=3, first=blamed,
+                                 deadline=deadline, stats=cst))
+        # cheapest and most often successful first: forward without head start for every set
+        tries = [(lead, rev, R, rest) for lead, rev in ((0, False), (0, True), (3, False), (3, True))
+                 for R, rest in sets]
+        for lead, rev, R, rest in tries:
+            if time.perf_counter() > deadline:
+                break
+            cst.attempts += 1
+            out = plan_cluster(geoms, start_q, goal_q, straight, R, rest, buffer_mm=buffer_mm, params=params,
+                               rparams=rparams, seed=seed, reverse=rev, stats=st, deadline=deadline,
+                               lead_steps=lead)
+            cst.log.append({"arms": list(R), "reverse": rev, "lead_steps": lead, "planned": out is not None})
+            if out is None:
+                continue
+            trajs = []
+            for k, (t, q) in enumerate(out):
+                t, q = compress_waypoints(t, q)
+                trajs.append(ArmTrajectory(k, t, q[:, 0].copy(), q[:, 1].copy(),
+                                           controller_commands(t, q[:, 0], q[:, 1])))
+            rep = verify_trajectories(instrument, trajs, start_q, goal_q, collision_buffer_mm=buffer_mm,
+                                      max_start_stop=max_start_stop)
+            cst.log[-1]["verified"] = rep.ok
+            if rep.ok:
+                stats["strategy"] = "cluster"
+                stats["min_clearance_mm"] = rep.min_clearance_mm
+                stats["verify_pair_samples"] = rep.pair_samples_checked
+                stats["max_stops"] = max(stop_count_of(tr) for tr in trajs)
+                stats["attempts"] = 1
+                plan = MotionPlan("ok", max(float(tr.t_s[-1]) for tr in trajs), tuple(trajs), (), stats)
+                break
+    finally:
+        stats["collision_checks"] += st.collision_checks
+        stats["states_explored"] += st.states_explored
+        stats["cluster"] = {"removal_tests": cst.removal_tests, "removal_sets": cst.removal_sets,
+                            "attempts": cst.log, "compute_s": time.perf_counter() - t_c}
+        stats["attempt_log"].append({"direction": "cluster", "verified": plan is not None})
+    return plan
+
+
+def stop_count_of(tr: ArmTrajectory) -> int:
+    """Start-stop cycles of one arm's trajectory (thesis 6.3.4.4)."""
+    return int(stop_count(tr.t_s, tr.theta1_rad, tr.theta2_rad))
 
 
 class _Unrepairable(Exception):
@@ -260,7 +343,7 @@ def plan_motion(
     max_attempts: int = 10,
     time_budget_s: float = 10.0,
     grid: tuple[int, int] = (8, 6),
-    strategies: Sequence[str] = ("delays", "forward", "reverse"),
+    strategies: Sequence[str] = ("delays", "cluster", "forward", "reverse"),
     rpp: bool = False,
     rpp_max_paths: int = 8,
     turn_sense: int = 1,
@@ -326,18 +409,31 @@ def plan_motion(
 
     blamed: list[int] = []
     if "delays" in strategies:
+        cluster = None
+        if "cluster" in strategies and max_start_stop >= 1:
+            cl_params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
+                                     horizon_steps=params.horizon_steps, max_states_per_arm=1500)
+            cluster = {"share_s": min(0.12 * time_budget_s, 1.2),
+                       "kw": dict(params=cl_params, rparams=rparams, seed=seed)}
+        # fair shares of the budget: the delay stage (its cluster hook included) may not starve
+        # the prioritized fallbacks, and those may not starve the two-leg fallback
         ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
                                       buffer_mm, max_start_stop, grid, stats,
-                                      t0 + min(0.25 * time_budget_s, 2.5))
+                                      t0 + min(0.3 * time_budget_s, 3.0), cluster)
         if ok_plan is not None:
             stats["compute_s"] = time.perf_counter() - t0
             return ok_plan
-        strategies = [s for s in strategies if s != "delays"]
+        strategies = [s for s in strategies if s not in ("delays", "cluster")]
         if not strategies:
             stats["reasons"] = {int(a): "no collision-free departure-delay schedule" for a in blamed}
             stats["compute_s"] = time.perf_counter() - t0
             return _failed(instrument, start_q, blamed or enabled, stats)
 
+    strategies = [s for s in strategies if s in ("forward", "reverse")]  # "cluster" runs inside "delays"
+    if not strategies:
+        stats["reasons"] = {int(a): "no strategy left" for a in (blamed or enabled)}
+        stats["compute_s"] = time.perf_counter() - t0
+        return _failed(instrument, start_q, blamed or enabled, stats)
     paths_cache: dict[str, list[list[RoadmapPath]]] = {}
 
     def paths_for(direction: str) -> list[list[RoadmapPath]]:
@@ -362,13 +458,15 @@ def plan_motion(
     for s in strategies:
         a, b = (start_q, goal_q) if s == "forward" else (goal_q, start_q)
         orders[s] = conflict_order(instrument, geoms, paths_for(s), a, b, enabled, est, buffer_mm)
+    via_q = instrument.park_configuration if isinstance(via, str) and via == "park" else via
+    via_reserve_s = min(0.15 * time_budget_s, 1.5) if via_q is not None and max_start_stop >= 1 else 0.0
     fail_count: dict[int, int] = {}
     tried: dict[str, set[tuple[int, ...]]] = {s: set() for s in strategies}
     best_failed: list[int] = []
     last_reason: dict[int, str] = {}
 
     for attempt in range(max_attempts):
-        if attempt > 0 and time.perf_counter() - t0 > time_budget_s:
+        if attempt > 0 and time.perf_counter() - t0 > time_budget_s - via_reserve_s:
             break
         direction = strategies[attempt % len(strategies)]
         order = orders[direction]
@@ -439,7 +537,6 @@ def plan_motion(
 
     failed_arms = sorted(fail_count, key=lambda a: (-fail_count[a], a)) or best_failed
     stats["reasons"] = {int(a): last_reason.get(a, "not planned") for a in failed_arms}
-    via_q = instrument.park_configuration if isinstance(via, str) and via == "park" else via
     if via_q is not None and not isinstance(via_q, str) and max_start_stop >= 1:
         two = _plan_via(instrument, start_q, np.asarray(via_q, float), goal_q, buffer_mm, max_start_stop,
                         dict(dt_s=dt_s, dt_col_s=dt_col_s, seed=seed, horizon_s=horizon_s, grid=grid,

@@ -106,7 +106,7 @@ def test_goal_conflict_needs_a_detour():
     both = D.plan_delays(GEOMS, PARK, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
                          max_start_stop=0, movable=[0, 1], stats=st, max_rounds=4)
     assert both.assignment is None  # not even with both theta2 directions
-    plan = plan_motion(inst, PARK, goal)
+    plan = plan_motion(inst, PARK, goal, strategies=("delays",))  # the detour rounds alone
     assert plan.status == "ok" and plan.stats["strategy"] == "delays"
     stops = [stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in plan.trajectories]
     assert max(stops) == 1
