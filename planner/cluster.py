@@ -170,6 +170,8 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
             obst.add(geoms[k], _sample(t, q, ts), arr)
         plans = {}
         for k in order:
+            if deadline is not None and time.perf_counter() > deadline:
+                return None
             p = plan_arm(geoms[k], paths[k], obst, params, stats)
             if p is None:
                 break

@@ -614,7 +614,11 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         seen_blamed += [k for k in blamed if k not in seen_blamed]
         if prefer is not None and straight is not None and not extended:
             # extend first the arms whose removal makes the straight CSP solvable
-            first = [k for k in prefer(straight, list(seen_blamed)) if k in mv]
+            first = prefer(straight, list(seen_blamed))
+            if first is None:  # the caller proved the detour rounds futile
+                stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "futile"})
+                break
+            first = [k for k in first if k in mv]
             seen_blamed[:] = first + [k for k in seen_blamed if k not in first]
         new = [k for k in seen_blamed if k in mv and k not in extended][:1]
         stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})

@@ -208,16 +208,24 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
     last: dict = {}
     hooks: dict = {}
     if cluster is not None:
+        found: dict = {}
+
         def on_straight_fail(straight, blamed):
             c_dl = min(deadline, time.perf_counter() + cluster["share_s"])
             return _try_cluster(instrument, geoms, start_q, goal_q, straight, blamed, enabled, buffer_mm,
-                                max_start_stop, stats, c_dl, **cluster["kw"])
+                                max_start_stop, stats, c_dl, sets_out=found, **cluster["kw"])
 
         def prefer(straight, blamed):
-            for R, _ in removal_sets(straight, start_q, enabled, max_size=2, max_sets=1, first=blamed,
-                                     deadline=deadline):
-                return R
-            return []
+            sets = found.get("sets")
+            if sets is None:
+                sets = [R for R, _ in removal_sets(straight, start_q, enabled, max_size=3, max_sets=1,
+                                                   first=blamed, deadline=deadline)]
+            if not sets and found.get("complete", False):
+                # removing any <= 3 arms (connected) leaves the straight CSP unsolvable, so detours
+                # for that many arms cannot help either (a removed arm is the loosest detour):
+                # end the delay stage and leave the time to the prioritized fallbacks
+                return None
+            return sets[0] if sets else []
 
         hooks = dict(on_straight_fail=on_straight_fail, prefer=prefer)
 
@@ -271,7 +279,7 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
 def _try_cluster(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray,
                  straight, blamed: list[int], enabled: list[int], buffer_mm: float, max_start_stop: int,
                  stats: dict, deadline: float, *, params: SearchParams, rparams: RoadmapParams,
-                 seed: int) -> MotionPlan | None:
+                 seed: int, sets_out: dict | None = None) -> MotionPlan | None:
     """Cluster strategy (:mod:`planner.cluster`): straight delayed moves for all arms but the
     smallest removal set R, state-time detours for R (forward, reverse, then with a head
     start), verified."""
@@ -282,6 +290,9 @@ def _try_cluster(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarr
     try:
         sets = list(removal_sets(straight, start_q, enabled, max_size=3, max_sets=3, first=blamed,
                                  deadline=deadline, stats=cst))
+        if sets_out is not None:
+            sets_out["sets"] = [R for R, _ in sets]
+            sets_out["complete"] = time.perf_counter() <= deadline  # the search was not cut short
         # cheapest and most often successful first: forward without head start for every set
         tries = [(lead, rev, R, rest) for lead, rev in ((0, False), (0, True), (3, False), (3, True))
                  for R, rest in sets]
@@ -413,13 +424,13 @@ def plan_motion(
         if "cluster" in strategies and max_start_stop >= 1:
             cl_params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
                                      horizon_steps=params.horizon_steps, max_states_per_arm=1500)
-            cluster = {"share_s": min(0.12 * time_budget_s, 1.2),
+            cluster = {"share_s": min(0.25 * time_budget_s, 2.5),
                        "kw": dict(params=cl_params, rparams=rparams, seed=seed)}
         # fair shares of the budget: the delay stage (its cluster hook included) may not starve
         # the prioritized fallbacks, and those may not starve the two-leg fallback
         ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
                                       buffer_mm, max_start_stop, grid, stats,
-                                      t0 + min(0.3 * time_budget_s, 3.0), cluster)
+                                      t0 + min(0.4 * time_budget_s, 4.0), cluster)
         if ok_plan is not None:
             stats["compute_s"] = time.perf_counter() - t0
             return ok_plan

@@ -1,0 +1,125 @@
+"""Cluster strategy (planner.cluster): removal sets and state-time detours for the conflicting arms.
+
+The two chained legs are the ones of ``python -m benchmarks.motion --n 200`` (seed 0,
+allocations 128 -> 129 -> 130) that neither the delay CSP (straight moves, both theta2
+directions) nor, on a loaded machine, the prioritized fallbacks within the 10 s budget
+solved: neighbouring arms sweep each other's start and goal, so several need a detour.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.instrument import default_instrument
+from models.types import ArmTrajectory
+from planner import delays as D
+from planner import plan_motion, stop_count, verify_trajectories
+from planner.cluster import plan_cluster, reduced_problem, removal_sets
+from planner.commands import compress_waypoints
+from planner.geometry import ArmGeom
+from planner.roadmap import RoadmapParams
+from planner.single_arm import SearchParams, SearchStats
+
+INST = default_instrument()
+GEOMS = [ArmGeom.of(INST, k) for k in range(12)]
+C128 = [[2.251761611715, -0.107030082912], [2.215135168205, 0.116653396764], [2.549763355378, 0.047736295072],
+        [2.688722661138, 0.396383414091], [2.678221991248, 0.175910464236], [2.346158024893, 0.352283019445],
+        [2.879641437351, 0.326046791379], [2.402995875366, 0.377389683821], [2.39707145254, 0.727332846197],
+        [2.372113992117, 0.614447187658], [2.829067866317, 0.034405787868], [2.365409550607, 0.082490985735]]
+C129 = [[2.855853300016, 0.242115134469], [2.939813321072, 0.403842920903], [2.900820504226, 2.650282319997],
+        [2.443131806316, 0.301079979864], [2.013208973345, 0.636603333893], [2.220922739019, 2.615738008568],
+        [2.258927629807, 0.627350488696], [2.269607534831, 2.593205080286], [2.069402228033, 0.564154453522],
+        [2.149684301808, 3.782206241368], [2.614034236668, 3.744154654972], [2.852596690469, 0.160218247598]]
+C130 = [[2.846781042047, 0.351903150962], [2.399862659309, 0.4052658917], [2.178842093738, 0.703404113526],
+        [2.906419435376, 0.428890282415], [2.160626979342, 6.259110092665], [2.760474625662, 6.148576683694],
+        [2.394727972028, 0.43510412791], [2.544005032513, 0.457822453168], [2.115427300928, 1.034934198234],
+        [2.27240964507, 0.456692330621], [2.387971471745, 0.604145704906], [2.7945005091, 0.477282801931]]
+LEG_129 = (np.array(C128), np.array(C129))
+LEG_130 = (np.array(C129), np.array(C130))
+ALL = list(range(12))
+
+
+def _straight(start, goal):
+    res = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                        max_start_stop=1, movable=ALL, stats=D.DelayStats(), max_rounds=2)
+    assert res.assignment is None  # straight moves fail at any delays and theta2 directions
+    assert res.straight is not None
+    assert all(o.kind == "straight" for opts in res.straight.options for o in opts)
+    return res.straight
+
+
+def _trajs(out):
+    trajs = []
+    for k, (t, q) in enumerate(out):
+        t, q = compress_waypoints(t, q)
+        trajs.append(ArmTrajectory(k, t, q[:, 0].copy(), q[:, 1].copy()))
+    return trajs
+
+
+def test_removal_set_of_a_two_arm_cycle():
+    start, goal = LEG_130
+    prob = _straight(start, goal)
+    sets = list(removal_sets(prob, start, ALL, max_size=3, max_sets=3))
+    R, rest = sets[0]
+    # no single arm is enough: arms 4 and 5 cannot pass each other on straight moves
+    assert len(R) == 2 and 4 in R
+    for k in range(12):
+        red = reduced_problem(prob, set([k]), start)
+        assert D.solve(red, D.DelayStats(), node_budget=500)[0] is None
+    # the rest's schedule is consistent with every pair table of the rest
+    K = prob.K
+    for (i, j), tab in prob.tables.items():
+        if i in R or j in R:
+            continue
+        (pi, ti), (pj, tj) = rest[i], rest[j]
+        assert tab[pi, pj, tj - ti + K]
+    # later sets are supersets with one conflicting neighbour more
+    assert any(len(S) == 3 and set(R) < set(S) for S, _ in sets)
+
+
+@pytest.mark.parametrize("reverse,lead,which", [(False, 0, 0), (True, 0, "456"), (False, 3, 0)])
+def test_cluster_plan_is_verified_and_only_the_cluster_stops(reverse, lead, which):
+    start, goal = LEG_130
+    prob = _straight(start, goal)
+    sets = list(removal_sets(prob, start, ALL, max_size=3, max_sets=3))
+    if which == "456":
+        R, rest = next((S, r) for S, r in sets if sorted(S) == [4, 5, 6])
+    else:
+        R, rest = sets[which]
+    out = plan_cluster(GEOMS, start, goal, prob, R, rest, buffer_mm=5.0,
+                       params=SearchParams(max_states_per_arm=3000), rparams=RoadmapParams(max_edges_per_path=2),
+                       seed=0, reverse=reverse, stats=SearchStats(), lead_steps=lead)
+    assert out is not None
+    trajs = _trajs(out)
+    rep = verify_trajectories(INST, trajs, start, goal, max_start_stop=1)
+    assert rep.ok, rep.violations[:3]
+    stops = [stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in trajs]
+    assert max(stops) <= 1
+    assert all(stops[k] == 0 for k in range(12) if k not in R)  # the rest keeps its straight moves
+
+
+@pytest.mark.parametrize("leg", [LEG_129, LEG_130], ids=["c128-c129", "c129-c130"])
+def test_benchmark_cycle_legs_plan(leg):
+    start, goal = leg
+    plan = plan_motion(INST, start, goal, time_budget_s=30.0)
+    assert plan.status == "ok", plan.stats.get("reasons")
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+    assert max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in plan.trajectories) <= 1
+
+
+def test_cluster_solves_a_leg_the_straight_delays_cannot():
+    start, goal = LEG_129
+    prob = _straight(start, goal)
+    st: dict = {"collision_checks": 0, "states_explored": 0, "attempt_log": []}
+    from planner.prioritized import _try_cluster
+
+    plan = _try_cluster(INST, GEOMS, start, goal, prob, [], ALL, 5.0, 1, st, float("inf"),
+                        params=SearchParams(max_states_per_arm=1500), rparams=RoadmapParams(max_edges_per_path=2),
+                        seed=0)
+    assert plan is not None and plan.status == "ok" and st["strategy"] == "cluster"
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+    # a single arm detouring is not enough here: arm 5 sweeps arm 6's start and goal for 90 s
+    assert st["cluster"]["removal_sets"][0] == [6]
+    assert len([a for a in st["cluster"]["attempts"] if a.get("verified")]) == 1
+    assert len(st["cluster"]["attempts"][-1]["arms"]) == 2
