@@ -4,40 +4,48 @@ and the 1,200-target dense field. Prints one JSON document.
 Both allocators run through ONE sequencing driver, :func:`solvers.sequencing.
 sequence_configurations` (what ``solvers.allocation.allocate(configurations="all")``
 calls): structure built once per field, each configuration starts where the previous one
-ended, every configuration re-checked geometrically, optional CP-SAT tail repacking. Fields
-come from ``benchmarks.allocation.make_field`` so the two benchmarks measure the same kind
-of field: uniform in the 250 mm FOV, heavily clustered (Gaussian sigma 30 mm) and weakly
-clustered (sigma 60 mm) about the centre, priorities drawn 10 % 500 / 40 % 100 / 40 % 10 /
-10 % 1 (thesis 5.5.3; the thesis does not print its sigmas).
+ended, every configuration re-checked geometrically, targets left as ``conflict`` rescued.
+Fields come from ``benchmarks.allocation.make_field``: uniform in the 250 mm FOV, heavily
+clustered (Gaussian sigma 30 mm) and weakly clustered (sigma 60 mm) about the centre,
+priorities drawn 10 % 500 / 40 % 100 / 40 % 10 / 10 % 1 (thesis 5.5.3; the thesis does not
+print its sigmas). Field i of a cell is seeded by (size, distribution, i).
 
 Sections:
 
-* ``protocol``: per (distribution, size 96/192/384), over ``--instances`` fields:
-  configurations to 100 % completeness, before (``greedy``) and after the driver's tail
-  repacking, for the exact allocator (``allocate(method="ilp")`` with the driver's default
-  exact back-end) and for SGPBTA
-  alpha = 0.2 / 0.8 with the thesis settings (eq. 5.21 matrix, 30 runs, gamma 0.1, PBAS)
-  -- ``sg*`` through ``allocate(method="semigreedy")`` (the driver's own structure, no
-  blank-sky locations) and ``sg*_blank`` on the same driver with a structure holding 8
-  blank-sky locations per arm (thesis Alg. 5 padding). For ``sg*_blank`` every
-  configuration is also solved exactly on the very same problem: ``avg_gap_vs_exact`` is
-  the mean relative total-priority gap per configuration (0 = optimal).
+* ``protocol``: per (distribution, size 96/192/384), over ``--instances`` fields (default
+  20), configurations to 100 % completeness and completeness reached, for
+
+  - ``exact``: ``allocate(method="ilp")`` (the library default back-end, ``bnb``) with a
+    modest per-configuration limit ``config_time_limit_s = EXACT_CONFIG_S`` and the
+    driver's tail repacking (its default); ``avg_configurations_before_repack`` is the
+    one-at-a-time count;
+  - ``sg0.2`` / ``sg0.8``: SGPBTA at its defaults (thesis 5.5.3.1: eq. 5.21 matrix, 30 runs,
+    gamma 0.1, PBAS) with alpha 0.2 / 0.8, on a structure with ``BLANK_PER_ARM`` blank-sky
+    locations per arm (Algorithm 5 padding), no tail repacking (that is a CP-SAT model,
+    not the heuristic). Every configuration SGPBTA returns is also solved exactly on the
+    very same problem (``bnb``, ``GAP_CONFIG_S`` per configuration):
+    ``avg_gap_vs_exact`` is the mean relative total-priority gap per configuration
+    (0 = optimal), over the configurations whose exact optimum was proven.
+
+  ``--exact-json FILE`` reuses the per-instance exact records of an earlier output.
 * ``warm_start``: CP-SAT on one configuration, cold and with SGPBTA's solution as hint.
-* ``dense``: 1,200 targets (sigma 60 mm), the fast settings (workspace patrolling,
-  ``max_stall`` 5), whole sequence to completeness without repacking: wall time (median of
-  runs), configurations; incompatibility build time reported separately and in a total.
-  The exact allocator on the same field is optional (``--dense-exact``; ~7 min).
+* ``dense``: 1,200 targets (sigma 60 mm), fields seeded 100, 101, ...: the whole sequence
+  to completeness through ``allocate(method="semigreedy", configurations="all")`` at the
+  SGPBTA defaults (only alpha set), ``blank_per_arm=BLANK_PER_ARM``, ``repack=False``;
+  wall time INCLUDING the incompatibility structure, medians over fields x repeats.
+  ``--dense-exact`` also runs the exact allocator on the same fields (20 s budget).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
+import os
 import statistics
 import time
 import zlib
-from functools import partial
 
 import numpy as np
 
@@ -49,9 +57,11 @@ from solvers.semigreedy import solve_semigreedy
 from solvers.sequencing import sequence_configurations
 
 INST = default_instrument()
-THESIS = {"penalty_matrix": "thesis", "n_iter": 30, "gamma": 0.1, "arm_selection": "pbas"}
-FAST = {"penalty_matrix": "workspace", "max_stall": 5}
-BLANK_PER_ARM = 8
+BLANK_PER_ARM = 16  # blank-sky locations per arm in SGPBTA's structure (Alg. 5 padding)
+EXACT_CONFIG_S = 1.0  # per-configuration limit of the exact column
+EXACT_FIELD_S = 60.0  # whole-sequence limit of one field, both columns
+GAP_CONFIG_S = 5.0  # per-configuration limit of the exact re-solve behind the gap
+ALPHAS = (0.2, 0.8)
 
 
 def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
@@ -59,23 +69,29 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
     return np.random.default_rng([n, zlib.crc32(dist.encode()), i])
 
 
-def _exact_solver():
-    from solvers.ilp import solve_ilp_cpsat  # what allocate(method="ilp") uses by default
+def run_exact(targets, seed: int) -> dict:
+    t0 = time.perf_counter()
+    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=EXACT_FIELD_S,
+                 config_time_limit_s=EXACT_CONFIG_S, seed=seed)
+    return {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
+            "before_repack": r.stats["n_configurations_greedy"],
+            "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"]}
 
-    return solve_ilp_cpsat
 
+def run_sg(targets, alpha: float, seed: int, with_gap: bool) -> dict:
+    """SGPBTA at its defaults through the driver; each configuration re-solved exactly."""
+    from solvers.bnb import solve_ilp_bnb
 
-def run_sg_with_gap(targets, alpha, seed, opts, exact, time_limit_s):
-    """SGPBTA on the driver with a blank-sky structure; each configuration also solved
-    exactly on the same problem (per-configuration total-priority gap)."""
-    inc = incompatibility_for_targets(INST, targets.x_mm, targets.y_mm, blank_per_arm=BLANK_PER_ARM, seed=seed)
     gaps: list[float] = []
     not_optimal = [0]
+    t_gap = [0.0]
 
     def solve(p):
-        sol = solve_semigreedy(p, alpha=alpha, **opts)
-        if exact is not None:
-            e = exact(p)
+        sol = solve_semigreedy(p, alpha=alpha)
+        if with_gap:
+            tg = time.perf_counter()
+            e = solve_ilp_bnb(dataclasses.replace(p, time_limit_s=GAP_CONFIG_S))
+            t_gap[0] += time.perf_counter() - tg
             if e.status != "optimal":
                 not_optimal[0] += 1
             elif e.total_priority > 0:
@@ -83,94 +99,90 @@ def run_sg_with_gap(targets, alpha, seed, opts, exact, time_limit_s):
         return sol
 
     t0 = time.perf_counter()
-    r = sequence_configurations(INST, targets, solve, incompatibility=inc, seed=seed, time_limit_s=time_limit_s,
-                                config_time_limit_s=5.0)
-    return r, time.perf_counter() - t0, gaps, not_optimal[0]
+    r = sequence_configurations(INST, targets, solve, seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap,
+                                blank_per_arm=BLANK_PER_ARM, repack=False)
+    return {"wall_s": time.perf_counter() - t0 - t_gap[0], "configurations": r.stats["n_configurations"],
+            "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"],
+            "gaps": gaps, "exact_not_optimal": not_optimal[0]}
 
 
-def protocol(sizes, dists, instances, sg_opts, with_exact, gap_sizes, time_limit_s):
-    exact = _exact_solver() if with_exact else None
+def _summary(recs: list[dict]) -> dict:
+    out = {"avg_configurations": statistics.mean(r["configurations"] for r in recs),
+           "max_configurations": max(r["configurations"] for r in recs),
+           "avg_field_completeness": statistics.mean(r["complete"] for r in recs),
+           "instances_complete": sum(r["complete"] >= 1.0 for r in recs),
+           "median_wall_s": statistics.median(r["wall_s"] for r in recs)}
+    if "before_repack" in recs[0]:
+        out["avg_configurations_before_repack"] = statistics.mean(r["before_repack"] for r in recs)
+    if "gaps" in recs[0]:
+        g = [x for r in recs for x in r["gaps"]]
+        out["avg_gap_vs_exact"] = statistics.mean(g) if g else None
+        out["max_gap_vs_exact"] = max(g) if g else None
+        out["share_configurations_optimal"] = float(np.mean(np.asarray(g) <= 1e-12)) if g else None
+        out["configurations_compared"] = len(g)
+        out["configurations_exact_not_proven"] = sum(r["exact_not_optimal"] for r in recs)
+    return out
+
+
+def protocol(sizes, dists, instances, sides, with_gap, exact_cache):
     rows = []
     for dist in dists:
         for n in sizes:
-            acc: dict[str, dict[str, list]] = {}
-
-            def add(key, r, wall, acc=acc):
-                d = acc.setdefault(key, {"configs": [], "greedy": [], "wall_s": [], "complete": [], "gap": []})
-                d["configs"].append(r.stats["n_configurations"])
-                d["greedy"].append(r.stats["n_configurations_greedy"])
-                d["wall_s"].append(wall)
-                d["complete"].append(r.stats["field_completeness"])
-
+            recs: dict[str, list[dict]] = {}
             for i in range(instances):
                 targets = make_field(n, dist, field_rng(n, dist, i))
-                if with_exact:
-                    t0 = time.perf_counter()
-                    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=time_limit_s, seed=i)
-                    add("exact", r, time.perf_counter() - t0)
-                for a in (0.2, 0.8):
-                    t0 = time.perf_counter()
-                    r = allocate(INST, targets, method="semigreedy", configurations="all", time_limit_s=time_limit_s,
-                                 seed=i, alpha=a, **sg_opts)
-                    add(f"sg{a}", r, time.perf_counter() - t0)
-                    r, wall, gaps, not_opt = run_sg_with_gap(targets, a, i, sg_opts,
-                                                             exact if n in gap_sizes else None, time_limit_s)
-                    add(f"sg{a}_blank", r, wall)
-                    acc[f"sg{a}_blank"]["gap"] += gaps
-                    acc[f"sg{a}_blank"].setdefault("exact_not_optimal", []).append(not_opt)
+                if "exact" in sides:
+                    key = f"{dist}/{n}/{i}"
+                    rec = exact_cache.get(key) or run_exact(targets, i)
+                    rec["key"] = key
+                    recs.setdefault("exact", []).append(rec)
+                if "sg" in sides:
+                    for a in ALPHAS:
+                        recs.setdefault(f"sg{a}", []).append(run_sg(targets, a, i, with_gap))
             row = {"distribution": dist, "targets": n, "instances": instances, "ceil_t_over_12": math.ceil(n / 12)}
-            for key, d in acc.items():
-                row[key] = {
-                    "avg_configurations": statistics.mean(d["configs"]),
-                    "avg_configurations_before_repack": statistics.mean(d["greedy"]),
-                    "max_configurations": max(d["configs"]),
-                    "avg_field_completeness": statistics.mean(d["complete"]),
-                    "median_wall_s": statistics.median(d["wall_s"]),
-                }
-                if d["gap"] or key.endswith("_blank"):
-                    row[key]["avg_gap_vs_exact"] = statistics.mean(d["gap"]) if d["gap"] else None
-                    row[key]["share_configurations_optimal"] = (
-                        float(np.mean(np.asarray(d["gap"]) <= 1e-12)) if d["gap"] else None)
-                    row[key]["configurations_compared"] = len(d["gap"])
+            for k, v in recs.items():
+                row[k] = _summary(v)
+            if "exact" in recs:
+                row["exact_instances"] = recs["exact"]
             rows.append(row)
-            print(json.dumps({"row": row}, default=float), flush=True)  # partial results as they come
+            print(json.dumps({"row": {k: v for k, v in row.items() if k != "exact_instances"}}, default=float),
+                  flush=True)  # partial results as they come
     return rows
 
 
-def dense(n, runs, sg_opts, with_exact, time_limit_s):
-    out = {"targets": n, "distribution": "weak (sigma 60 mm)", "options": sg_opts,
-           "ceil_t_over_12": math.ceil(n / 12), "runs": []}
-    for i in range(runs):
+def dense(n, fields, repeats, with_exact):
+    out = {"targets": n, "distribution": "weak (sigma 60 mm)", "blank_per_arm": BLANK_PER_ARM, "repack": False,
+           "ceil_t_over_12": math.ceil(n / 12), "load_before": os.getloadavg(), "runs": []}
+    for i in range(fields):
         targets = make_field(n, "weak", np.random.default_rng(100 + i))  # benchmarks/allocation.py's dense
-        t0, c0 = time.perf_counter(), time.process_time()
-        inc = incompatibility_for_targets(INST, targets.x_mm, targets.y_mm, blank_per_arm=BLANK_PER_ARM, seed=i)
-        t_inc, c_inc = time.perf_counter() - t0, time.process_time() - c0
-        run = {"field_seed": 100 + i, "incompatibility_s": t_inc, "incompatibility_cpu_s": c_inc}
-        for a in (0.2, 0.8):
-            t0, c0 = time.perf_counter(), time.process_time()
-            r = sequence_configurations(INST, targets, partial(solve_semigreedy, alpha=a, **sg_opts),
-                                        incompatibility=inc, seed=i, time_limit_s=time_limit_s, repack=False)
-            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-            run[f"sg{a}"] = {"sequence_wall_s": wall, "sequence_cpu_s": cpu,
-                             "total_with_incompatibility_s": wall + t_inc,
-                             "configurations": r.stats["n_configurations"],
-                             "field_completeness": r.stats["field_completeness"],
-                             "unallocated": [u.reason for u in r.unallocated]}
+        for rep in range(repeats):
+            for a in ALPHAS:
+                t0, c0 = time.perf_counter(), time.process_time()
+                r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i, alpha=a,
+                             blank_per_arm=BLANK_PER_ARM, repack=False)
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                out["runs"].append({"field_seed": 100 + i, "repeat": rep, "alpha": a, "wall_s": wall, "cpu_s": cpu,
+                                    "incompatibility_s": r.stats["timers_s"]["incompatibility_s"],
+                                    "rescue_s": r.stats["timers_s"].get("rescue_s", 0.0),
+                                    "configurations": r.stats["n_configurations"],
+                                    "field_completeness": r.stats["field_completeness"],
+                                    "stop_reason": r.stats["stop_reason"],
+                                    "unallocated": [u.reason for u in r.unallocated]})
         if with_exact:
             t0 = time.perf_counter()
-            r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=3600.0, seed=i)
-            run["exact"] = {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
-                            "configurations_before_repack": r.stats["n_configurations_greedy"],
-                            "field_completeness": r.stats["field_completeness"]}
-        out["runs"].append(run)
-    for a in (0.2, 0.8):
-        k = f"sg{a}"
-        out[k] = {"median_sequence_wall_s": statistics.median(r[k]["sequence_wall_s"] for r in out["runs"]),
-                  "median_sequence_cpu_s": statistics.median(r[k]["sequence_cpu_s"] for r in out["runs"]),
-                  "median_total_with_incompatibility_s": statistics.median(
-                      r[k]["total_with_incompatibility_s"] for r in out["runs"]),
-                  "configurations": [r[k]["configurations"] for r in out["runs"]]}
-    out["median_incompatibility_s"] = statistics.median(r["incompatibility_s"] for r in out["runs"])
+            r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=20.0, seed=i)
+            out.setdefault("exact", []).append({"field_seed": 100 + i, "wall_s": time.perf_counter() - t0,
+                                                "configurations": r.stats["n_configurations"],
+                                                "field_completeness": r.stats["field_completeness"]})
+    for a in ALPHAS:
+        runs = [r for r in out["runs"] if r["alpha"] == a]
+        out[f"sg{a}"] = {"median_wall_s_with_incompatibility": statistics.median(r["wall_s"] for r in runs),
+                         "max_wall_s_with_incompatibility": max(r["wall_s"] for r in runs),
+                         "median_cpu_s": statistics.median(r["cpu_s"] for r in runs),
+                         "median_incompatibility_s": statistics.median(r["incompatibility_s"] for r in runs),
+                         "configurations_per_field": [r["configurations"] for r in runs if r["repeat"] == 0],
+                         "all_complete": all(r["field_completeness"] >= 1.0 for r in runs)}
+    out["load_after"] = os.getloadavg()
     return out
 
 
@@ -208,35 +220,43 @@ def warm_starts(cases, seeds):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, for CI")
-    ap.add_argument("--instances", type=int, default=3)
+    ap.add_argument("--instances", type=int, default=20)
     ap.add_argument("--sizes", default="96,192,384")
     ap.add_argument("--dists", default="uniform,heavy,weak")
-    ap.add_argument("--gap-sizes", default="96,192,384", help="sizes where every SGPBTA configuration is also "
-                                                             "solved exactly (per-configuration gap)")
-    ap.add_argument("--no-exact", action="store_true", help="skip the exact allocator in the protocol")
-    ap.add_argument("--dense-runs", type=int, default=3)
-    ap.add_argument("--dense-exact", action="store_true", help="also run the exact allocator on the dense field")
-    ap.add_argument("--skip", default="", help="comma list of sections to skip: protocol,warm_start,dense")
+    ap.add_argument("--sides", default="exact,sg", help="protocol columns: exact, sg or both")
+    ap.add_argument("--no-gap", action="store_true", help="skip the exact re-solve of every SGPBTA configuration")
+    ap.add_argument("--exact-json", help="reuse the per-instance exact records of an earlier output")
+    ap.add_argument("--dense-fields", type=int, default=3)
+    ap.add_argument("--dense-repeats", type=int, default=3)
+    ap.add_argument("--dense-exact", action="store_true", help="also run the exact allocator on the dense fields")
+    ap.add_argument("--skip", default="warm_start", help="comma list of sections to skip: protocol,warm_start,dense")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
-    out: dict = {"machine_note": "2 cores shared with other jobs; wall times are noisy"}
+    out: dict = {"machine_note": "2 cores shared with other jobs; wall times are noisy",
+                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "load_start": os.getloadavg()}
     t0 = time.perf_counter()
     sizes = [int(v) for v in args.sizes.split(",") if v]
-    gap_sizes = {int(v) for v in args.gap_sizes.split(",") if v}
     dists = [d for d in args.dists.split(",") if d]
+    sides = set(args.sides.split(","))
     if args.smoke:
-        sizes, dists, args.instances, gap_sizes = [96], ["uniform"], 1, {96}
+        sizes, dists, args.instances, args.dense_fields, args.dense_repeats = [96], ["uniform"], 1, 1, 1
+    cache: dict = {}
+    if args.exact_json:
+        with open(args.exact_json) as fh:
+            for row in json.load(fh)["protocol"]["rows"]:
+                for rec in row.get("exact_instances", []):
+                    cache[rec["key"]] = rec
     if "protocol" not in skip:
-        out["protocol"] = {"sg_options": THESIS, "blank_per_arm": BLANK_PER_ARM,
-                           "rows": protocol(sizes, dists, args.instances, THESIS, not args.no_exact, gap_sizes,
-                                            120.0)}
+        out["protocol"] = {"exact_config_time_limit_s": EXACT_CONFIG_S, "field_time_limit_s": EXACT_FIELD_S,
+                           "gap_config_time_limit_s": GAP_CONFIG_S, "sg_blank_per_arm": BLANK_PER_ARM,
+                           "rows": protocol(sizes, dists, args.instances, sides, not args.no_gap, cache)}
     if "warm_start" not in skip:
         out["warm_start"] = warm_starts([(96, "uniform")] if args.smoke else
                                         [(384, "uniform"), (384, "heavy"), (1200, "weak")], [0] if args.smoke else [0, 1])
     if "dense" not in skip:
-        out["dense"] = dense(300 if args.smoke else 1200, 1 if args.smoke else args.dense_runs, FAST,
-                             args.dense_exact, 600.0)
+        out["dense"] = dense(300 if args.smoke else 1200, args.dense_fields, args.dense_repeats, args.dense_exact)
     out["total_s"] = time.perf_counter() - t0
+    out["load_end"] = os.getloadavg()
     print(json.dumps(out, indent=1, default=float))
 
 

@@ -33,8 +33,13 @@ Deliberate departures from the thesis pseudo-code, each documented where it occu
 * the local search runs replace moves first and the swap moves (which only shorten the
   total displacement) only on a solution that can still win the update;
 * a multistart stops early once a solution reaches the collision-free upper bound
-  (bipartite matching) in priority and yield; ``max_stall`` optionally after that many
-  iterations without improvement.
+  (bipartite matching) in priority and yield, and after ``max_stall`` (default 10)
+  iterations without improvement -- the thesis always runs all ``n_iter`` (30). On the
+  1,200-target dense field most configurations at a priority-tier change never meet the
+  matching bound (collisions bind), and the last improvement comes at iteration 9 on
+  average; ``max_stall=None`` restores the thesis behaviour;
+* targets of priority 0 (already observed sky that the conflict rescue of
+  :mod:`solvers.sequencing` offers as a resting place) are rest locations, not targets.
 """
 
 from __future__ import annotations
@@ -48,9 +53,9 @@ from scipy.optimize import linear_sum_assignment
 
 from models.errors import InputError
 from models.incompatibility import FIXED, PARK
-from models.kinematics import joint_displacement
+from models.kinematics import direct_move_time_s, joint_displacement
 from solvers.patrolling import point_penalties, thesis_penalty_matrix, validate_penalty_matrix
-from solvers.problem import ConfigProblem, ConfigSolution, evaluate
+from solvers.problem import ConfigProblem, ConfigSolution
 
 ArmSelection = Literal["gas", "pbas"]
 PatrolSpec = Literal["thesis", "workspace"]
@@ -67,8 +72,9 @@ class SemiGreedyOptions:
     penalty 0) or an (n_arms, n_slices) integer matrix. ``first_slice_deg`` is the azimuth
     of the centre of slice 0 (arm 0's azimuth in the default instrument).
     ``time_limit_s`` defaults to the problem's. ``early_stop`` ends the multistart when
-    a solution meets the matching upper bound in priority and yield; ``max_stall`` (off
-    by default, as in the thesis) ends it after that many iterations without improvement.
+    a solution meets the matching upper bound in priority and yield; ``max_stall`` ends it
+    after that many iterations without improvement (default 10; ``None`` runs all
+    ``n_iter`` as the thesis does).
     """
 
     alpha: float = 0.2
@@ -81,7 +87,7 @@ class SemiGreedyOptions:
     local_search: bool = True
     lookahead: bool = True
     early_stop: bool = True
-    max_stall: int | None = None
+    max_stall: int | None = 10
     time_limit_s: float | None = None
 
 
@@ -114,6 +120,8 @@ class _FieldStatic:
     park_idx: np.ndarray  # (n_arms,) park assignment or -1
     rn_ptr: np.ndarray  # CSR: per assignment, the incompatible rest locations
     rn_idx: np.ndarray  # (park / current / fixed / blank sky) -- the padding look-ahead
+    indices64: np.ndarray  # the structure's CSR indices as intp, its indptr as a list
+    indptr_l: list
 
 
 _FIELD_CACHE: dict[tuple, tuple[object, _FieldStatic]] = {}
@@ -163,16 +171,22 @@ def _field_static(problem: ConfigProblem, penalty: np.ndarray, first_slice_deg: 
     park_idx = np.full(n_arms, -1)
     pk = np.flatnonzero(tgt == PARK)
     park_idx[a.arm[pk]] = pk
-    is_rest = tgt < 0
-    keep = is_rest[inc.indices]
-    rows = np.repeat(np.arange(len(a)), np.diff(inc.indptr))
-    rn_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=len(a)))]).astype(np.int64)
-    rn_idx = inc.indices[keep].astype(np.int64)
-    fs = _FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx, rn_ptr, rn_idx)
+    rn_ptr, rn_idx = _rest_neighbours(inc, tgt < 0)
+    fs = _FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx, rn_ptr, rn_idx,
+                      inc.indices.astype(np.intp), inc.indptr.tolist())
     if len(_FIELD_CACHE) > 8:
         _FIELD_CACHE.clear()
     _FIELD_CACHE[key] = (inc, fs)
     return fs
+
+
+def _rest_neighbours(inc, is_rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """CSR: per assignment, the incompatible assignments among the rest locations ``is_rest``."""
+    n = len(is_rest)
+    keep = is_rest[inc.indices]
+    rows = np.repeat(np.arange(n), np.diff(inc.indptr))
+    rn_ptr = np.concatenate([[0], np.cumsum(np.bincount(rows[keep], minlength=n))]).astype(np.int64)
+    return rn_ptr, inc.indices[keep].astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -214,6 +228,20 @@ class Prepared:
     ub_priority: int  # matching bound, patrolled targets (what SGPBTA can reach)
     ub_yield: int
     ub_priority_all: int  # matching bound, every allowed target (bounds the exact optimum)
+    # the same data as Python lists / initial values, for the scalar hot loop of construct()
+    rn_arm: np.ndarray  # arm of each rn_idx entry
+    tasg_l: list  # tasg as a list
+    tptr_l: list
+    arm_l: list  # arm as a list
+    pen_l: list
+    chosen0: np.ndarray  # the empty state (only the preset arms placed)
+    blocked0: np.ndarray
+    cnt0: np.ndarray  # (m,) usable assignments per live target in the empty state
+    rest_free0: np.ndarray  # (n_arms,) free rest locations per arm in the empty state
+    indices64: np.ndarray  # indices as intp (fancy indexing without a conversion)
+    indptr_l: list
+    rn_ptr_l: list
+    arm_start_l: list
 
 
 def _matching_bound(arm: np.ndarray, tcol: np.ndarray, weight: np.ndarray, n_arms: int, m: int) -> int:
@@ -222,6 +250,12 @@ def _matching_bound(arm: np.ndarray, tcol: np.ndarray, weight: np.ndarray, n_arm
         return 0
     w = np.zeros((n_arms, m))
     w[arm, tcol] = weight  # both IK branches of an (arm, target) pair carry the same weight
+    if m > n_arms * n_arms:
+        # some optimal matching uses, for every arm, one of its n_arms heaviest targets (an
+        # arm on a lighter target has one of its heaviest free -- only n_arms - 1 others
+        # are taken -- and moving it there loses nothing): keep only those columns
+        top = np.argpartition(-w, n_arms - 1, axis=1)[:, :n_arms]
+        w = w[:, np.unique(top)]
     r, c = linear_sum_assignment(w, maximize=True)
     return int(round(w[r, c].sum()))
 
@@ -236,12 +270,18 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
     pen = fs.pen
     allowed = problem.allowed()
     tgt = a.target
-    is_target = tgt >= 0
     prio = problem.assignment_priority()
+    # an available target of priority 0 (already observed sky, offered by the conflict
+    # rescue of solvers.sequencing) is worth nothing: it is a rest location, where an idle
+    # arm may point to make room, not a target (it counts neither in yield nor in the pool)
+    zero = allowed & (tgt >= 0) & (prio == 0)
+    is_target = (tgt >= 0) & ~zero
     d1, ccw, cw = joint_displacement(problem.start_q[a.arm], a.q)
     disp = np.abs(d1) + np.minimum(ccw, -cw)
     tok = allowed & is_target & (pen >= 0)
     rest_ok = allowed & ~is_target
+    rn_ptr, rn_idx = (fs.rn_ptr, fs.rn_idx) if not zero.any() else _rest_neighbours(problem.incompatibility,
+                                                                                    (tgt < 0) | zero)
 
     # live targets sorted by decreasing eta_i = p_i + gamma * r_i / n  (eq. 5.4)
     n_t = len(problem.priority)
@@ -293,14 +333,32 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
     else:
         all_t, all_c = np.unique(tgt[all_ok], return_inverse=True)
         ub_all = _matching_bound(a.arm[all_ok], all_c, prio[all_ok], n_arms, len(all_t))
+    # the empty state: preset (out-of-service) arms on their only location
+    indptr, indices = problem.incompatibility.indptr, problem.incompatibility.indices
+    chosen0 = np.full(n_arms, -1, np.int64)
+    blocked0 = np.zeros(n_asg, np.int32)
+    for k in np.flatnonzero(preset >= 0):
+        x = int(preset[k])
+        chosen0[k] = x
+        blocked0[indices[indptr[x]:indptr[x + 1]]] += 1
+    arm_free0 = (chosen0 < 0) & target_arms
+    usable = tok & (blocked0 == 0) & arm_free0[a.arm]
+    cnt0 = np.bincount(tc[usable], minlength=m)
+    rest_free0 = (np.add.reduceat(np.append(blocked0[rest_order] == 0, False).astype(np.int64), rest_ptr[:-1])
+                  * (np.diff(rest_ptr) > 0)) if len(rest_order) else np.zeros(n_arms, np.int64)
+    arm64 = a.arm.astype(np.int64)
     return Prepared(
-        n_arms=n_arms, arm=a.arm.astype(np.int64), arm_start=np.asarray(a.arm_start, np.int64),
-        indptr=problem.incompatibility.indptr, indices=problem.incompatibility.indices,
+        n_arms=n_arms, arm=arm64, arm_start=np.asarray(a.arm_start, np.int64),
+        indptr=indptr, indices=indices,
         prio=prio, is_target=is_target, disp=disp, score=prio - disp / (2 * np.pi + 1),
         pen=pen, tok=tok, rest_ok=rest_ok, movable=tok | rest_ok, tc=tc,
         live_targets=live_targets, eta=eta, tptr=tptr, tasg=tasg, current_idx=current_idx,
-        park_idx=park_idx, rest_order=rest_order, rest_ptr=rest_ptr, rn_ptr=fs.rn_ptr, rn_idx=fs.rn_idx, preset=preset, target_arms=target_arms,
+        park_idx=park_idx, rest_order=rest_order, rest_ptr=rest_ptr, rn_ptr=rn_ptr, rn_idx=rn_idx,
+        preset=preset, target_arms=target_arms,
         ub_priority=ub_p, ub_yield=ub_y, ub_priority_all=ub_all,
+        rn_arm=arm64[rn_idx], tasg_l=tasg.tolist(), tptr_l=tptr.tolist(), arm_l=arm64.tolist(), pen_l=pen.tolist(),
+        chosen0=chosen0, blocked0=blocked0, cnt0=cnt0, rest_free0=rest_free0.astype(np.int64),
+        indices64=fs.indices64, indptr_l=fs.indptr_l, rn_ptr_l=rn_ptr.tolist(), arm_start_l=a.arm_start.tolist(),
     )
 
 
@@ -317,18 +375,16 @@ class State:
 
     @staticmethod
     def empty(st: Prepared) -> State:
-        s = State(np.full(st.n_arms, -1, np.int64), np.zeros(len(st.arm), np.int32))
-        for k in np.flatnonzero(st.preset >= 0):
-            s.place(st, int(st.preset[k]))
-        return s
+        """Nothing chosen but the preset (out-of-service) arms on their only location."""
+        return State(st.chosen0.copy(), st.blocked0.copy())
 
     def place(self, st: Prepared, x: int) -> None:
-        self.chosen[st.arm[x]] = x
-        self.blocked[st.indices[st.indptr[x]:st.indptr[x + 1]]] += 1
+        self.chosen[st.arm_l[x]] = x
+        self.blocked[st.indices64[st.indptr_l[x]:st.indptr_l[x + 1]]] += 1
 
     def remove(self, st: Prepared, k: int) -> None:
         x = int(self.chosen[k])
-        self.blocked[st.indices[st.indptr[x]:st.indptr[x + 1]]] -= 1
+        self.blocked[st.indices64[st.indptr_l[x]:st.indptr_l[x + 1]]] -= 1
         self.chosen[k] = -1
 
     def key(self, st: Prepared) -> tuple[int, int, float]:
@@ -366,82 +422,108 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
     """
     s = State.empty(st)
     m = len(st.eta)
-    neg_eta = -st.eta
-    arm_free = (s.chosen < 0) & st.target_arms
+    if m == 0:
+        return s
+    blocked, chosen = s.blocked, s.chosen
+    arm, arm_l, tok, tc = st.arm, st.arm_l, st.tok, st.tc
+    indptr_l, indices, rn_ptr, rn_idx, rn_arm = st.indptr_l, st.indices64, st.rn_ptr_l, st.rn_idx, st.rn_arm
+    tasg_l, tptr_l, pen_l, arm_start_l = st.tasg_l, st.tptr_l, st.pen_l, st.arm_start_l
+    n_arms = st.n_arms
+    eta = st.eta
+    neg_eta = -eta
+    tol = 1e-12 * max(1.0, abs(float(eta[0])))
+    arm_free = (chosen < 0) & st.target_arms
+    arm_free_l = arm_free.tolist()
     n_free = int(arm_free.sum())
-    usable = st.tok & (s.blocked == 0) & arm_free[st.arm]
-    cnt = np.bincount(st.tc[usable], minlength=m)
-    remaining = np.ones(m, bool)
-    arm, pen, disp, blocked = st.arm, st.pen, st.disp, s.blocked
-    idle = s.chosen < 0  # arms without a location yet (they will need a rest location)
-    ro = st.rest_order
-    rest_free = np.add.reduceat(np.append(blocked[ro] == 0, False).astype(np.int64),
-                                st.rest_ptr[:-1]) * (np.diff(st.rest_ptr) > 0) if len(ro) else np.zeros(st.n_arms)
-    rn_ptr, rn_idx = st.rn_ptr, st.rn_idx
-
-    def leaves_rest(x: int, k: int) -> bool:
-        """Padding look-ahead: after x (arm k), every other idle arm keeps a free rest location."""
-        rn = rn_idx[rn_ptr[x]:rn_ptr[x + 1]]
-        if not lookahead or not len(rn):
-            return True
-        rn = rn[(blocked[rn] == 0)]
-        ka = arm[rn]
-        ka = ka[idle[ka] & (ka != k)]
-        if not len(ka):
-            return True
-        lost = np.bincount(ka, minlength=st.n_arms)
-        return not ((lost >= rest_free) & (rest_free > 0)).any()
+    idle = (chosen < 0).tolist()  # arms without a location yet (they will need a rest location)
+    elig = tok & arm_free[arm]  # target assignments of free arms (usable unless blocked)
+    cnt = st.cnt0.copy()
+    live = cnt > 0  # drawable: not drawn yet and still some usable assignment
+    rest_free = st.rest_free0.tolist()
+    pbas = arm_selection == "pbas"
+    # uniform draws in batches (one Generator call per 64 draws)
+    buf = rng.random(64).tolist()
+    first, last, end = 0, m - 1, -1  # live ids are sorted by decreasing eta
 
     while n_free:
-        live = remaining & (cnt > 0)
-        first = int(live.argmax())
         if not live[first]:
-            break
-        last = m - 1 - int(live[::-1].argmax())
-        hi, lo = st.eta[first], st.eta[last]
-        q = hi - alpha * (hi - lo)
-        end = int(np.searchsorted(neg_eta, -q + 1e-12 * max(1.0, abs(hi)), side="right"))
-        pool = first + np.flatnonzero(live[first:end])
-        t = int(pool[rng.integers(len(pool))]) if len(pool) > 1 else int(pool[0])
-        remaining[t] = False
+            first += int(live[first:].argmax())
+            if not live[first]:
+                break
+            end = -1
+        if not live[last]:
+            last -= int(live[last::-1].argmax())
+            end = -1
+        if end < 0:  # the pool bound of eq. 5.5 moves only with the live extremes
+            hi = eta[first]
+            q = hi - alpha * (hi - eta[last])
+            end = int(np.searchsorted(neg_eta, -q + tol, side="right"))
+        # a uniform draw from the live ids in [first, end): rejection sampling (exact), the
+        # explicit list only when live ids are sparse in the window
+        t = -1
+        for _ in range(4):
+            if not buf:
+                buf = rng.random(64).tolist()
+            j = first + int(buf.pop() * (end - first))
+            if live[j]:
+                t = j
+                break
+        if t < 0:
+            pool = np.flatnonzero(live[first:end])
+            if not buf:
+                buf = rng.random(64).tolist()
+            t = first + int(pool[int(buf.pop() * len(pool))])
+        live[t] = False
         s.picked.append(t)
-        cand = [x for x in st.tasg[st.tptr[t]:st.tptr[t + 1]].tolist()
-                if arm_free[arm[x]] and blocked[x] == 0]
-        if arm_selection == "pbas" and len(cand) > 1:
-            # PBAS: per penalty level, the arms in random order (each arm's assignments
-            # keep their displacement order); GAS keeps lowest penalty, arm, displacement
-            levels = sorted({int(pen[c]) for c in cand})
-            order = []
-            for lv in levels:
-                arms = sorted({int(arm[c]) for c in cand if pen[c] == lv})
-                if len(arms) > 1:
-                    arms = [arms[i] for i in rng.permutation(len(arms))]
-                for k in arms:
-                    order += sorted((c for c in cand if pen[c] == lv and arm[c] == k), key=lambda c: disp[c])
-            cand = order
+        cand = [x for x in tasg_l[tptr_l[t]:tptr_l[t + 1]] if arm_free_l[arm_l[x]] and not blocked[x]]
+        if pbas and len(cand) > 1:
+            # PBAS: per penalty level, the arms in random order (each arm's assignments keep
+            # their displacement order: the sort is stable); GAS keeps penalty, arm, displacement
+            ks = {arm_l[c] for c in cand}
+            if len(ks) > 1:
+                if len(buf) < len(ks):
+                    buf += rng.random(64).tolist()
+                r = {k: buf.pop() for k in sorted(ks)}
+                cand.sort(key=lambda c: (pen_l[c], r[arm_l[c]]))
         # the first candidate that leaves every idle arm a rest location (departure from
         # the thesis: there a solution whose padding fails is dropped at Alg. 3 line 9)
-        x = next((c for c in cand if leaves_rest(c, int(arm[c]))), -1)
+        x = -1
+        lost_rest = None
+        for c in cand:
+            k = arm_l[c]
+            r0, r1 = rn_ptr[c], rn_ptr[c + 1]
+            if r0 == r1:
+                x = c
+                break
+            lost_rest = np.bincount(rn_arm[r0:r1][blocked[rn_idx[r0:r1]] == 0], minlength=n_arms).tolist()
+            if lookahead and any(lr and lr >= rf and ok and j != k
+                                 for j, (lr, rf, ok) in enumerate(zip(lost_rest, rest_free, idle, strict=True))):
+                lost_rest = None
+                continue
+            x = c
+            break
         if x < 0:
             continue
-        k = int(arm[x])
-        s0, s1 = int(st.arm_start[k]), int(st.arm_start[k + 1])
-        lost = st.tok[s0:s1] & (blocked[s0:s1] == 0)  # arm k's usable assignments go away
-        np.subtract.at(cnt, st.tc[s0:s1][lost], 1)
-        arm_free[k] = False
+        k = arm_l[x]
+        s0, s1 = arm_start_l[k], arm_start_l[k + 1]
+        lost = elig[s0:s1] & (blocked[s0:s1] == 0)  # arm k's usable assignments go away
+        dec = tc[s0:s1][lost]
+        elig[s0:s1] = False
+        arm_free_l[k] = False
         idle[k] = False
         n_free -= 1
-        rn = rn_idx[rn_ptr[x]:rn_ptr[x + 1]]
-        rn = rn[blocked[rn] == 0]
-        if len(rn):
-            np.subtract.at(rest_free, arm[rn], 1)
-        nb = st.indices[st.indptr[x]:st.indptr[x + 1]]
-        newly = nb[blocked[nb] == 0]
-        blocked[nb] += 1
-        s.chosen[k] = x
-        newly = newly[st.tok[newly] & arm_free[arm[newly]]]
-        if len(newly):
-            np.subtract.at(cnt, st.tc[newly], 1)
+        if lost_rest is not None:
+            rest_free = [rf - lr for rf, lr in zip(rest_free, lost_rest, strict=True)]
+        nb = indices[indptr_l[x]:indptr_l[x + 1]]
+        bnb = blocked[nb]
+        free_nb = bnb == 0
+        blocked[nb] = bnb + 1
+        chosen[k] = x
+        dec2 = tc[nb[free_nb & elig[nb]]]  # usable assignments of other free arms now blocked
+        for d in (dec, dec2):
+            if len(d):
+                np.subtract.at(cnt, d, 1)
+                live[d[cnt[d] == 0]] = False
     return s
 
 
@@ -598,12 +680,26 @@ def replace_pass(st: Prepared, s: State, rng: np.random.Generator) -> int:
     arm's own and adjacent slices; here any slice the penalty matrix allows is taken.
     """
     score = np.where(st.movable & (s.blocked == 0), st.score, -np.inf)
+    chosen = s.chosen
+    # arms whose best compatible location beats the current one (the float score ranks
+    # exactly as (priority, -displacement) up to _DISP_EPS): the others have no move, and
+    # the moves of other arms in this pass only block locations, never free better ones...
+    # except the location an arm leaves, hence the rescan of arms after a move
+    busy = chosen >= 0
+    cur = np.where(busy, st.score[np.maximum(chosen, 0)], np.inf)
+    best = np.maximum.reduceat(score, st.arm_start[:-1]) if len(score) else np.full(st.n_arms, -np.inf)
+    best[np.diff(st.arm_start) == 0] = -np.inf
+    if not ((best > cur) & (st.preset < 0)).any():
+        return 0
     made = 0
+    arm_start = st.arm_start_l
     for k in rng.permutation(st.n_arms).tolist():
-        c = int(s.chosen[k])
+        c = int(chosen[k])
         if c < 0 or st.preset[k] >= 0:
             continue
-        s0, s1 = int(st.arm_start[k]), int(st.arm_start[k + 1])
+        if not made and not best[k] > cur[k]:
+            continue
+        s0, s1 = arm_start[k], arm_start[k + 1]
         if made:  # earlier moves of this pass changed what is blocked
             sc = np.where(st.movable[s0:s1] & (s.blocked[s0:s1] == 0), st.score[s0:s1], -np.inf)
         else:
@@ -646,6 +742,18 @@ def _fallback(st: Prepared) -> State | None:
     if pad(st, s):
         return s
     return None
+
+
+def _evaluate_chosen(problem: ConfigProblem, chosen: np.ndarray) -> tuple[int, int, float]:
+    """:func:`solvers.problem.evaluate` with the move times of the chosen locations only."""
+    a = problem.assignments
+    t = a.target[chosen]
+    real = t >= 0
+    arms = a.arm[chosen]
+    v = problem.joint_speed_rad_s[arms]
+    longest = float(direct_move_time_s(problem.start_q[arms], a.q[chosen], v[:, 0], v[:, 1]).max()) \
+        if len(chosen) else 0.0
+    return sum(int(problem.priority[i]) for i in t[real]), int(real.sum()), longest
 
 
 def solve_semigreedy(problem: ConfigProblem, **options) -> ConfigSolution:
@@ -712,7 +820,7 @@ def solve_semigreedy(problem: ConfigProblem, **options) -> ConfigSolution:
         park = np.array([int(st.current_idx[k]) if st.current_idx[k] >= 0 else int(st.park_idx[k])
                          for k in range(st.n_arms)])
         return ConfigSolution(park, "infeasible", 0, 0, 0.0, None, stats)
-    total, yield_, longest = evaluate(problem, best.chosen)
+    total, yield_, longest = _evaluate_chosen(problem, best.chosen)
     ub = st.ub_priority_all
     gap = (ub - total) / ub if ub > 0 else 0.0
     stats["total_displacement_rad"] = -best_key[2] if best_key else float(st.disp[best.chosen].sum())
