@@ -533,6 +533,11 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
     of ``detour_waits_steps`` x dt, the detour (wait included) at most ``detour_extra_s`` longer
     than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
+
+    Hooks (used by :func:`planner.prioritized.plan_motion`): ``on_straight_fail(straight, blamed)``
+    runs once when every straight option failed, before the detour rounds; a non-None answer
+    ends the stage (``DelayResult.external``). ``prefer(straight, blamed)`` names the arms to
+    extend first (a removal set, :mod:`planner.cluster`), or None when detours are futile.
     """
     import time as _time
 

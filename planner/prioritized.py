@@ -2,9 +2,14 @@
 
 ``plan_motion`` tries, in order: (1) "delays" (:mod:`planner.delays`): every arm makes one
 straight joint-space move (zero stops, the MCC2 ideal) departing after a delay chosen by a
-small CSP over pairwise relative-delay tables, extended with one-stop detours for the arms
-in conflict; (2) the prioritized state-time planning below; (3) two zero-stop legs through
-park (or another ``via`` configuration). Every result passes the verifier before "ok".
+small CSP over pairwise relative-delay tables; when that fails, (1b) "cluster"
+(:mod:`planner.cluster`): the smallest set of arms whose removal makes that CSP solvable is
+planned by state-time search against the others' fixed straight schedule, and then the
+delay CSP's one-stop detour rounds, starting with that set's arms; (2) the prioritized
+state-time planning below; (3) two zero-stop legs through park (or another ``via``
+configuration). Every result passes the verifier before "ok". The time budget is shared:
+the delay stage (cluster included) gets at most 40 % (<= 4 s), the cluster hook 25 %
+(<= 2.5 s) of it, and 15 % (<= 1.5 s) is kept for the two-leg fallback.
 
 Thesis Algorithm 6: arms are planned one at a time in priority order, each against the
 obstacle-time set of the arms planned before it (:mod:`planner.single_arm`). Priorities
@@ -376,8 +381,9 @@ def plan_motion(
     per arm, ``horizon_s`` T_f. Replanning (priority rotation, time reversal) runs within
     ``max_attempts`` and ``time_budget_s``. Same input and ``seed`` -> same plan.
 
-    Strategies, in order: "delays" (straight moves with departure delays, then one-stop
-    detours for the arms in conflict; :mod:`planner.delays`), then prioritized state-time
+    Strategies, in order: "delays" (straight moves with departure delays; with "cluster",
+    state-time detours for the smallest conflicting arm set, :mod:`planner.cluster`; then
+    one-stop detours for the arms in conflict; :mod:`planner.delays`), then prioritized state-time
     planning "forward" / "reverse". If all fail and ``via`` is given ("park" or an
     (n_arms, 2) configuration) and differs from both ends, the move is planned as two legs
     start -> via -> goal with zero-stop legs (each arm then stops at most once, at ``via``)
