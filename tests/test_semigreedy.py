@@ -479,3 +479,114 @@ def test_padding_prefers_current_then_park_then_blank():
     sol = sg.solve_semigreedy(p)
     assert tg[sol.chosen[0]] == FIXED and (tg[sol.chosen[1:]] == PARK).all()  # nobody moves
     assert check_solution(INST, p, sol.chosen) == []
+
+
+# ------------------------------------------------------- rescue, speed-ups, stopping rule
+
+
+def test_zero_priority_targets_are_rest_locations():
+    """Priority-0 available targets (observed sky the conflict rescue offers) are rest
+    locations: never counted in yield or drawn into the pool, but an idle arm may point
+    there when its park is taken (with no blank sky in the structure)."""
+    p, x, j = _blocked_park_case(0)
+    a = p.assignments
+    t = int(a.target[x])
+    # offer every other target at priority 0, the blocked-park target at 7
+    pri = np.zeros(len(p.priority), np.int64)
+    pri[t] = 7
+    p0 = ConfigProblem(p.incompatibility, pri, np.ones(len(pri), bool), p.start_q, p.joint_speed_rad_s,
+                       target_xy_mm=p.target_xy_mm)
+    st = sg.prepare(p0, sg.SemiGreedyOptions(penalty_matrix="workspace"))
+    zero = (a.target >= 0) & (a.target != t)
+    assert not st.tok[zero].any() and st.rest_ok[zero].all() and not st.is_target[zero].any()
+    assert st.live_targets.tolist() == [t]
+    s = sg.State.empty(st)
+    s.place(st, x)
+    assert sg.pad(st, s)
+    assert s.chosen[int(a.arm[x])] == x  # the target stays: arm j rests elsewhere
+    assert check_solution(INST, p0, s.chosen) == []
+    sol = sg.solve_semigreedy(p0, penalty_matrix="workspace", seed=1)
+    assert sol.total_priority == 7 and check_solution(INST, p0, sol.chosen) == []
+    assert sol.stats["upper_bound_yield"] == 1
+
+
+def test_rescue_through_semigreedy_needs_no_exact_solver(monkeypatch):
+    """Targets on the ring of park tips: the driver's conflict rescue (idle arms rest on
+    observed targets, offered at priority 0) completes the field with SGPBTA alone."""
+    from functools import partial
+
+    import solvers.ilp
+    from models.collision import fcl_configuration_collisions
+    from models.types import PlaneTargets
+    from solvers.sequencing import sequence_configurations
+
+    def no_exact(*args, **kwargs):
+        raise AssertionError("the rescue fell back to the exact solver")
+
+    monkeypatch.setattr(solvers.ilp, "solve_ilp_cpsat", no_exact)
+    rng = np.random.default_rng(0)
+    n = 40
+    r, ang = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(ang), r * np.sin(ang), np.ones(n, np.int64))
+    f = partial(sg.solve_semigreedy, penalty_matrix="workspace")
+    res = sequence_configurations(INST, t, f, repack=False, time_limit_s=60.0)
+    assert res.stats["reachable_completeness"] == 1.0 and res.stats["stop_reason"] == "complete"
+    assert any(c.stats.get("rescue") for c in res.configurations)  # the rescue did run
+    seen = [x.target_index for c in res.configurations for x in c.assignments if x.target_index is not None]
+    assert len(seen) == len(set(seen)) == res.stats["n_reachable"]
+    for c in res.configurations:
+        assert fcl_configuration_collisions(INST, c.q) == []
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_matching_bound_top_columns_is_exact(seed):
+    rng = np.random.default_rng(seed)
+    n_arms, m = 12, 400
+    arm = rng.integers(0, n_arms, 1500)
+    col = rng.integers(0, m, 1500)
+    w = rng.choice([500.0, 100.0, 10.0, 1.0], 1500)
+    pair, first = np.unique(arm * m + col, return_index=True)  # one weight per (arm, target)
+    arm, col, w = arm[first], col[first], w[first]
+    full = np.zeros((n_arms, m))
+    full[arm, col] = w
+    from scipy.optimize import linear_sum_assignment
+
+    r, c = linear_sum_assignment(full, maximize=True)
+    assert sg._matching_bound(arm, col, w, n_arms, m) == int(round(full[r, c].sum()))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_replace_pass_fast_path_misses_no_move(seed):
+    """replace_pass returns 0 exactly when no arm has an improving compatible location."""
+    p = field(150, seed, "gauss")
+    st = sg.prepare(p, sg.SemiGreedyOptions(penalty_matrix="workspace"))
+    rng = np.random.default_rng(seed)
+    for _ in range(15):
+        s = sg.construct(st, 0.8, "pbas", rng)
+        assert sg.pad(st, s)
+        before = s.chosen.copy()
+        improving = False
+        for k in range(12):
+            c = int(before[k])
+            if st.preset[k] >= 0:
+                continue
+            sl = np.arange(st.arm_start[k], st.arm_start[k + 1])
+            ok = sl[st.movable[sl] & (s.blocked[sl] == 0)]
+            for j in ok:
+                dp = int(st.prio[j]) - int(st.prio[c])
+                if dp > 0 or (dp == 0 and st.disp[j] < st.disp[c] - sg._DISP_EPS):
+                    improving = True
+        made = sg.replace_pass(st, s, rng)
+        assert (made > 0) == improving
+        assert check_solution(INST, p, s.chosen) == []
+
+
+def test_max_stall_ends_the_multistart():
+    p = field(300, 3, "gauss")
+    sol = sg.solve_semigreedy(p, n_iter=200, max_stall=4, early_stop=False)
+    st = sol.stats
+    assert st["iterations"] == st["best_iteration"] + 5  # 4 without improvement, then stop
+    full = sg.solve_semigreedy(p, n_iter=40, max_stall=None, early_stop=False)
+    assert full.stats["iterations"] == 40
+    assert sg.SemiGreedyOptions().max_stall == 10 and sg.SemiGreedyOptions().n_iter == 30
+
