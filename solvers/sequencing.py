@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import time
 from collections.abc import Callable
 
@@ -29,6 +30,7 @@ import numpy as np
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
+from solvers.bounds import matching_lower_bound
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 
 Progress = Callable[[float, str], None]
@@ -42,10 +44,23 @@ def joint_speeds(instrument: Instrument) -> np.ndarray:
     return np.column_stack([instrument.arm_array("joint1_speed_rad_s"), instrument.arm_array("joint2_speed_rad_s")])
 
 
-def hard_to_place(incompatibility: Incompatibility, n_arms: int) -> np.ndarray:
-    """(n_targets,) tie-break weight: n_arms - (arms reaching the target), 0 if unreachable."""
+def hard_to_place(incompatibility: Incompatibility, n_arms: int, xy_mm: np.ndarray | None = None,
+                  pending: np.ndarray | None = None, crowding_radius_mm: float = 15.0) -> np.ndarray:
+    """(n_targets,) tie-break weight: n_arms - (arms reaching the target), plus, with
+    ``xy_mm``, the number of other still ``pending`` (default: reachable) targets within
+    ``crowding_radius_mm`` — near the FOV centre arms converging on one spot collide, so a
+    crowded neighbourhood can only be observed about one target per configuration and must
+    be started early (see solvers.bounds.crowding_lower_bound); 0 if unreachable."""
     apt = incompatibility.reachability.arms_per_target
-    return np.where(apt > 0, n_arms - apt, 0).astype(np.int64)
+    h = np.where(apt > 0, n_arms - apt, 0).astype(np.int64)
+    if xy_mm is not None and len(h):
+        from scipy.spatial import cKDTree
+
+        live = np.flatnonzero((apt > 0) if pending is None else (pending & (apt > 0)))
+        if len(live):
+            near = cKDTree(xy_mm[live]).query_ball_point(xy_mm[live], crowding_radius_mm, return_length=True)
+            h[live] += np.asarray(near, np.int64) - 1
+    return h
 
 
 def make_configuration(index: int, problem: ConfigProblem, chosen: np.ndarray, targets: PlaneTargets,
@@ -82,7 +97,7 @@ def sequence_configurations(
     mip_rel_gap: float = 0.0,
     threads: int = 2,
     seed: int = 0,
-    tie_break: bool = True,
+    tie_break: bool | str = True,
     repack: bool = True,
     repack_max_window: int = 6,
     repack_time_limit_s: float = 2.0,
@@ -132,8 +147,10 @@ def sequence_configurations(
     flow_bound = matching_lower_bound(inc, pending) if (n_reachable and lower_bound_flow) else lower_bound
     speeds = joint_speeds(instrument)
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
-    tie = hard_to_place(inc, n_arms) if tie_break else None
+    q_start = q.copy()
+    proven_bound = 0
     xy = np.column_stack([x, y])
+    tie = hard_to_place(inc, n_arms, None if tie_break == 'reach' else xy) if tie_break else None
     configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
     t_solve = 0.0
     stop_reason = "complete"
@@ -153,6 +170,8 @@ def sequence_configurations(
         share = max(remaining - 0.1 * time_limit_s, 0.05)
         limit_i = min(config_time_limit_s, remaining, max(2.0 * share / n_left, 0.05)) if adaptive_limits \
             else min(config_time_limit_s, remaining)
+        if tie_break and tie_break != "reach":
+            tie = hard_to_place(inc, n_arms, xy, pending)
         prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, time_limit_s=limit_i,
                              mip_rel_gap=mip_rel_gap, threads=threads, seed=seed + len(configs),
                              target_xy_mm=xy, tie_break=tie)
@@ -199,18 +218,28 @@ def sequence_configurations(
                 if a_.target_index is not None:
                     pending[a_.target_index] = False
         stop_reason = "complete" if not pending.any() else "conflict"
-    if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) > lower_bound:
+    if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) + len(extra) > lower_bound:
         tr = time.perf_counter()
-        budget = min(time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
+        # 5 % of the limit kept back: building a model and verifying the result are not
+        # covered by the solver's own time limit
+        budget = min(0.95 * time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
         n0 = len(configs)
-        configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
-                               min(0.4 * budget, 3 * repack_time_limit_s), seed, threads)
+        if not extra:
+            configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
+                                   min(0.4 * budget, 3 * repack_time_limit_s), seed, threads)
         timers["repack_bulk_s"] = time.perf_counter() - tr
         timers["repack_bulk_saved"] = n0 - len(configs)
         budget = min(time_limit_s - (time.perf_counter() - t0), budget - (time.perf_counter() - tr))
-        configs = _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
-                               repack_max_window, repack_time_limit_s, budget, seed, threads)
+        rescued = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
+                   for c in extra]
+        n1 = len(configs) + len(extra)
+        configs, proven_bound, absorbed = _repack_prefix(
+            instrument, inc, priority, configs, max(lower_bound, flow_bound), speeds, xy, tie,
+            repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
+        if absorbed:
+            extra = []
         timers["repack_s"] = time.perf_counter() - tr
+        timers["repack_saved"] = n1 - len(configs) - len(extra)
     # build outputs
     out = []
     for i, (prob, chosen, status, stats) in enumerate(configs):
@@ -238,6 +267,8 @@ def sequence_configurations(
         "n_configurations_greedy": greedy_count,
         "lower_bound_configurations": lower_bound,
         "lower_bound_configurations_flow": flow_bound,
+        # CP-SAT proved the allocated targets cannot be packed into fewer configurations
+        "lower_bound_configurations_proven": max(proven_bound, flow_bound),
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
         "reachable_completeness": float(allocated.sum() / n_reachable) if n_reachable else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
@@ -252,54 +283,6 @@ def sequence_configurations(
     return AllocationResult(tuple(out), tuple(unalloc), stats)
 
 
-def matching_lower_bound(inc: Incompatibility, targets: np.ndarray) -> int:
-    """True lower bound on the number of configurations, beyond ceil(t / arms).
-
-    Each configuration gives every arm at most one target, so C configurations can only
-    exist if every target can be matched to an arm that reaches it with each arm taking
-    <= C targets (a bipartite b-matching; collisions ignored, hence a lower bound).  The
-    minimum such C is found by max-flow (scipy.sparse.csgraph.maximum_flow) and a binary
-    search starting at ceil(t / arms).  ``targets``: (n_targets,) bool of those to place.
-    """
-    from scipy import sparse as sp
-    from scipy.sparse.csgraph import maximum_flow
-
-    a = inc.assignments
-    n_arms = len(a.arm_start) - 1
-    sel = np.flatnonzero(targets)
-    t_all = len(sel)
-    if t_all == 0:
-        return 0
-    m = (a.target >= 0)
-    m[m] = targets[a.target[m]]
-    pairs = np.unique(np.column_stack([a.arm[m], a.target[m]]), axis=0)
-    t_idx = np.searchsorted(sel, pairs[:, 1])
-    reach = np.bincount(pairs[:, 0], minlength=n_arms) > 0
-    n_act = int(reach.sum())
-    # nodes: 0 source, 1..n_arms arms, then targets, then sink
-    src, sink = 0, 1 + n_arms + t_all
-
-    def flow(c: int) -> int:
-        rows = np.r_[np.zeros(n_arms, int), 1 + pairs[:, 0], 1 + n_arms + np.arange(t_all)]
-        cols = np.r_[1 + np.arange(n_arms), 1 + n_arms + t_idx, np.full(t_all, sink)]
-        cap = np.r_[np.full(n_arms, c), np.ones(len(pairs), int), np.ones(t_all, int)].astype(np.int32)
-        g = sp.csr_matrix((cap, (rows, cols)), shape=(sink + 1, sink + 1))
-        return int(maximum_flow(g, src, sink).flow_value)
-
-    placeable = flow(t_all)  # targets some arm reaches
-    lo = math.ceil(placeable / max(n_act, 1))
-    hi = max(lo, 1)
-    while flow(hi) < placeable:
-        lo, hi = hi + 1, hi * 2
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if flow(mid) >= placeable:
-            hi = mid
-        else:
-            lo = mid + 1
-    return lo
-
-
 def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
     a = inc.assignments
     return [k for k in range(n_arms) if (a.target[a.of_arm(k)] >= 0).any()]
@@ -309,10 +292,12 @@ def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
 
 
 def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
-                 seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None) -> list[np.ndarray] | None:
+                 seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None,
+                 status_out: dict | None = None) -> list[np.ndarray] | None:
     """Multi-configuration model: place every pooled target in one of ``n_configs``
     configurations (each obeying eqs. 5.13–5.15).  Returns the chosen assignment indices
-    per configuration, or None when no packing was found in time (CP-SAT, exact int)."""
+    per configuration, or None when no packing was found in time (CP-SAT, exact int).
+    ``status_out["infeasible"]`` is set True when no packing exists (proven)."""
     from ortools.sat.python import cp_model
 
     from solvers.ilp import build_model_arrays
@@ -324,6 +309,8 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     n_arms = len(a.arm_start) - 1
     dummy = ConfigProblem(inc, np.ones(n_t, np.int64), avail, np.zeros((n_arms, 2)), np.ones((n_arms, 2)))
     m = build_model_arrays(dummy, "aggregated", None, wildcards=False)
+    if status_out is not None:
+        status_out["infeasible"] = False
     if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
         return None
     model = cp_model.CpModel()
@@ -339,21 +326,33 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     for t in pool:
         cols = np.flatnonzero(tgt == t)
         model.AddExactlyOne([x[c][j] for c in range(n_configs) for j in cols])
-    # symmetry breaking: the hardest target (fewest columns) goes to configuration 0
-    counts = np.bincount(tgt[tgt >= 0], minlength=n_t)[pool]
-    t_hard = pool[int(np.argmin(counts))]
-    model.Add(sum(x[0][j] for j in np.flatnonzero(tgt == t_hard)) == 1)
+    # redundant but helps the search: exactly n_arms * n_configs - |pool| rest placements
+    rest = np.flatnonzero(tgt < 0)
+    model.Add(sum(x[c][j] for c in range(n_configs) for j in rest) == n_arms * n_configs - len(pool))
+    # symmetry breaking: configurations are interchangeable, so order them by what the arm
+    # with the most pooled targets observes (its rest locations ranked last, ties allowed)
+    arm_of = a.arm[m.var]
+    k_sym = int(np.argmax(np.bincount(arm_of[tgt >= 0], minlength=n_arms)))
+    cols_k = np.flatnonzero(arm_of == k_sym)
+    rank = np.where(tgt[cols_k] >= 0, tgt[cols_k], n_t).astype(np.int64)
+    rank_of = dict(zip(m.var[cols_k].tolist(), rank.tolist(), strict=True))
+    key = [sum(int(r) * x[c][j] for r, j in zip(rank, cols_k, strict=True)) for c in range(n_configs)]
+    for c in range(n_configs - 1):
+        model.Add(key[c] <= key[c + 1])
     if hint:
         col_of = {int(v): j for j, v in enumerate(m.var)}
-        for c, ch in enumerate(hint[:n_configs]):
+        hint = sorted(hint[:n_configs], key=lambda ch: rank_of.get(int(ch[k_sym]), n_t))
+        for c, ch in enumerate(hint):
             for v in ch:
                 if int(v) in col_of:
                     model.AddHint(x[c][col_of[int(v)]], True)
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = float(time_limit_s)
-    solver.parameters.num_workers = max(2, threads)
+    solver.parameters.num_workers = int(os.environ.get("MXS_PACK_WORKERS", max(2, threads)))
     solver.parameters.random_seed = int(seed)
     code = solver.Solve(model)
+    if status_out is not None:
+        status_out["infeasible"] = code == cp_model.INFEASIBLE
     if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
         return None
     out = []
@@ -367,12 +366,14 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     return out
 
 
-def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool):
+def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool, q0=None):
     """The last ``window`` configurations replaced by the verified ``packed`` ones, highest
-    priority first, each starting where the previous one left the arms."""
+    priority first, each starting where the previous one left the arms (the first at ``q0``,
+    default park)."""
     a = inc.assignments
     head = configs[:-window]
-    q = head[-1][0].assignments.q[head[-1][1]] if head else instrument.park_configuration
+    q = head[-1][0].assignments.q[head[-1][1]] if head else (
+        instrument.park_configuration if q0 is None else q0)
     pending = np.zeros(len(priority), bool)
     pending[pool] = True
     packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
@@ -429,33 +430,147 @@ def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
     return configs
 
 
-def _repack_tail(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, max_window,
-                 attempt_s, budget_s, seed, threads):
-    """Re-pack the targets of the last W configurations into W - 1 while it succeeds."""
+def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, xy, tie, attempt_s,
+                 refine_s, budget_s, seed, threads, max_pool, q0):
+    """Bottom-up repacking: the longest suffix of at most ``max_pool`` targets (plus the
+    rescued ``extra`` ones) is packed into as few configurations as possible, trying
+    lower_bound, lower_bound + 1, ... and stopping at the first success; then the longest
+    prefix of the original configurations that still allows that count is searched by
+    bisection (feasibility is monotone in the prefix length).  Returns None when nothing was
+    tried, else (configurations, proven lower bound, packed?)."""
     t0 = time.perf_counter()
     a = inc.assignments
-    window = 2
-    while len(configs) > lower_bound and window <= min(max_window, len(configs)):
+    n_arms = len(a.arm_start) - 1
+    n_main = len(configs)
+    per = [a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in configs] + list(extra)
+    n = len(per)
+    sizes = np.array([len(t) for t in per])
+    suffix = np.cumsum(sizes[::-1])[::-1]
+    ok = np.flatnonzero(suffix[:n_main] <= max_pool)
+    if not len(ok) or n <= lower_bound:
+        return None
+    h0 = int(ok.min())
+    proven = lower_bound
+
+    def attempt(h: int, count: int, limit: float):
+        pool = np.concatenate(per[h:])
+        st: dict = {}
+        packed = pack_targets(inc, pool, count - h, time_limit_s=limit, seed=seed, threads=threads,
+                              hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
+        return packed, pool, st["infeasible"]
+
+    best = None
+    for count in range(max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n):
         left = budget_s - (time.perf_counter() - t0)
-        if left <= 0.05:
+        if left <= 0.1:
             break
-        tail = configs[-window:]
-        pool = np.concatenate([a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in tail])
-        n_arms = len(a.arm_start) - 1
-        if len(pool) > n_arms * (window - 1):
-            window += 1
-            continue
         ts = time.perf_counter()
-        packed = pack_targets(inc, pool, window - 1, time_limit_s=min(attempt_s, left), seed=seed,
-                              threads=threads, hint=[ch for _, ch, _, _ in tail])
-        dt = time.perf_counter() - ts
-        if packed is None:
-            window += 1
+        packed, pool, infeasible = attempt(h0, count, min(left, attempt_s))
+        if packed is not None:
+            best = (h0, count, packed, pool, time.perf_counter() - ts)
+            break
+        if infeasible and h0 == 0 and not extra:
+            proven = max(proven, count + 1)
+    if best is None:
+        return configs, proven, False
+    h_lo, count = best[0], best[1]
+    fits = np.flatnonzero(suffix[:n_main] <= n_arms * (count - np.arange(n_main)))
+    h_hi = int(fits.max()) if len(fits) else h_lo
+    while h_lo < h_hi:  # keep as many maximum-priority configurations as the count allows
+        left = budget_s - (time.perf_counter() - t0)
+        if left <= 0.1:
+            break
+        mid = (h_lo + h_hi + 1) // 2
+        ts = time.perf_counter()
+        packed, pool, _ = attempt(mid, count, min(left, refine_s))
+        if packed is not None:
+            best, h_lo = (mid, count, packed, pool, time.perf_counter() - ts), mid
+        else:
+            h_hi = mid - 1
+    h, count, packed, pool, dt = best
+    return _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie, dt, pool,
+                         q0), proven, True
+
+
+def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, attempt_s, budget_s,
+                   seed, threads, max_pool: int = 400, q0=None, bottom_pool: int = 200,
+                   rescued: list[np.ndarray] | None = None) -> tuple[list, int, bool]:
+    """One configuration fewer at a time, keeping the longest possible prefix of
+    one-at-a-time (maximum-priority, thesis 5.5) configurations.
+
+    To go from n to n - 1 configurations, the suffix starting at configuration h is re-packed
+    by :func:`pack_targets` into n - 1 - h configurations, for h = the largest index whose
+    suffix fits 12 (n - 1 - h) targets, then h - 1, ... 0: feasibility is monotone in h
+    (a packing of a suffix plus the configuration before it is a packing of the longer
+    suffix), so the first success keeps the longest prefix.  Repeats while it succeeds.
+
+    ``rescued``: the targets of the rescue configurations (:func:`_rescue_conflicts`),
+    which come after ``configs``; they join every pool, because in a packing where every
+    arm observes a target no arm is parked, so a target on a park spot needs no rescue.
+    Returns the configurations, a proven lower bound on their count (when the whole field,
+    h = 0, cannot be packed into n - 1, CP-SAT proves n optimal) and whether the rescued
+    targets were absorbed into ``configs`` (then the rescue configurations are void).
+    """
+    t0 = time.perf_counter()
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    proven = lower_bound
+    extra = list(rescued or [])
+    kept = 0  # rescue configurations kept apart after their targets failed to fit any packing
+    # bottom-up first: the fewest configurations the suffix that fits the model can reach
+    for use_extra in ((True, False) if extra else (False,)):
+        # at most half the budget: when the big model times out, small windows still help
+        left = 0.5 * budget_s - (time.perf_counter() - t0)
+        res = _pack_fewest(instrument, inc, priority, configs, extra if use_extra else [],
+                           max(lower_bound, proven) - (0 if use_extra else len(extra)), speeds, xy, tie,
+                           2.5 * attempt_s, attempt_s, left, seed, threads, bottom_pool, q0)
+        if res is None:
             continue
-        # rebuild the tail as verified configurations, highest priority first
-        configs = _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool)
-        window = 2
-    return configs
+        configs, proven_here, packed = res
+        proven = max(proven, proven_here)
+        if packed:  # the rescue configurations are absorbed, or kept apart
+            if not use_extra:
+                kept, extra = len(extra), []
+            else:
+                extra = []
+            break
+    while len(configs) + len(extra) + kept > max(lower_bound, proven):
+        n_main = len(configs)
+        n = n_main + len(extra)
+        per = [a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in configs] + extra
+        sizes = np.array([len(t) for t in per])
+        suffix = np.cumsum(sizes[::-1])[::-1]  # targets in configs[h:] and the rescued ones
+        fits = np.flatnonzero(suffix[:n_main] <= n_arms * (n - 1 - np.arange(n_main)))
+        if not len(fits):
+            if extra:
+                kept, extra = len(extra), []
+                continue
+            break
+        found = False
+        for h in range(int(fits.max()), -1, -1):
+            left = budget_s - (time.perf_counter() - t0)
+            if left <= 0.1 or suffix[h] > max_pool:
+                return configs, proven, not (extra or kept)
+            pool = np.concatenate(per[h:])
+            st: dict = {}
+            ts = time.perf_counter()
+            packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s), seed=seed,
+                                  threads=threads, hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
+            if packed is not None:
+                configs = _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie,
+                                        time.perf_counter() - ts, pool, q0)
+                extra, found = [], True
+                break
+            if h == 0 and st["infeasible"] and not extra:
+                # (with rescued targets in the pool the model is stricter than the rescue,
+                # which may rest idle arms on blank sky: no proof then)
+                proven = max(proven, n)
+        if not found:
+            if extra:  # the rescued targets need blank-sky rests: pack the rest without them
+                kept, extra = len(extra), []
+                continue
+            break
+    return configs, proven, not (extra or kept)
 
 
 # ------------------------------------------------------------------------ conflict rescue

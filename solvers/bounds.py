@@ -1,0 +1,138 @@
+"""Lower bounds on the number of configurations needed to complete a field.
+
+``ceil(t / arms)`` is the thesis' "theoretical" count (tables 5.1–5.2).  Two bounds that
+can exceed it, both rigorous for any allocator:
+
+* :func:`matching_lower_bound` — reach: every target needs an arm that reaches it, and
+  each arm observes at most one target per configuration (b-matching by max-flow);
+* :func:`crowding_lower_bound` — collisions: the targets inside a disc about the FOV
+  centre can only be observed so many at a time, because arms converging on the centre
+  collide.  With m(r) the most targets of the disc of radius r that one configuration can
+  observe, every configuration holds at most m(r) of its n(r) targets, so at least
+  ceil(n(r) / m(r)) configurations are needed.  m(r) is computed over the incompatibility
+  structure with every arm not on a disc target *removed* (not parked), so it can only
+  over-estimate the true maximum, and the bound stays valid; when CP-SAT cannot prove
+  m(r) in time its proven upper bound is used instead.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from models.incompatibility import Incompatibility
+
+
+def matching_lower_bound(inc: Incompatibility, targets: np.ndarray) -> int:
+    """True lower bound on the number of configurations, beyond ceil(t / arms).
+
+    Each configuration gives every arm at most one target, so C configurations can only
+    exist if every target can be matched to an arm that reaches it with each arm taking
+    <= C targets (a bipartite b-matching; collisions ignored, hence a lower bound).  The
+    minimum such C is found by max-flow (scipy.sparse.csgraph.maximum_flow) and a binary
+    search starting at ceil(t / arms).  ``targets``: (n_targets,) bool of those to place.
+    """
+    from scipy import sparse as sp
+    from scipy.sparse.csgraph import maximum_flow
+
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    sel = np.flatnonzero(targets)
+    t_all = len(sel)
+    if t_all == 0:
+        return 0
+    m = (a.target >= 0)
+    m[m] = targets[a.target[m]]
+    pairs = np.unique(np.column_stack([a.arm[m], a.target[m]]), axis=0)
+    t_idx = np.searchsorted(sel, pairs[:, 1])
+    reach = np.bincount(pairs[:, 0], minlength=n_arms) > 0
+    n_act = int(reach.sum())
+    # nodes: 0 source, 1..n_arms arms, then targets, then sink
+    src, sink = 0, 1 + n_arms + t_all
+
+    def flow(c: int) -> int:
+        rows = np.r_[np.zeros(n_arms, int), 1 + pairs[:, 0], 1 + n_arms + np.arange(t_all)]
+        cols = np.r_[1 + np.arange(n_arms), 1 + n_arms + t_idx, np.full(t_all, sink)]
+        cap = np.r_[np.full(n_arms, c), np.ones(len(pairs), int), np.ones(t_all, int)].astype(np.int32)
+        g = sp.csr_matrix((cap, (rows, cols)), shape=(sink + 1, sink + 1))
+        return int(maximum_flow(g, src, sink).flow_value)
+
+    placeable = flow(t_all)  # targets some arm reaches
+    lo = math.ceil(placeable / max(n_act, 1))
+    hi = max(lo, 1)
+    while flow(hi) < placeable:
+        lo, hi = hi + 1, hi * 2
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if flow(mid) >= placeable:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+def max_simultaneous_targets(inc: Incompatibility, subset: np.ndarray, *, time_limit_s: float = 2.0,
+                             threads: int = 2, seed: int = 0) -> tuple[int, bool]:
+    """Upper bound on how many targets of ``subset`` (target indices) one configuration can
+    observe, arms not on a subset target being absent; ``(value, proven_optimal)``.
+
+    Independent-set model on the incompatibility pairs (eq. 5.15 pairwise): a binary per
+    assignment of a subset target, at most one per arm and per target, at most one of every
+    incompatible pair.  When the time limit stops CP-SAT, its best proven bound is returned
+    (still an upper bound, so a lower bound computed from it stays valid).
+    """
+    from ortools.sat.python import cp_model
+
+    a = inc.assignments
+    in_subset = np.zeros(inc.reachability.n_targets, bool)
+    in_subset[np.asarray(subset, np.int64)] = True
+    cols = np.flatnonzero((a.target >= 0) & in_subset[np.maximum(a.target, 0)])
+    if not len(cols):
+        return 0, True
+    col_of = np.full(len(a), -1, np.int64)
+    col_of[cols] = np.arange(len(cols))
+    p = inc.pairs
+    keep = (col_of[p[:, 0]] >= 0) & (col_of[p[:, 1]] >= 0) & ~inc.same_target
+    pairs = col_of[p[keep]]
+    model = cp_model.CpModel()
+    x = [model.NewBoolVar("") for _ in range(len(cols))]
+    for key in (a.arm[cols], a.target[cols]):
+        order = np.argsort(key, kind="stable")
+        bounds = np.flatnonzero(np.diff(key[order])) + 1
+        for grp in np.split(order, bounds):
+            if len(grp) > 1:
+                model.AddAtMostOne([x[i] for i in grp])
+    for i, j in pairs.tolist():
+        model.AddBoolOr([x[i].Not(), x[j].Not()])
+    model.Maximize(sum(x))
+    solver = cp_model.CpSolver()
+    solver.parameters.max_time_in_seconds = float(time_limit_s)
+    solver.parameters.num_workers = max(2, threads)
+    solver.parameters.random_seed = int(seed)
+    code = solver.Solve(model)
+    if code == cp_model.OPTIMAL:
+        return int(round(solver.ObjectiveValue())), True
+    n_arms = len(a.arm_start) - 1
+    ub = solver.BestObjectiveBound() if code == cp_model.FEASIBLE else min(n_arms, len(cols))
+    return int(math.floor(ub + 1e-9)), False
+
+
+def crowding_lower_bound(inc: Incompatibility, xy_mm: np.ndarray, targets: np.ndarray, *,
+                         radii_mm: tuple[float, ...] = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0, 60.0, 75.0, 90.0),
+                         time_limit_s: float = 2.0, threads: int = 2) -> tuple[int, list[dict]]:
+    """Collision-aware lower bound on the configurations for ``targets`` (bool mask):
+    max over discs about the FOV centre of ceil(n(r) / m(r)) (module docstring).  Returns
+    the bound and one row per disc (radius, targets, most observable at once, proven)."""
+    r_mm = np.hypot(xy_mm[:, 0], xy_mm[:, 1])
+    best, rows = 0, []
+    for r in radii_mm:
+        sub = np.flatnonzero(targets & (r_mm <= r))
+        if not len(sub):
+            continue
+        m, proven = max_simultaneous_targets(inc, sub, time_limit_s=time_limit_s, threads=threads)
+        lb = math.ceil(len(sub) / m) if m else 0
+        best = max(best, lb)
+        rows.append({"radius_mm": r, "targets": int(len(sub)), "max_at_once": m, "proven": proven,
+                     "lower_bound": lb})
+    return best, rows
