@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 from collections.abc import Callable
 
@@ -348,7 +347,7 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
                     model.AddHint(x[c][col_of[int(v)]], True)
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = float(time_limit_s)
-    solver.parameters.num_workers = int(os.environ.get("MXS_PACK_WORKERS", max(2, threads)))
+    solver.parameters.num_workers = max(2, threads)
     solver.parameters.random_seed = int(seed)
     code = solver.Solve(model)
     if status_out is not None:

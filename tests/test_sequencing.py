@@ -127,3 +127,44 @@ def test_rescue_places_targets_on_park_spots() -> None:
         assert fcl_configuration_collisions(INS, c.q) == []
         assert c.arm_yield == sum(x.kind == "target" for x in c.assignments)
         assert all(x.target_index is None for x in c.assignments if x.kind == "blank")
+
+
+def test_crowding_tie_break_counts_pending_neighbours() -> None:
+    """hard_to_place: reach term plus pending neighbours within 15 mm (brute-force distances)."""
+    from models.incompatibility import incompatibility_for_targets
+    from solvers.sequencing import hard_to_place
+
+    rng = np.random.default_rng(5)
+    x, y = rng.normal(0, 20, 60), rng.normal(0, 20, 60)
+    inc = incompatibility_for_targets(INS, x, y)
+    xy = np.column_stack([x, y])
+    pending = rng.random(60) < 0.7
+    base = hard_to_place(inc, INS.n_arms)
+    h = hard_to_place(inc, INS.n_arms, xy, pending)
+    d = np.hypot(x[:, None] - x[None], y[:, None] - y[None])
+    reach = inc.reachability.arms_per_target > 0
+    for i in range(60):
+        want = base[i] + (int(((d[i] <= 15.0) & pending & reach).sum()) - 1 if pending[i] and reach[i] else 0)
+        assert h[i] == want
+
+
+def test_pack_targets_proves_infeasibility_and_packs_validly() -> None:
+    """30 targets cannot fit 2 configurations of 12 arms (CP-SAT proves it); a packing into
+    enough configurations places every pooled target exactly once, collision-free (FCL)."""
+    from models.incompatibility import incompatibility_for_targets
+    from solvers.sequencing import pack_targets
+
+    t = _targets(np.random.default_rng(6), 30)
+    inc = incompatibility_for_targets(INS, np.asarray(t.x_mm), np.asarray(t.y_mm))
+    pool = np.flatnonzero(inc.reachability.arms_per_target > 0)
+    st: dict = {}
+    assert pack_targets(inc, pool, 2, time_limit_s=60.0, status_out=st) is None
+    assert st["infeasible"] is True
+    packed = pack_targets(inc, pool, 6, time_limit_s=120.0, status_out=st)
+    assert packed is not None and not st["infeasible"]
+    a = inc.assignments
+    got = np.concatenate([a.target[ch][a.target[ch] >= 0] for ch in packed])
+    assert sorted(got.tolist()) == sorted(pool.tolist())
+    for ch in packed:
+        assert a.arm[ch].tolist() == list(range(INS.n_arms))
+        assert fcl_configuration_collisions(INS, a.q[ch]) == []
