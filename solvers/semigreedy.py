@@ -44,6 +44,7 @@ Deliberate departures from the thesis pseudo-code, each documented where it occu
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Literal
@@ -127,10 +128,17 @@ class _FieldStatic:
 _FIELD_CACHE: dict[tuple, tuple[object, _FieldStatic]] = {}
 
 
+@functools.lru_cache(maxsize=8)
+def _thesis_matrix(n_arms: int) -> np.ndarray:
+    m = thesis_penalty_matrix(n_arms)
+    m.setflags(write=False)
+    return m
+
+
 def _penalty_spec(spec, n_arms: int) -> np.ndarray:
     if isinstance(spec, str):
         if spec == "thesis":
-            return thesis_penalty_matrix(n_arms)
+            return _thesis_matrix(n_arms)
         if spec == "workspace":
             return np.zeros((n_arms, 1), np.int64)
         raise InputError("penalty_matrix", f"must be 'thesis', 'workspace' or a matrix, got {spec!r}")
@@ -299,7 +307,9 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
 
     # per live target, its usable assignments in GAS order: penalty, arm, displacement
     idx = np.flatnonzero(tok)
-    tasg = idx[np.lexsort((disp[idx], a.arm[idx], pen[idx], tc[idx]))]
+    # (live id, penalty, arm) as one int64 key, then displacement (same order as a 4-key lexsort)
+    k3 = (tc[idx] * (int(pen.max(initial=0)) + 2) + pen[idx] + 1) * (n_arms + 1) + a.arm[idx]
+    tasg = idx[np.lexsort((disp[idx], k3))]
     tptr = np.searchsorted(tc[tasg], np.arange(m + 1))
 
     # rest locations: the one at start_q is "current"; an arm with one location only
