@@ -44,6 +44,7 @@ TWO_PI = 2.0 * np.pi
 @dataclass
 class ClusterStats:
     removal_tests: int = 0
+    inconclusive: int = 0  # removal tests that ran out of nodes (no proof of infeasibility)
     removal_sets: list = field(default_factory=list)
     attempts: int = 0
     log: list = field(default_factory=list)
@@ -87,8 +88,10 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
                 return
             if stats is not None:
                 stats.removal_tests += 1
-            sol, _ = solve(reduced_problem(prob, set(R), start_q), DelayStats(), node_budget=500,
-                           deadline=deadline)
+            dst = DelayStats()
+            sol, _ = solve(reduced_problem(prob, set(R), start_q), dst, node_budget=500, deadline=deadline)
+            if sol is None and dst.nodes > 500 and stats is not None:
+                stats.inconclusive += 1  # node budget, not infeasibility
             if sol is not None:
                 found += 1
                 if stats is not None:

@@ -535,8 +535,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
 
     Hooks (used by :func:`planner.prioritized.plan_motion`): ``on_straight_fail(straight, blamed)``
-    runs once when every straight option failed, before the detour rounds; a non-None answer
-    ends the stage (``DelayResult.external``). ``prefer(straight, blamed)`` names the arms to
+    runs once when every straight option failed, before the detour rounds (its time does not
+    count against ``deadline``); a non-None answer ends the stage (``DelayResult.external``). ``prefer(straight, blamed)`` names the arms to
     extend first (a removal set, :mod:`planner.cluster`), or None when detours are futile.
     """
     import time as _time
@@ -595,8 +595,11 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                 len(cur[k]) < len(opts[k]) for k in mv)):
             # every straight option failed: let the caller try something else before the
             # (expensive) detour rounds; a non-None answer ends the delay stage
+            t_hook = _time.perf_counter()
             ext = on_straight_fail(straight, list(blamed))
             on_straight_fail = None
+            if deadline is not None:  # the hook has its own share of the budget
+                deadline += _time.perf_counter() - t_hook
             if ext is not None:
                 return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
             if deadline is not None and _time.perf_counter() > deadline:

@@ -8,8 +8,8 @@ planned by state-time search against the others' fixed straight schedule, and th
 delay CSP's one-stop detour rounds, starting with that set's arms; (2) the prioritized
 state-time planning below; (3) two zero-stop legs through park (or another ``via``
 configuration). Every result passes the verifier before "ok". The time budget is shared:
-the delay stage (cluster included) gets at most 40 % (<= 4 s), the cluster hook 25 %
-(<= 2.5 s) of it, and 15 % (<= 1.5 s) is kept for the two-leg fallback.
+the delay stage gets at most 30 % (<= 3 s), the cluster strategy its own 25 % (<= 2.5 s),
+and 15 % (<= 1.5 s) is kept for the two-leg fallback; the prioritized stage has the rest.
 
 Thesis Algorithm 6: arms are planned one at a time in priority order, each against the
 obstacle-time set of the arms planned before it (:mod:`planner.single_arm`). Priorities
@@ -216,7 +216,7 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
         found: dict = {}
 
         def on_straight_fail(straight, blamed):
-            c_dl = min(deadline, time.perf_counter() + cluster["share_s"])
+            c_dl = time.perf_counter() + cluster["share_s"]  # its own share, not the delay stage's
             return _try_cluster(instrument, geoms, start_q, goal_q, straight, blamed, enabled, buffer_mm,
                                 max_start_stop, stats, c_dl, sets_out=found, **cluster["kw"])
 
@@ -226,9 +226,10 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
                 sets = [R for R, _ in removal_sets(straight, start_q, enabled, max_size=3, max_sets=1,
                                                    first=blamed, deadline=deadline)]
             if not sets and found.get("complete", False):
-                # removing any <= 3 arms (connected) leaves the straight CSP unsolvable, so detours
-                # for that many arms cannot help either (a removed arm is the loosest detour):
-                # end the delay stage and leave the time to the prioritized fallbacks
+                # removing any one or two arms (or three connected ones) leaves the straight CSP
+                # unsolvable, so detours for them cannot help either (a removed arm is the loosest
+                # detour; beyond pairs this is a heuristic): end the delay stage and leave the
+                # time to the prioritized fallbacks
                 return None
             return sets[0] if sets else []
 
@@ -297,7 +298,8 @@ def _try_cluster(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarr
                                  deadline=deadline, stats=cst))
         if sets_out is not None:
             sets_out["sets"] = [R for R, _ in sets]
-            sets_out["complete"] = time.perf_counter() <= deadline  # the search was not cut short
+            # the search was neither cut short nor left undecided by the node budget
+            sets_out["complete"] = time.perf_counter() <= deadline and cst.inconclusive == 0
         # cheapest and most often successful first: forward without head start for every set
         tries = [(lead, rev, R, rest) for lead, rev in ((0, False), (0, True), (3, False), (3, True))
                  for R, rest in sets]
@@ -436,7 +438,7 @@ def plan_motion(
         # the prioritized fallbacks, and those may not starve the two-leg fallback
         ok_plan, blamed = _try_delays(instrument, geoms, start_q, goal_q, enabled, dt_s, dt_col_s, horizon_s,
                                       buffer_mm, max_start_stop, grid, stats,
-                                      t0 + min(0.4 * time_budget_s, 4.0), cluster)
+                                      t0 + min(0.3 * time_budget_s, 3.0), cluster)
         if ok_plan is not None:
             stats["compute_s"] = time.perf_counter() - t0
             return ok_plan

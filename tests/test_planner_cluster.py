@@ -123,3 +123,30 @@ def test_cluster_solves_a_leg_the_straight_delays_cannot():
     assert st["cluster"]["removal_sets"][0] == [6]
     assert len([a for a in st["cluster"]["attempts"] if a.get("verified")]) == 1
     assert len(st["cluster"]["attempts"][-1]["arms"]) == 2
+
+
+def test_delay_stage_hooks():
+    """on_straight_fail runs once, on straight options only, and its answer ends the stage;
+    prefer returning None (detours proven futile) ends the detour rounds."""
+    start, goal = LEG_130
+    calls = []
+
+    def hook(straight, blamed):
+        calls.append((straight, blamed))
+        return "sentinel"
+
+    st = D.DelayStats()
+    res = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                        max_start_stop=1, movable=ALL, stats=st, on_straight_fail=hook)
+    assert res.external == "sentinel" and res.assignment is None and len(calls) == 1
+    straight, blamed = calls[0]
+    assert all(o.kind == "straight" for opts in straight.options for o in opts) and blamed
+    # both theta2 directions were offered before giving up on straight moves
+    assert sum(len(o) for o in straight.options) == sum(len(D.straight_options(GEOMS[k], start[k], goal[k]))
+                                                        for k in ALL)
+    st2 = D.DelayStats()
+    res2 = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                         max_start_stop=1, movable=ALL, stats=st2, prefer=lambda *_: None)
+    assert res2.assignment is None and res2.external is None
+    assert any(e.get("extend") == "futile" for e in st2.log)
+    assert all(o.kind == "straight" for opts in res2.options for o in opts)  # no detour round ran
