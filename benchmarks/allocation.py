@@ -17,9 +17,11 @@ import zlib
 
 import numpy as np
 
+from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
 from solvers.allocation import allocate
+from solvers.bounds import crowding_lower_bound
 
 SIGMA_MM = {"uniform": None, "heavy": 30.0, "weak": 60.0}
 
@@ -38,6 +40,15 @@ def make_field(n: int, dist: str, rng: np.random.Generator, radius_mm: float = 1
         x, y = pts[:n, 0], pts[:n, 1]
     pr = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
     return PlaneTargets.from_lists([f"t{i}" for i in range(n)], x, y, pr)
+
+
+def crowding_bound(ins, f: PlaneTargets) -> int:
+    """solvers.bounds.crowding_lower_bound over discs up to 50 mm, 1 s per disc."""
+    x, y = np.asarray(f.x_mm, float), np.asarray(f.y_mm, float)
+    inc = incompatibility_for_targets(ins, x, y)
+    lb, _ = crowding_lower_bound(inc, np.column_stack([x, y]), inc.reachability.arms_per_target > 0,
+                                 radii_mm=(10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0), time_limit_s=1.0)
+    return lb
 
 
 def main() -> None:
@@ -60,7 +71,7 @@ def main() -> None:
     for dist in args.dists.split(","):
         for n in sizes:
             rng = np.random.default_rng(1000 * n + zlib.crc32(dist.encode()) % 997)  # hash() is salted per process
-            counts, greedy, walls, lb, lbf, comp = [], [], [], [], [], []
+            counts, greedy, walls, lb, lbf, comp, lbp, lbc = [], [], [], [], [], [], [], []
             for _ in range(n_inst):
                 f = make_field(n, dist, rng)
                 t = time.perf_counter()
@@ -72,12 +83,21 @@ def main() -> None:
                 greedy.append(r.stats["n_configurations_greedy"])
                 lb.append(r.stats["lower_bound_configurations"])
                 lbf.append(r.stats["lower_bound_configurations_flow"])
+                lbp.append(r.stats["lower_bound_configurations_proven"])
+                if dist != "uniform":  # the crowding bound never exceeds ceil(t / 12) on uniform fields
+                    lbc.append(crowding_bound(ins, f))
             out["protocol"][f"{dist}_{n}"] = {
                 "instances": n_inst, "mean_configurations": statistics.mean(counts),
                 "mean_configurations_before_repack": statistics.mean(greedy),
                 "ceil_t_over_12": math.ceil(n / 12), "mean_lower_bound": statistics.mean(lb),
                 "mean_lower_bound_flow": statistics.mean(lbf),
                 "instances_flow_above_ceil": sum(f > c for f, c in zip(lbf, lb, strict=True)),
+                # best lower bound proven per instance: max-flow, CP-SAT infeasibility of
+                # one fewer configuration, collision crowding about the centre
+                "mean_lower_bound_proven": statistics.mean(
+                    max(p, c) for p, c in zip(lbp, lbc or [0] * len(lbp), strict=True)),
+                "instances_at_proven_bound": sum(n_c <= max(p, c) for n_c, p, c in zip(
+                    counts, lbp, lbc or [0] * len(lbp), strict=True)),
                 "max_configurations": max(counts), "median_wall_s": statistics.median(walls),
                 "mean_field_completeness": statistics.mean(comp),
             }
