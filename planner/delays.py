@@ -563,6 +563,12 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         nxt = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob,
                             deadline=None if rnd == 0 else deadline)
         if nxt is None:
+            if on_straight_fail is not None and straight is not None and not extended:
+                # out of time while adding the other theta2 directions: the hook still gets the
+                # straight problem of round 0 (fewer options, so its schedules stay valid)
+                ext = on_straight_fail(straight, list(blamed))
+                if ext is not None:
+                    return DelayResult(None, cur, [], rnd, straight=straight, external=ext)
             break
         prob = nxt
         if not extended:  # a snapshot: later rounds append options to the same lists
@@ -589,10 +595,9 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
         if sol is not None and (check is None or repairs < max_repairs):
             ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
             return DelayResult(sol, cur, [], rnd + 1, ms, straight)
-        if deadline is not None and _time.perf_counter() > deadline:
-            break
-        if on_straight_fail is not None and straight is not None and not extended and (rnd >= 1 or not any(
-                len(cur[k]) < len(opts[k]) for k in mv)):
+        timed_out = deadline is not None and _time.perf_counter() > deadline
+        if on_straight_fail is not None and straight is not None and not extended and (
+                rnd >= 1 or timed_out or not any(len(cur[k]) < len(opts[k]) for k in mv)):
             # every straight option failed: let the caller try something else before the
             # (expensive) detour rounds; a non-None answer ends the delay stage
             t_hook = _time.perf_counter()
@@ -602,8 +607,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                 deadline += _time.perf_counter() - t_hook
             if ext is not None:
                 return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
-            if deadline is not None and _time.perf_counter() > deadline:
-                break
+        if deadline is not None and _time.perf_counter() > deadline:
+            break
         if rnd == 0:
             seen_blamed += blamed
             # round 1: both theta2 directions for every arm (a row of neighbours all swinging J2

@@ -150,3 +150,25 @@ def test_delay_stage_hooks():
     assert res2.assignment is None and res2.external is None
     assert any(e.get("extend") == "futile" for e in st2.log)
     assert all(o.kind == "straight" for opts in res2.options for o in opts)  # no detour round ran
+
+
+def test_cluster_runs_even_when_the_delay_stage_is_out_of_time():
+    """A loaded machine can use up the delay stage's share on the straight tables alone: the
+    cluster hook (its own share) still gets the round-0 straight problem and solves the leg."""
+    import time
+
+    from planner.prioritized import _try_cluster
+
+    start, goal = LEG_130
+    calls = []
+    D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0, max_start_stop=1,
+                  movable=ALL, stats=D.DelayStats(), deadline=time.perf_counter(),
+                  on_straight_fail=lambda s, b: calls.append((s, b)) or "x")
+    assert len(calls) == 1
+    straight, blamed = calls[0]
+    st: dict = {"collision_checks": 0, "states_explored": 0, "attempt_log": []}
+    plan = _try_cluster(INST, GEOMS, start, goal, straight, blamed, ALL, 5.0, 1, st, float("inf"),
+                        params=SearchParams(max_states_per_arm=1500), rparams=RoadmapParams(max_edges_per_path=2),
+                        seed=0)
+    assert plan is not None
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
