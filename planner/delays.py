@@ -519,7 +519,7 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                 detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
                 node_budget: int = 20000,
                 deadline: float | None = None, check=None, max_repairs: int = 5,
-                prefer=None, on_straight_fail=None) -> DelayResult:
+                prefer=None, on_straight_fail=None, after_hook_s: float | None = None) -> DelayResult:
     """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
 
     ``check(assignment, options)``, when given, is the independent verifier: it returns the
@@ -536,7 +536,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
 
     Hooks (used by :func:`planner.prioritized.plan_motion`): ``on_straight_fail(straight, blamed)``
     runs once when every straight option failed, before the detour rounds (its time does not
-    count against ``deadline``); a non-None answer ends the stage (``DelayResult.external``). ``prefer(straight, blamed)`` names the arms to
+    count against ``deadline``); a non-None answer ends the stage (``DelayResult.external``), after
+    a None answer the detour rounds get at most ``after_hook_s`` more. ``prefer(straight, blamed)`` names the arms to
     extend first (a removal set, :mod:`planner.cluster`), or None when detours are futile.
     """
     import time as _time
@@ -605,6 +606,8 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
             on_straight_fail = None
             if deadline is not None:  # the hook has its own share of the budget
                 deadline += _time.perf_counter() - t_hook
+                if after_hook_s is not None:  # ... and after a failed hook the detour rounds get less
+                    deadline = min(deadline, _time.perf_counter() + after_hook_s)
             if ext is not None:
                 return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
         if deadline is not None and _time.perf_counter() > deadline:

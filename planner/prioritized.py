@@ -233,7 +233,7 @@ def _try_delays(instrument: Instrument, geoms: list[ArmGeom], start_q: np.ndarra
                 return None
             return sets[0] if sets else []
 
-        hooks = dict(on_straight_fail=on_straight_fail, prefer=prefer)
+        hooks = dict(on_straight_fail=on_straight_fail, prefer=prefer, after_hook_s=cluster["after_s"])
 
     def check(assignment, options) -> list[tuple[int, int]]:
         trajs = _delay_trajectories(assignment, options, len(start_q), dt_s)
@@ -432,7 +432,9 @@ def plan_motion(
         if "cluster" in strategies and max_start_stop >= 1:
             cl_params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
                                      horizon_steps=params.horizon_steps, max_states_per_arm=1500)
-            cluster = {"share_s": min(0.25 * time_budget_s, 2.5),
+            # the detour rounds after a failed cluster stage rarely succeed where it failed:
+            # they get at most 10 % (<= 1 s) more, the rest goes to the prioritized stage
+            cluster = {"share_s": min(0.25 * time_budget_s, 2.5), "after_s": min(0.1 * time_budget_s, 1.0),
                        "kw": dict(params=cl_params, rparams=rparams, seed=seed)}
         # fair shares of the budget: the delay stage (its cluster hook included) may not starve
         # the prioritized fallbacks, and those may not starve the two-leg fallback
