@@ -29,7 +29,7 @@ import numpy as np
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
-from solvers.bounds import matching_lower_bound
+from solvers.bounds import crowding_lower_bound, matching_lower_bound
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 
 Progress = Callable[[float, str], None]
@@ -147,7 +147,7 @@ def sequence_configurations(
     speeds = joint_speeds(instrument)
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
     q_start = q.copy()
-    proven_bound = 0
+    proven_bound = crowd_bound = 0
     xy = np.column_stack([x, y])
     tie = hard_to_place(inc, n_arms, None if tie_break == 'reach' else xy) if tie_break else None
     configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
@@ -232,8 +232,12 @@ def sequence_configurations(
         rescued = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
                    for c in extra]
         n1 = len(configs) + len(extra)
+        if n_reachable <= 400:  # beyond that the disc models are too big for the budget
+            crowd_bound, _ = crowding_lower_bound(inc, xy, ~unreachable, time_limit_s=0.5,
+                                                  radii_mm=(10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0))
+            timers["crowding_bound_s"] = time.perf_counter() - tr
         configs, proven_bound, absorbed = _repack_prefix(
-            instrument, inc, priority, configs, max(lower_bound, flow_bound), speeds, xy, tie,
+            instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound), speeds, xy, tie,
             repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
         if absorbed:
             extra = []
@@ -267,7 +271,8 @@ def sequence_configurations(
         "lower_bound_configurations": lower_bound,
         "lower_bound_configurations_flow": flow_bound,
         # CP-SAT proved the allocated targets cannot be packed into fewer configurations
-        "lower_bound_configurations_proven": max(proven_bound, flow_bound),
+        "lower_bound_configurations_proven": max(proven_bound, flow_bound, crowd_bound),
+        "lower_bound_configurations_crowding": crowd_bound,
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
         "reachable_completeness": float(allocated.sum() / n_reachable) if n_reachable else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
@@ -459,17 +464,23 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
         return packed, pool, st["infeasible"]
 
     best = None
-    for count in range(max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n):
+    # bisection on the count (a time-out counts as a failure, so the result is the fewest
+    # configurations found, not necessarily the fewest that exist)
+    lo, hi = max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n - 1
+    while lo <= hi:
         left = budget_s - (time.perf_counter() - t0)
         if left <= 0.1:
             break
+        count = (lo + hi) // 2
         ts = time.perf_counter()
         packed, pool, infeasible = attempt(h0, count, min(left, attempt_s))
         if packed is not None:
             best = (h0, count, packed, pool, time.perf_counter() - ts)
-            break
-        if infeasible and h0 == 0 and not extra:
-            proven = max(proven, count + 1)
+            hi = count - 1
+        else:
+            lo = count + 1
+            if infeasible and h0 == 0 and not extra:
+                proven = max(proven, count + 1)
     if best is None:
         return configs, proven, False
     h_lo, count = best[0], best[1]
