@@ -9,12 +9,18 @@ pending ones until every target is observed.  Here:
   table) before it becomes a :class:`Configuration` — an unverified one raises;
 * the next configuration's ``start_q`` is the previous configuration's arm positions
   (longest-move criterion, eq. 5.16);
-* beyond the thesis: (1) a tie-break among equal-priority, equal-yield solutions in favour
-  of hard-to-place targets (few arms reach them), with weights that cannot trade priority
-  or yield away (solvers.ilp.safe_weights); (2) a *tail repacking* pass: the targets of
-  the last W configurations are re-packed into W - 1 configurations by one multi-
-  configuration CP-SAT model (each pooled target exactly once, per-configuration
-  eqs. 5.13–5.15), repeated while it succeeds and the count exceeds ceil(t / 12).
+* beyond the thesis: (1) a tie-break among equal-priority, equal-yield, equal-longest-move
+  solutions in favour of hard-to-place targets — few arms reach them, or many pending
+  targets crowd within 15 mm of them (near the FOV centre only one arm at a time fits, so
+  a crowded spot must be started early) — with weights that cannot trade priority or
+  yield away (solvers.ilp.safe_weights); (2) *repacking* by one multi-configuration CP-SAT
+  model (:func:`pack_targets`: each pooled target exactly once, per-configuration eqs.
+  5.13–5.15, configurations ordered to break symmetry): the under-filled tail into the
+  b-matching bound (:func:`_repack_bulk`), then bottom-up the longest suffix of <= 200
+  targets into as few configurations as bisection finds, keeping the longest prefix of
+  maximum-priority configurations (:func:`_pack_fewest`), then one configuration fewer at
+  a time (:func:`_repack_prefix`).  Lower bounds (solvers.bounds: max-flow, crowding,
+  CP-SAT infeasibility) are reported, so a count can be shown optimal.
 """
 
 from __future__ import annotations
