@@ -238,10 +238,12 @@ def sequence_configurations(
         rescued = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
                    for c in extra]
         n1 = len(configs) + len(extra)
-        if n_reachable <= 400:  # beyond that the disc models are too big for the budget
-            crowd_bound, _ = crowding_lower_bound(inc, xy, ~unreachable, time_limit_s=0.5,
+        if n_reachable <= 400 and budget > 2.0:  # beyond that the disc models cost too much
+            tc = time.perf_counter()
+            crowd_bound, _ = crowding_lower_bound(inc, xy, ~unreachable, time_limit_s=min(0.5, budget / 20),
                                                   radii_mm=(10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0))
-            timers["crowding_bound_s"] = time.perf_counter() - tr
+            timers["crowding_bound_s"] = time.perf_counter() - tc
+            budget -= timers["crowding_bound_s"]
         configs, proven_bound, absorbed = _repack_prefix(
             instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound), speeds, xy, tie,
             repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
