@@ -36,6 +36,7 @@ C130 = [[2.846781042047, 0.351903150962], [2.399862659309, 0.4052658917], [2.178
         [2.394727972028, 0.43510412791], [2.544005032513, 0.457822453168], [2.115427300928, 1.034934198234],
         [2.27240964507, 0.456692330621], [2.387971471745, 0.604145704906], [2.7945005091, 0.477282801931]]
 LEG_129 = (np.array(C128), np.array(C129))
+PARK_129 = (INST.park_configuration, np.array(C129))
 LEG_130 = (np.array(C129), np.array(C130))
 ALL = list(range(12))
 
@@ -172,3 +173,15 @@ def test_cluster_runs_even_when_the_delay_stage_is_out_of_time():
                         seed=0)
     assert plan is not None
     assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+
+
+def test_long_cluster_plan_gets_a_shorter_search():
+    """park -> c129: the cluster plan (the rest's straight schedule takes the long theta2 way,
+    1.43 x the lower bound) is replaced by a shorter prioritized plan when one is found."""
+    start, goal = PARK_129
+    plan = plan_motion(INST, start, goal, time_budget_s=30.0)
+    assert plan.status == "ok"
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+    if "cluster_makespan_s" in plan.stats:
+        assert plan.makespan_s <= plan.stats["cluster_makespan_s"]
+    assert plan.makespan_s <= 120.0
