@@ -82,7 +82,7 @@ def run_exact(targets, seed: int, repack: bool = False) -> dict:
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"]}
 
 
-def run_sg(targets, alpha: float, seed: int, with_gap: bool) -> dict:
+def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1) -> dict:
     """SGPBTA at its defaults through the driver; each configuration re-solved exactly."""
     from solvers.bnb import solve_ilp_bnb
 
@@ -90,9 +90,12 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool) -> dict:
     not_optimal = [0]
     t_gap = [0.0]
 
+    n_solved = [0]
+
     def solve(p):
         sol = solve_semigreedy(p, alpha=alpha)
-        if with_gap:
+        n_solved[0] += 1
+        if with_gap and (n_solved[0] - 1) % gap_every == 0:
             tg = time.perf_counter()
             e = solve_ilp_bnb(dataclasses.replace(p, time_limit_s=GAP_CONFIG_S))
             t_gap[0] += time.perf_counter() - tg
@@ -128,12 +131,12 @@ def _summary(recs: list[dict]) -> dict:
     return out
 
 
-def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack=False):
+def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack=False, first=0, gap_every=1):
     rows = []
     for dist in dists:
         for n in sizes:
             recs: dict[str, list[dict]] = {}
-            for i in range(instances):
+            for i in range(first, instances):
                 targets = make_field(n, dist, field_rng(n, dist, i))
                 if "exact" in sides:
                     key = f"{dist}/{n}/{i}"
@@ -142,8 +145,11 @@ def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack
                     recs.setdefault("exact", []).append(rec)
                 if "sg" in sides:
                     for a in ALPHAS:
-                        recs.setdefault(f"sg{a}", []).append(run_sg(targets, a, i, with_gap))
-            row = {"distribution": dist, "targets": n, "instances": instances, "ceil_t_over_12": math.ceil(n / 12)}
+                        recs.setdefault(f"sg{a}", []).append(run_sg(targets, a, i, with_gap, gap_every))
+                print(json.dumps({"instance": {"distribution": dist, "targets": n, "i": i,
+                                               **{k: v[-1] for k, v in recs.items()}}}, default=float), flush=True)
+            row = {"distribution": dist, "targets": n, "instances": instances - first,
+                   "ceil_t_over_12": math.ceil(n / 12)}
             for k, v in recs.items():
                 row[k] = _summary(v)
             if "exact" in recs:
@@ -225,6 +231,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--smoke", action="store_true", help="tiny sizes, for CI")
     ap.add_argument("--instances", type=int, default=20)
+    ap.add_argument("--first-instance", type=int, default=0, help="run instances first..instances-1 (to split a "
+                                                                   "cell over processes)")
+    ap.add_argument("--gap-every", type=int, default=1, help="re-solve every k-th SGPBTA configuration exactly")
     ap.add_argument("--sizes", default="96,192,384")
     ap.add_argument("--dists", default="uniform,heavy,weak")
     ap.add_argument("--sides", default="exact,sg", help="protocol columns: exact, sg or both")
@@ -257,8 +266,9 @@ def main() -> None:
         out["protocol"] = {"exact_config_time_limit_s": EXACT_CONFIG_S, "field_time_limit_s": EXACT_FIELD_S,
                            "gap_config_time_limit_s": GAP_CONFIG_S, "sg_blank_per_arm": BLANK_PER_ARM,
                            "exact_repack": args.exact_repack,
+                           "gap_every": args.gap_every,
                            "rows": protocol(sizes, dists, args.instances, sides, not args.no_gap, cache,
-                                            args.exact_repack)}
+                                            args.exact_repack, args.first_instance, args.gap_every)}
     if "warm_start" not in skip:
         out["warm_start"] = warm_starts([(96, "uniform")] if args.smoke else
                                         [(384, "uniform"), (384, "heavy"), (1200, "weak")], [0] if args.smoke else [0, 1])
