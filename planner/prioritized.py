@@ -450,10 +450,12 @@ def plan_motion(
             if (stats.get("strategy") == "cluster" and prio and lower_bound > 0 and left > 1.0
                     and ok_plan.makespan_s > CLUSTER_MAKESPAN_RATIO * lower_bound):
                 # the rest's straight schedule made the cluster plan long: let the prioritized
-                # stage try for a shorter one within what is left of the budget, keep the better
+                # stage try (one forward, one reverse attempt, <= 30 % of the budget) for a shorter
+                # one, keep the better
                 alt = plan_motion(instrument, start_q, goal_q, dt_s=dt_s, dt_col_s=dt_col_s,
                                   max_start_stop=max_start_stop, collision_buffer_mm=buffer_mm, seed=seed,
-                                  horizon_s=horizon_s, max_attempts=max_attempts, time_budget_s=left, grid=grid,
+                                  horizon_s=horizon_s, max_attempts=min(max_attempts, 2),
+                                  time_budget_s=min(left, 0.3 * time_budget_s), grid=grid,
                                   strategies=prio, rpp=rpp, rpp_max_paths=rpp_max_paths, turn_sense=turn_sense,
                                   turn_bias_s=turn_bias_s, via=None)
                 stats["cluster_makespan_s"] = ok_plan.makespan_s
