@@ -73,9 +73,9 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
     return np.random.default_rng([n, zlib.crc32(dist.encode()), i])
 
 
-def run_exact(targets, seed: int, repack: bool = False) -> dict:
+def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | None = None) -> dict:
     t0 = time.perf_counter()
-    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=EXACT_FIELD_S,
+    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=field_limit_s or EXACT_FIELD_S,
                  config_time_limit_s=EXACT_CONFIG_S, seed=seed, repack=repack)
     return {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
             "before_repack": r.stats["n_configurations_greedy"],
@@ -131,7 +131,8 @@ def _summary(recs: list[dict]) -> dict:
     return out
 
 
-def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack=False, first=0, gap_every=1):
+def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack=False, first=0, gap_every=1,
+             field_limit_s=None):
     rows = []
     for dist in dists:
         for n in sizes:
@@ -140,7 +141,7 @@ def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack
                 targets = make_field(n, dist, field_rng(n, dist, i))
                 if "exact" in sides:
                     key = f"{dist}/{n}/{i}"
-                    rec = exact_cache.get(key) or run_exact(targets, i, exact_repack)
+                    rec = exact_cache.get(key) or run_exact(targets, i, exact_repack, field_limit_s)
                     rec["key"] = key
                     recs.setdefault("exact", []).append(rec)
                 if "sg" in sides:
@@ -234,6 +235,8 @@ def main() -> None:
     ap.add_argument("--first-instance", type=int, default=0, help="run instances first..instances-1 (to split a "
                                                                    "cell over processes)")
     ap.add_argument("--gap-every", type=int, default=1, help="re-solve every k-th SGPBTA configuration exactly")
+    ap.add_argument("--field-limit", type=float, default=EXACT_FIELD_S, help="whole-sequence limit of the exact "
+                                                                            "column per field, s")
     ap.add_argument("--sizes", default="96,192,384")
     ap.add_argument("--dists", default="uniform,heavy,weak")
     ap.add_argument("--sides", default="exact,sg", help="protocol columns: exact, sg or both")
@@ -263,12 +266,13 @@ def main() -> None:
                 for rec in row.get("exact_instances", []):
                     cache[rec["key"]] = rec
     if "protocol" not in skip:
-        out["protocol"] = {"exact_config_time_limit_s": EXACT_CONFIG_S, "field_time_limit_s": EXACT_FIELD_S,
+        out["protocol"] = {"exact_config_time_limit_s": EXACT_CONFIG_S, "field_time_limit_s": args.field_limit,
                            "gap_config_time_limit_s": GAP_CONFIG_S, "sg_blank_per_arm": BLANK_PER_ARM,
                            "exact_repack": args.exact_repack,
                            "gap_every": args.gap_every,
                            "rows": protocol(sizes, dists, args.instances, sides, not args.no_gap, cache,
-                                            args.exact_repack, args.first_instance, args.gap_every)}
+                                            args.exact_repack, args.first_instance, args.gap_every,
+                                            args.field_limit)}
     if "warm_start" not in skip:
         out["warm_start"] = warm_starts([(96, "uniform")] if args.smoke else
                                         [(384, "uniform"), (384, "heavy"), (1200, "weak")], [0] if args.smoke else [0, 1])
