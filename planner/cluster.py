@@ -64,19 +64,25 @@ def reduced_problem(prob: DelayProblem, removed: set[int], start_q: np.ndarray) 
 
 def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *, max_size: int = 3,
                  max_sets: int = 4, deadline: float | None = None, stats: ClusterStats | None = None,
-                 first: list[int] | None = None):
+                 first: list[int] | None = None, max_greedy: int = 6):
     """Yield (R, rest assignment): smallest arm sets whose removal makes the rest solvable.
 
     Only arms with a conflict (a pair table) are candidates; sets of size three are only
     formed from arms adjacent in the conflict graph to a two-arm candidate, to stay cheap.
     ``first`` (e.g. the delay stage's blamed arms) orders the candidates. After the minimal
     sets (at most ``max_sets``), each is yielded again with one conflict-graph neighbour added.
+    When no set of at most ``max_size`` arms works, a greedy one (up to ``max_greedy`` arms,
+    :func:`contradicted_arms` plus the most blamed) is tried.
     """
     cand = [k for k in movable if prob.neighbours[k]]
     pref = {a: i for i, a in enumerate(first or [])}
     cand.sort(key=lambda a: (pref.get(a, len(pref)), a))
     found = 0
     minimal: list[tuple[list[int], dict]] = []
+    C = contradicted_arms(prob)
+    # a set that neither holds a contradicted arm nor one of its neighbours leaves that arm
+    # contradicted: such sets are skipped without a test
+    hoods = [set(prob.neighbours[k]) | {k} for k in C]
     for size in range(1, max_size + 1):
         combos = itertools.combinations(cand, size)
         if size == 3:
@@ -86,6 +92,8 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
         for R in combos:
             if deadline is not None and time.perf_counter() > deadline:
                 return
+            if not all(any(a in h for a in R) for h in hoods):
+                continue
             if stats is not None:
                 stats.removal_tests += 1
             dst = DelayStats()
@@ -102,6 +110,40 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
                     break
         if found:
             break
+    if not minimal:
+        # several independent local conflicts (e.g. four arms, each with a parked neighbour on
+        # either side blocking both its theta2 directions): no small set covers them all; take
+        # the arms whose options are wiped out pairwise, then add the most blamed arms
+        # first the arms blocking each contradicted arm's shortest move (often parked
+        # neighbours that only need to step aside while it passes), then the arms themselves
+        B = sorted({j for k in C for j in blockers(prob, k)} & set(movable))
+        if B and len(B) <= max_greedy:
+            if stats is not None:
+                stats.removal_tests += 1
+            sol, _ = solve(reduced_problem(prob, set(B), start_q), DelayStats(), node_budget=500, deadline=deadline)
+            if sol is not None:
+                minimal.append((B, sol))
+                if stats is not None:
+                    stats.removal_sets.append(B)
+                yield B, sol
+        G = [k for k in C if k in movable]
+        while G and len(G) <= max_greedy:
+            if deadline is not None and time.perf_counter() > deadline:
+                return
+            if stats is not None:
+                stats.removal_tests += 1
+            sol, blamed = solve(reduced_problem(prob, set(G), start_q), DelayStats(), node_budget=500,
+                                deadline=deadline)
+            if sol is not None:
+                minimal.append((sorted(G), sol))
+                if stats is not None:
+                    stats.removal_sets.append(sorted(G))
+                yield sorted(G), sol
+                break
+            more = [k for k in blamed if k in movable and k not in G]
+            if not more:
+                break
+            G.append(more[0])
     # then each minimal set with one conflicting neighbour more (the rest stays solvable: fewer
     # constraints): a neighbour that sweeps the set's start and goal may need its own detour
     seen = set()
@@ -116,6 +158,28 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             if stats is not None:
                 stats.removal_sets.append(list(R) + [j])
             yield list(R) + [j], {k: v for k, v in sol.items() if k != j}
+
+
+def contradicted_arms(prob: DelayProblem) -> list[int]:
+    """Arms none of whose options is compatible (at some relative delay) with every neighbour.
+
+    For each neighbour the option must work with at least one of the neighbour's options;
+    an arm for which these pairwise conditions exclude every option needs a detour (or a
+    neighbour must move out of its way) whatever the delays.
+    """
+    out = []
+    for k, nbrs in enumerate(prob.neighbours):
+        ok = np.ones(len(prob.options[k]), bool)
+        for j in nbrs:
+            ok &= prob.tables[(k, j)].any(axis=(1, 2))
+        if not ok.any():
+            out.append(k)
+    return out
+
+
+def blockers(prob: DelayProblem, k: int) -> list[int]:
+    """Neighbours that rule out arm k's shortest option (index 0) at every relative delay."""
+    return [j for j in prob.neighbours[k] if not prob.tables[(k, j)][0].any()]
 
 
 def _timed(option: Option, tau_steps: int, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -161,7 +225,8 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
                                 rparams) for k in R}
     if any(not paths[k] for k in R):
         return None
-    orders = list(itertools.permutations(R))[:max_orders]
+    # arms of a large set are mostly independent (separate local conflicts): few orders
+    orders = list(itertools.permutations(R))[:max_orders if len(R) <= 3 else 2]
     for order in orders:
         if deadline is not None and time.perf_counter() > deadline:
             return None

@@ -434,7 +434,8 @@ def plan_motion(
         cluster = None
         if "cluster" in strategies and max_start_stop >= 1:
             cl_params = SearchParams(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
-                                     horizon_steps=params.horizon_steps, max_states_per_arm=1500)
+                                     horizon_steps=params.horizon_steps, max_states_per_arm=1500,
+                                     max_paths=64)  # a parked arm's step-aside paths tie in rank
             # the detour rounds after a failed cluster stage rarely succeed where it failed:
             # they get at most 10 % (<= 1 s) more, the rest goes to the prioritized stage
             cluster = {"share_s": min(0.25 * time_budget_s, 2.5), "after_s": min(0.1 * time_budget_s, 1.0),

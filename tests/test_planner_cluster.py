@@ -46,7 +46,7 @@ def _straight(start, goal):
                         max_start_stop=1, movable=ALL, stats=D.DelayStats(), max_rounds=2)
     assert res.assignment is None  # straight moves fail at any delays and theta2 directions
     assert res.straight is not None
-    assert all(o.kind == "straight" for opts in res.straight.options for o in opts)
+    assert all(o.kind in ("straight", "stay") for opts in res.straight.options for o in opts)
     return res.straight
 
 
@@ -185,3 +185,34 @@ def test_long_cluster_plan_gets_a_shorter_search():
     if "cluster_makespan_s" in plan.stats:
         assert plan.makespan_s <= plan.stats["cluster_makespan_s"]
     assert plan.makespan_s <= 120.0
+
+
+def _from_park(rows: dict) -> np.ndarray:
+    q = INST.park_configuration.copy()
+    for k, v in rows.items():
+        q[k] = v
+    return q
+
+
+# examples/requests/plan.json (dense 12-star M13 field) as service/pipeline.py allocates it:
+# the leg c2 -> c3. Arms 1, 4, 7 and 10 each have both theta2 directions of their straight
+# move blocked (a parked neighbour on one side, a parked or moving one on the other), so the
+# delay CSP's arc consistency empties at once and no set of <= 3 arms can be removed; the
+# parked arms 0, 3, 6, 9 blocking the short ways step aside instead (one stop each).
+C2 = _from_park({1: [1.201720230552, 2.860555045331], 4: [1.256330123432, 2.779656613261],
+                 5: [1.444315923238, 3.049271134635], 7: [1.0741056092, 2.617052626029]})
+C3 = _from_park({10: [0.868878796377, 2.640397417669], 11: [0.701528088842, 3.204475107979]})
+
+
+def test_service_example_leg_c2_c3_plans_by_parked_arms_stepping_aside():
+    prob = _straight(C2, C3)
+    from planner.cluster import blockers, contradicted_arms
+
+    assert contradicted_arms(prob) == [1, 4, 7, 10]
+    assert sorted({j for k in [1, 4, 7, 10] for j in blockers(prob, k)}) == [0, 3, 6, 9]
+    sets = [R for R, _ in removal_sets(prob, C2, ALL)]
+    assert sets[0] == [0, 3, 6, 9]
+    plan = plan_motion(INST, C2, C3, time_budget_s=5.0, seed=1)  # the service's leg budget
+    assert plan.status == "ok", plan.stats.get("reasons")
+    assert verify_trajectories(INST, plan.trajectories, C2, C3, max_start_stop=1).ok
+    assert max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in plan.trajectories) <= 1
