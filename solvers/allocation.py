@@ -131,6 +131,8 @@ def allocate(
         if form not in ("aggregated", "pairwise"):
             raise InputError("form", "must be 'aggregated' or 'pairwise'")
     solve_one = _solver_fn(method, solver, method_options)
+    if method == "semigreedy":  # SGPBTA ranks by priority, yield, displacement: no tie-break to compute
+        seq_opts.setdefault("tie_break", False)
     seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
 
     def run(tgts: PlaneTargets) -> AllocationResult:

@@ -596,7 +596,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
 
 def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
-                      n_fill: int = 200, blank_per_arm: int = 8) -> list[Configuration]:
+                      n_fill: int = 200, blank_per_arm: int = 16) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
