@@ -225,9 +225,10 @@ def sequence_configurations(
         stop_reason = "complete" if not pending.any() else "conflict"
     if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) + len(extra) > lower_bound:
         tr = time.perf_counter()
-        # 5 % of the limit kept back: building a model and verifying the result are not
-        # covered by the solver's own time limit
-        budget = min(0.95 * time_limit_s - (tr - t0), repack_time_limit_s * 4 * repack_max_window)
+        # up to 1 s kept back: building a model and verifying the result are not covered by
+        # the solver's own time limit (0.5 s let a 10 s call on 384 targets overrun by 0.8 s)
+        budget = min(time_limit_s - min(0.1 * time_limit_s, 1.0) - (tr - t0),
+                     repack_time_limit_s * 4 * repack_max_window)
         n0 = len(configs)
         if not extra:
             configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
@@ -430,7 +431,7 @@ def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
     c = need
     while c < window:
         left = budget_s - (time.perf_counter() - t0)
-        if left <= 0.1:
+        if left <= 0.5:
             break
         ts = time.perf_counter()
         packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), 0.5)),
@@ -477,7 +478,7 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
     lo, hi = max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n - 1
     while lo <= hi:
         left = budget_s - (time.perf_counter() - t0)
-        if left <= 0.1:
+        if left <= 0.5:
             break
         count = (lo + hi) // 2
         ts = time.perf_counter()
@@ -496,7 +497,7 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
     h_hi = int(fits.max()) if len(fits) else h_lo
     while h_lo < h_hi:  # keep as many maximum-priority configurations as the count allows
         left = budget_s - (time.perf_counter() - t0)
-        if left <= 0.1:
+        if left <= 0.5:
             break
         mid = (h_lo + h_hi + 1) // 2
         ts = time.perf_counter()
@@ -567,7 +568,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
         found = False
         for h in range(int(fits.max()), -1, -1):
             left = budget_s - (time.perf_counter() - t0)
-            if left <= 0.1 or suffix[h] > max_pool:
+            if left <= 0.5 or suffix[h] > max_pool:
                 return configs, proven, not (extra or kept)
             pool = np.concatenate(per[h:])
             st: dict = {}
