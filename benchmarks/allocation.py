@@ -21,7 +21,7 @@ from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
 from solvers.allocation import allocate
-from solvers.bounds import crowding_lower_bound
+from solvers.bounds import INNER_DISCS_MM, crowding_lower_bound
 
 SIGMA_MM = {"uniform": None, "heavy": 30.0, "weak": 60.0}
 
@@ -47,7 +47,7 @@ def crowding_bound(ins, f: PlaneTargets) -> int:
     x, y = np.asarray(f.x_mm, float), np.asarray(f.y_mm, float)
     inc = incompatibility_for_targets(ins, x, y)
     lb, _ = crowding_lower_bound(inc, np.column_stack([x, y]), inc.reachability.arms_per_target > 0,
-                                 radii_mm=(10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0), time_limit_s=1.0)
+                                 radii_mm=INNER_DISCS_MM, time_limit_s=1.0)
     return lb
 
 

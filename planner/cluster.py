@@ -38,8 +38,6 @@ from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapParams, candidate_paths
 from planner.single_arm import ObstacleTime, SearchParams, SearchStats, plan_arm, step_samples
 
-TWO_PI = 2.0 * np.pi
-
 
 @dataclass
 class ClusterStats:
@@ -251,11 +249,7 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         Np = max([Nr] + [p.arrival_step for p in plans.values()])
         for k in range(n):
             if k in plans:
-                q = plans[k].q_steps
-                if reverse:
-                    q = np.concatenate([np.repeat(q[-1:], Np - (len(q) - 1), axis=0), q[::-1]])
-                    q = q.copy()
-                    q[:, 1] += TWO_PI * np.round((start_q[k, 1] - q[0, 1]) / TWO_PI)
+                q = plans[k].played_backwards(Np, start_q[k, 1]) if reverse else plans[k].q_steps
                 t = np.arange(len(q)) * dt
                 out.append((t, q))
             else:

@@ -174,13 +174,7 @@ def _assemble(instrument: Instrument, plans: dict[int, ArmPlan], start_q: np.nda
     T = max(p.arrival_step for p in plans.values())
     out = []
     for k in range(instrument.n_arms):
-        q = plans[k].q_steps
-        if reverse:
-            # forward arm waits at its start until T - T_k, then retraces the reversed path
-            q = np.concatenate([np.repeat(q[-1:], T - (len(q) - 1), axis=0), q[::-1]])
-            # the reverse search ends at start modulo 2 pi: shift theta2 back onto the real start
-            q = q.copy()
-            q[:, 1] += TWO_PI * np.round((start_q[k, 1] - q[0, 1]) / TWO_PI)
+        q = plans[k].played_backwards(T, start_q[k, 1]) if reverse else plans[k].q_steps
         t = np.arange(len(q)) * dt_s
         t, q = compress_waypoints(t, q)
         if len(t) > 1 and np.all(np.abs(q - q[0]) <= 1e-15):

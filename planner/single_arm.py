@@ -220,6 +220,16 @@ class ArmPlan:
     def arrival_step(self) -> int:
         return len(self.q_steps) - 1
 
+    def played_backwards(self, n_steps: int, start_theta2_rad: float) -> np.ndarray:
+        """A plan found in reverse time (goal -> start, SDSS-V kaiju) as the forward
+        (n_steps + 1, 2) steps: wait at the start until n_steps - T, then retrace the reversed
+        path; theta2 shifted by whole turns onto the real start (the reverse search ends at
+        the start modulo 2 pi)."""
+        q = self.q_steps
+        q = np.concatenate([np.repeat(q[-1:], n_steps - (len(q) - 1), axis=0), q[::-1]])
+        q[:, 1] += 2.0 * np.pi * np.round((start_theta2_rad - q[0, 1]) / (2.0 * np.pi))
+        return q
+
 
 def plan_arm(geom: ArmGeom, paths: list[RoadmapPath], obst: ObstacleTime, params: SearchParams,
              stats: SearchStats) -> ArmPlan | None:

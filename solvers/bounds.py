@@ -23,6 +23,9 @@ import numpy as np
 
 from models.incompatibility import Incompatibility
 
+# discs about the centre where crowding binds; the larger default discs cost more than they tell
+INNER_DISCS_MM = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0)
+
 
 def matching_lower_bound(inc: Incompatibility, targets: np.ndarray) -> int:
     """True lower bound on the number of configurations, beyond ceil(t / arms).

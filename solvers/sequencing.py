@@ -35,7 +35,7 @@ import numpy as np
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
-from solvers.bounds import crowding_lower_bound, matching_lower_bound
+from solvers.bounds import INNER_DISCS_MM, crowding_lower_bound, matching_lower_bound
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 
 Progress = Callable[[float, str], None]
@@ -155,7 +155,7 @@ def sequence_configurations(
     q_start = q.copy()
     proven_bound = crowd_bound = 0
     xy = np.column_stack([x, y])
-    tie = hard_to_place(inc, n_arms, None if tie_break == 'reach' else xy) if tie_break else None
+    tie = hard_to_place(inc, n_arms) if tie_break else None  # crowding term added per configuration
     configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
     t_solve = 0.0
     stop_reason = "complete"
@@ -242,7 +242,7 @@ def sequence_configurations(
         if n_reachable <= 400 and budget > 2.0:  # beyond that the disc models cost too much
             tc = time.perf_counter()
             crowd_bound, _ = crowding_lower_bound(inc, xy, ~unreachable, time_limit_s=min(0.5, budget / 20),
-                                                  radii_mm=(10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0))
+                                                  radii_mm=INNER_DISCS_MM)
             timers["crowding_bound_s"] = time.perf_counter() - tc
             budget -= timers["crowding_bound_s"]
         configs, proven_bound, absorbed = _repack_prefix(

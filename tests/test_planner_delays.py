@@ -37,6 +37,11 @@ def _sample(option: D.Option, tau: float, t: np.ndarray) -> np.ndarray:
     return np.column_stack([np.interp(t, tt, q[:, 0]), np.interp(t, tt, q[:, 1])])
 
 
+
+def _delays(start, goal, **kw):
+    """planner.delays.plan_delays with the thesis table 6.1 settings used throughout."""
+    return D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0, **kw)
+
 def test_pair_table_matches_brute_force_sampling():
     start, goal = _goal(ER_START, ER_ARMS), _goal(ER_GOAL, ER_ARMS)
     A, B = ER_ARMS
@@ -62,8 +67,7 @@ def test_pair_table_matches_brute_force_sampling():
 def test_csp_finds_minimum_makespan():
     start, goal = _goal(ER_START, ER_ARMS), _goal(ER_GOAL, ER_ARMS)
     st = D.DelayStats()
-    res = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                        max_start_stop=0, movable=list(ER_ARMS), stats=st, max_rounds=1)
+    res = _delays(start, goal, max_start_stop=0, movable=list(ER_ARMS), stats=st, max_rounds=1)
     assert res.assignment is not None
     A, B = ER_ARMS
     # brute force over both arms' (option, delay) values with the same tables
@@ -100,11 +104,9 @@ def test_goal_conflict_needs_a_detour():
     inst = INST.with_arms_disabled(list(range(2, 12)))
     goal = _goal(GOAL_CONFLICT)
     st = D.DelayStats()
-    straight = D.plan_delays(GEOMS, PARK, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                             max_start_stop=1, movable=[0, 1], stats=st, max_rounds=1)
+    straight = _delays(PARK, goal, max_start_stop=1, movable=[0, 1], stats=st, max_rounds=1)
     assert straight.assignment is None and straight.blamed
-    both = D.plan_delays(GEOMS, PARK, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                         max_start_stop=0, movable=[0, 1], stats=st, max_rounds=4)
+    both = _delays(PARK, goal, max_start_stop=0, movable=[0, 1], stats=st, max_rounds=4)
     assert both.assignment is None  # not even with both theta2 directions
     plan = plan_motion(inst, PARK, goal, strategies=("delays",))  # the detour rounds alone
     assert plan.status == "ok" and plan.stats["strategy"] == "delays"
@@ -120,8 +122,7 @@ def test_other_direction_resolves_cycle():
     inst = INST.with_arms_disabled(list(range(2, 12)))
     goal = _goal(CYCLE)
     st = D.DelayStats()
-    r0 = D.plan_delays(GEOMS, PARK, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                       max_start_stop=0, movable=[0, 1], stats=st, max_rounds=1)
+    r0 = _delays(PARK, goal, max_start_stop=0, movable=[0, 1], stats=st, max_rounds=1)
     assert r0.assignment is None
     plan = plan_motion(inst, PARK, goal)
     assert plan.status == "ok" and plan.stats["strategy"] == "delays"
