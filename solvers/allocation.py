@@ -28,7 +28,8 @@ SOLVERS = ("highs", "cpsat", "bnb")
 CONFIG_MODES = ("one", "all")
 ILP_OPTIONS = {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level", "interface"}
 SEQ_OPTIONS = {"config_time_limit_s", "mip_rel_gap", "threads", "tie_break", "repack", "repack_max_window",
-               "repack_time_limit_s", "max_configurations", "adaptive_limits", "lower_bound_flow", "rescue", "blank_per_arm", "tail_fraction"}
+               "repack_time_limit_s", "max_configurations", "adaptive_limits", "lower_bound_flow", "rescue", "blank_per_arm", "tail_fraction",
+               "repair"}
 BNB_OPTIONS = {"node_limit", "minimize_move", "fallback", "hint", "tie_node_limit", "move_node_limit",
                "fallback_min_s"}
 

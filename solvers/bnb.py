@@ -6,12 +6,12 @@ a *pairwise* conflict between locations of different arms.  That is a weighted C
 12 variables, which a small depth-first branch-and-bound with forward checking solves
 exactly and fast:
 
-* each arm's locations are ordered by the safe lexicographic weight
-  (:func:`solvers.ilp.safe_weights`: priority, then yield, then the tie-break) from high to
-  low; an arm's *domain* is a Python-int bitset over that order;
+* each arm's locations are ordered by the coarse weight (priority, then yield) from high
+  to low; an arm's *domain* is a Python-int bitset over that order;
 * per location ``a`` and other arm ``k'`` a bitset of ``k'``'s locations in conflict with
-  ``a`` (built once per field with numpy ``packbits``; the weights do not change between
-  the configurations of a sequence, only availability does);
+  ``a`` (built once per field with numpy ``packbits``; priorities do not change between
+  the configurations of a sequence, only availability and the tie-break do — stages 2
+  and 3 use a small table of their own, ordered by the full weight of the call);
 * assigning ``a`` to its arm removes ``a``'s conflicts from every other domain (forward
   checking); an empty domain fails;
 * bound = current weight + sum over unassigned arms of the best weight still in their
@@ -44,48 +44,42 @@ __all__ = ["BnbField", "prepare_field", "solve_bnb_chosen", "solve_ilp_bnb"]
 
 @dataclass
 class BnbField:
-    """Per-field, availability-independent data (cached on the incompatibility object)."""
+    """Per-field, availability-independent tables, ordered by the *coarse* weight
+    (priority, then yield).  The optional tie-break is not part of them: the sequencing
+    driver refreshes it every configuration (crowding of the pending targets), and
+    rebuilding these tables each time cost 12 s of a 20 s dense sequence.  Stage 3 (the
+    tie-break) builds a small table of its own over the columns that can still reach the
+    coarse optimum (:func:`_tie_tables`)."""
 
     n_arms: int
-    order: list[np.ndarray]  # per arm: assignment indices, weight descending
+    order: list[np.ndarray]  # per arm: assignment indices, coarse weight descending
     pos: np.ndarray  # (n_assignments,) bit position of an assignment in its arm's order
-    weights: list[list[int]]  # per arm: Python-int weights in order
     nconf: list[list[int]]  # per assignment: per arm, ~(bitset of conflicting locations)
     weight_key: bytes
-    coarse: list[list[int]]  # per arm: weight // tie_mult (priority and yield only)
-    tie_mult: int
-    max_tie: int
+    coarse: list[list[int]]  # per arm: priority * (m + 1) + yield, in order
     target_list: list[int]  # per assignment: target index (< 0 for rest locations)
     target_coarse: np.ndarray  # (n_targets,) coarse weight of an assignment on the target
-    target_full: np.ndarray
 
 
 _CACHE: dict[int, tuple[weakref.ref, BnbField]] = {}
 
 
-def prepare_field(problem: ConfigProblem) -> BnbField:
-    """Bitset conflict tables for ``problem.incompatibility`` under the problem's weights."""
-    from solvers.ilp import safe_weights
-
-    inc = problem.incompatibility
-    a = inc.assignments
+def _coarse_weights(problem: ConfigProblem) -> np.ndarray:
+    """``priority * (m + 1) + yield`` per assignment: ``safe_weights`` without the tie-break."""
+    a = problem.assignments
     n_arms = len(a.arm_start) - 1
-    w, _, tie_mult = safe_weights(problem, np.arange(len(a)))
-    key = w.tobytes()
-    hit = _CACHE.get(id(inc))
-    if hit is not None and hit[0]() is inc and hit[1].weight_key == key:
-        return hit[1]
-    order = []
-    pos = np.zeros(len(a), np.int64)
-    for k in range(n_arms):
-        idx = np.arange(a.arm_start[k], a.arm_start[k + 1])
-        idx = idx[np.argsort(-w[idx], kind="stable")]
-        order.append(idx)
-        pos[idx] = np.arange(len(idx))
+    real = a.target >= 0
+    p = np.zeros(len(a), np.int64)
+    p[real] = np.asarray(problem.priority, np.int64)[a.target[real]]
+    return p * (n_arms + 1) + real
+
+
+def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, list[int]]:
+    """Per assignment in ``order`` and per arm ``k'``: ~(bitset over ``order[k']`` of the
+    locations in conflict with it) — numpy ``packbits``, one block per arm."""
+    n_arms = len(order)
     perm = np.concatenate(order) if order else np.zeros(0, np.int64)
-    adj = sparse.csr_matrix((np.ones(len(inc.indices), np.bool_), inc.indices, inc.indptr), shape=(len(a), len(a)))
-    weights = [[int(v) for v in w[o]] for o in order]
-    nconf: list[list[int]] = [None] * len(a)  # type: ignore[list-item]
+    nconf: dict[int, list[int]] = {}
     for k in range(n_arms):
         rows = order[k]
         if not len(rows):
@@ -100,18 +94,69 @@ def prepare_field(problem: ConfigProblem) -> BnbField:
             per_arm.append([~int.from_bytes(r.tobytes(), "little") for r in packed])
         for i, r in enumerate(rows.tolist()):
             nconf[r] = [per_arm[kk][i] for kk in range(n_arms)]
-    coarse = [[int(v) for v in w[o] // tie_mult] for o in order]
+    return nconf
+
+
+def _adjacency(inc) -> sparse.csr_matrix:
+    from solvers.ilp import _adjacency as cached  # built once per structure, shared with the ILP
+
+    return cached(inc)
+
+
+def prepare_field(problem: ConfigProblem) -> BnbField:
+    """Bitset conflict tables for ``problem.incompatibility`` under the coarse weights."""
+    inc = problem.incompatibility
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    w = _coarse_weights(problem)
+    key = w.tobytes()
+    hit = _CACHE.get(id(inc))
+    if hit is not None and hit[0]() is inc and hit[1].weight_key == key:
+        return hit[1]
+    order = []
+    pos = np.zeros(len(a), np.int64)
+    for k in range(n_arms):
+        idx = np.arange(a.arm_start[k], a.arm_start[k + 1])
+        idx = idx[np.argsort(-w[idx], kind="stable")]
+        order.append(idx)
+        pos[idx] = np.arange(len(idx))
+    by_index = _pack_tables(_adjacency(inc), order)
+    nconf: list[list[int]] = [by_index.get(i) for i in range(len(a))]  # type: ignore[misc]
+    coarse = [[int(v) for v in w[o]] for o in order]
     n_t = inc.reachability.n_targets
     tgt = a.target
     real = tgt >= 0
-    t_full = np.zeros(n_t, np.int64)
-    np.maximum.at(t_full, tgt[real], w[real])
-    f = BnbField(n_arms, order, pos, weights, nconf, key, coarse, tie_mult, int((w % tie_mult).max(initial=0)),
-                 [int(v) for v in tgt], t_full // tie_mult, t_full)
+    t_coarse = np.zeros(n_t, np.int64)
+    np.maximum.at(t_coarse, tgt[real], w[real])
+    f = BnbField(n_arms, order, pos, nconf, key, coarse, [int(v) for v in tgt], t_coarse)
     if len(_CACHE) > 8:
         _CACHE.clear()
     _CACHE[id(inc)] = (weakref.ref(inc), f)
     return f
+
+
+@dataclass
+class _TieTables:
+    """Stage-3 tables over a column subset, ordered by the full safe weight."""
+
+    order: list[np.ndarray]
+    nconf: dict[int, list[int]]
+    weights: list[list[int]]
+    target_full: np.ndarray
+
+
+def _tie_tables(problem: ConfigProblem, cols: np.ndarray, w_full: np.ndarray) -> _TieTables:
+    a = problem.assignments
+    n_arms = len(a.arm_start) - 1
+    order = []
+    for k in range(n_arms):
+        idx = np.flatnonzero(cols[a.arm_start[k]:a.arm_start[k + 1]]) + a.arm_start[k]
+        order.append(idx[np.argsort(-w_full[idx], kind="stable")])
+    nconf = _pack_tables(_adjacency(problem.incompatibility), order)
+    real = a.target >= 0
+    t_full = np.zeros(problem.incompatibility.reachability.n_targets, np.int64)
+    np.maximum.at(t_full, a.target[real], w_full[real])
+    return _TieTables(order, nconf, [[int(v) for v in w_full[o]] for o in order], t_full)
 
 
 def _mask(bits: np.ndarray) -> int:
@@ -140,13 +185,15 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     ``proved`` (stage 1), ``tie_proved``, ``move_proved``, ``bound`` (coarse root bound
     scaled to full weights), ``nodes``.
     """
+    from solvers.ilp import safe_weights
+
     f = field or prepare_field(problem)
     n_arms = f.n_arms
     allowed = problem.allowed()
     move = problem.move_time_s()
-    order = f.order
-    nconf = f.nconf
-    dom0 = [_mask(allowed[order[k]]) for k in range(n_arms)]
+    w_all, _, tie_mult = safe_weights(problem, np.arange(len(problem.assignments)))
+    max_tie = int((w_all[allowed] % tie_mult).max(initial=0))
+    dom0 = [_mask(allowed[f.order[k]]) for k in range(n_arms)]
     out = {"chosen": None, "weight": 0, "proved": True, "tie_proved": True, "move_proved": True, "bound": 0,
            "nodes": 0}
     if any(d == 0 for d in dom0):
@@ -158,18 +205,18 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
 
     tgt_of = f.target_list
 
-    def run(W: list[list[int]], dom: list[int], incumbent: int, sol, target: int, nodes: int):
-        """DFS from the root; returns (completed, best, sol).  ``target >= 0``: stop at the
-        first solution of weight >= target (feasibility mode)."""
+    def run(W: list[list[int]], dom: list[int], incumbent: int, sol, target: int, nodes: int,
+            order: list[np.ndarray] = f.order, nconf=f.nconf, tw: np.ndarray = f.target_coarse):
+        """DFS from the root over the tables ``order`` / ``nconf`` (``W`` in the same
+        order); returns (completed, best, sol).  ``target >= 0``: stop at the first
+        solution of weight >= target (feasibility mode)."""
         state.update(best=incumbent, sol=sol, limit=state["nodes"] + nodes)
         # the best distinct available targets (weight, target): the i-th largest value of
         # any solution is <= the i-th largest best-in-domain of the free arms AND <= the
         # i-th largest weight of a distinct target not yet taken (matching bound, O(m))
-        tw = f.target_coarse if W is f.coarse else f.target_full
         av = np.flatnonzero(problem.available)
         top_i = av[np.argsort(-tw[av], kind="stable")[:2 * n_arms]]
         TOP = [(int(tw[t]), int(t)) for t in top_i]
-
         def capped(cur: int, bl: list[int], taken: list[int]) -> int:
             bl.sort(reverse=True)
             tot = cur
@@ -243,7 +290,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
         return True, state["best"], state["sol"]
 
     def full_w(ch) -> int:
-        return sum(f.weights[k][int(f.pos[ch[k]])] for k in range(n_arms))
+        return int(sum(int(w_all[c]) for c in ch))
 
     def coarse_w(ch) -> int:
         return sum(f.coarse[k][int(f.pos[ch[k]])] for k in range(n_arms))
@@ -254,7 +301,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
         if _consistent(hint, f, dom0):
             inc_c, sol = coarse_w(hint), [int(v) for v in hint]
     root_c = sum(f.coarse[k][(dom0[k] & -dom0[k]).bit_length() - 1] for k in range(n_arms))
-    out["bound"] = root_c * f.tie_mult + n_arms * f.max_tie
+    out["bound"] = root_c * tie_mult + n_arms * max_tie
     # stage 1: coarse weight (priority, yield); or proven elsewhere (CP-SAT)
     if coarse_optimum is not None:
         inc_c, sol = int(coarse_optimum[0]), [int(v) for v in coarse_optimum[1]]
@@ -271,25 +318,50 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     w_c = inc_c
     out.update(chosen=sol, weight=full_w(sol))
     if not done:
-        out.update(tie_proved=False, move_proved=False)
+        # stage 1 hit its limit (a tier transition): one more search over the columns that
+        # can reach the incumbent, in full-weight order — any solution it finds beats the
+        # incumbent in priority/yield or, equal there, in the tie-break
+        if tie_mult > 1 and tie_node_limit > 0:
+            cols = prune_columns(problem, w_c, f, max_passes=1, allowed=allowed)
+            cols[sol] = True
+            tt = _tie_tables(problem, cols, w_all)
+            keep = [(1 << len(o)) - 1 for o in tt.order]
+            _, w3, s3 = run(tt.weights, keep, full_w(sol), [int(v) for v in sol], -1, tie_node_limit,
+                            order=tt.order, nconf=tt.nconf, tw=tt.target_full)
+            out.update(chosen=np.array(s3, np.int64), weight=w3)
+        out.update(tie_proved=False, move_proved=False, nodes=state["nodes"])
         return out
+    # stages 2 and 3 run on a small table of the columns that can still reach the coarse
+    # optimum (exact probing, one pass: a superset is enough) within the current longest
+    # move, ordered by the full weight of THIS problem (its tie-break changes every
+    # configuration): the first dives then favour the tie-break, as stage 3 asks
+    mv_best = float(move[sol].max())
+    tab_order, tab_nconf, tab_tw, tab_coarse = f.order, f.nconf, f.target_coarse, f.coarse
+    tt = None
+    if tie_mult > 1 or minimize_move:
+        lim = mv_best if minimize_move else np.inf
+        cols = prune_columns(problem, w_c, f, max_passes=1, allowed=allowed & (move <= lim))
+        cols[sol] = True
+        tt = _tie_tables(problem, cols, w_all)
+        tab_order, tab_nconf, tab_tw = tt.order, tt.nconf, tt.target_full // tie_mult
+        tab_coarse = [[v // tie_mult for v in wk] for wk in tt.weights]
+    tab = dict(order=tab_order, nconf=tab_nconf, tw=tab_tw)
     # stage 2 (eq. 5.16): same coarse weight, strictly shorter longest move; restart after
     # each improvement (the coarse bound is tight, so these searches are short)
-    mv_best = float(move[sol].max())
     move_proved = True
     if minimize_move:
         budget_end = state["nodes"] + move_node_limit
         while True:
-            keep = [_mask(allowed[order[k]] & (move[order[k]] < mv_best)) for k in range(n_arms)]
+            keep = [_mask(move[tab_order[k]] < mv_best) for k in range(n_arms)]
             if any(d == 0 for d in keep):
                 break
-            if sum(f.coarse[k][(keep[k] & -keep[k]).bit_length() - 1] for k in range(n_arms)) < w_c:
+            if sum(tab_coarse[k][(keep[k] & -keep[k]).bit_length() - 1] for k in range(n_arms)) < w_c:
                 break
             left = budget_end - state["nodes"]
             if left <= 0:
                 move_proved = False
                 break
-            done2, _, s2 = run(f.coarse, keep, -1, None, w_c, left)
+            done2, _, s2 = run(tab_coarse, keep, -1, None, w_c, left, **tab)
             if not done2:
                 move_proved = False
                 break
@@ -302,17 +374,18 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     # stage 3: the tie-break, among solutions of that coarse weight and longest move
     w_full = full_w(sol)
     tie_proved = True
-    if f.tie_mult > 1:
+    if tie_mult > 1:
         lim = mv_best if minimize_move else np.inf
-        keep = [_mask(allowed[order[k]] & (move[order[k]] <= lim)) for k in range(n_arms)]
-        tie_proved, w_full, s3 = run(f.weights, keep, w_full, [int(v) for v in sol], -1, tie_node_limit)
+        keep = [_mask(move[o] <= lim) for o in tt.order]
+        tie_proved, w_full, s3 = run(tt.weights, keep, w_full, [int(v) for v in sol], -1, tie_node_limit,
+                                     order=tt.order, nconf=tt.nconf, tw=tt.target_full)
         sol = np.array(s3, np.int64)
     out.update(chosen=sol, weight=w_full, move_proved=move_proved, tie_proved=tie_proved, nodes=state["nodes"])
     return out
 
 
 def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField | None = None,
-                  max_passes: int = 4) -> np.ndarray:
+                  max_passes: int = 4, allowed: np.ndarray | None = None) -> np.ndarray:
     """Exact column fixing for the coarse (priority, yield) objective: drop every allowed
     assignment ``a`` of arm ``k`` whose *probing bound* ``w(a) + sum_{j != k} max{w(b) : b in
     dom_j, b compatible with a}`` is strictly below ``incumbent_coarse``; repeated on the
@@ -322,9 +395,10 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
     most that bound), so a model restricted to the kept columns has the same optimum AND the
     same set of optimal solutions (the longest-move stage stays exact).  Returns the
     (n_assignments,) bool mask of kept columns (rest locations are kept regardless).
+    ``allowed`` narrows the problem's allowed columns (e.g. to a move limit).
     """
     f = field or prepare_field(problem)
-    allowed = problem.allowed()
+    allowed = problem.allowed() if allowed is None else allowed
     n_arms = f.n_arms
     W = f.coarse
     dom = [_mask(allowed[f.order[k]]) for k in range(n_arms)]

@@ -37,6 +37,7 @@ from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
 from solvers.bounds import INNER_DISCS_MM, crowding_lower_bound, matching_lower_bound
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
+from solvers.repair import absorb_configurations
 
 Progress = Callable[[float, str], None]
 
@@ -104,6 +105,7 @@ def sequence_configurations(
     seed: int = 0,
     tie_break: bool | str = True,
     repack: bool = True,
+    repair: bool = True,
     repack_max_window: int = 6,
     repack_time_limit_s: float = 2.0,
     progress: Progress | None = None,
@@ -223,6 +225,19 @@ def sequence_configurations(
                 if a_.target_index is not None:
                     pending[a_.target_index] = False
         stop_reason = "complete" if not pending.any() else "conflict"
+    if repair and stop_reason in ("complete", "conflict", "tail") and len(configs) + len(extra) > lower_bound:
+        # ejection repair first (fast, the whole sequence), then the CP-SAT repacking
+        tr = time.perf_counter()
+        n0 = len(configs) + len(extra)
+        rescued_t = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
+                     for c in extra]
+        left = time_limit_s - min(0.1 * time_limit_s, 1.0) - (tr - t0)
+        new, absorbed_g = absorb_configurations(inc, [ch for _, ch, _, _ in configs], priority, budget_s=min(0.5 * left, 5.0),
+                                                loose=rescued_t, min_keep=lower_bound)
+        configs = _rebuild(instrument, inc, priority, configs, new, speeds, xy, tie, q_start)
+        extra = [c for c, g in zip(extra, absorbed_g, strict=True) if not g]
+        timers["repair_s"] = time.perf_counter() - tr
+        timers["repair_saved"] = n0 - len(configs) - len(extra)
     if repack and stop_reason in ("complete", "conflict", "tail") and len(configs) + len(extra) > lower_bound:
         tr = time.perf_counter()
         # up to 1 s kept back: building a model and verifying the result are not covered by
@@ -400,6 +415,35 @@ def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy
                                             "longest_move_s": evaluate(prob, ch)[2]}))
         q = a.q[ch]
     return head + new
+
+
+def _rebuild(instrument, inc, priority, configs, new_chosen, speeds, xy, tie, q0):
+    """``configs`` with their chosen assignments replaced by ``new_chosen`` (same order, some
+    removed): unchanged leading configurations are kept, the rest rebuilt and verified, each
+    starting where the previous one left the arms."""
+    same = 0
+    while (same < min(len(configs), len(new_chosen))
+           and np.array_equal(configs[same][1], new_chosen[same])):
+        same += 1
+    if same == len(configs) == len(new_chosen):
+        return configs
+    a = inc.assignments
+    head = configs[:same]
+    q = head[-1][0].assignments.q[head[-1][1]] if head else q0
+    pending = np.zeros(len(priority), bool)
+    for ch in new_chosen[same:]:
+        tg = a.target[ch]
+        pending[tg[tg >= 0]] = True
+    out = list(head)
+    for ch in new_chosen[same:]:
+        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, target_xy_mm=xy, tie_break=tie)
+        _verify(instrument, prob, ch)
+        tg = a.target[ch]
+        pending[tg[tg >= 0]] = False
+        out.append((prob, ch, "feasible", {"solve_s": 0.0, "status": "repaired",
+                                           "longest_move_s": evaluate(prob, ch)[2]}))
+        q = a.q[ch]
+    return out
 
 
 def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, budget_s, seed, threads):
