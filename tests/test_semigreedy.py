@@ -89,7 +89,11 @@ def test_penalty_matrix_validation(bad, field_name):
 
 @pytest.mark.parametrize("opts, name", [({"alpha": 1.5}, "alpha"), ({"gamma": 11}, "gamma"),
                                         ({"n_iter": 0}, "n_iter"), ({"arm_selection": "x"}, "arm_selection"),
-                                        ({"bogus": 1}, "bogus")])
+                                        ({"bogus": 1}, "bogus"), ({"crowding": "yes"}, "crowding"),
+                                        ({"crowding_radius_mm": 0}, "crowding_radius_mm"),
+                                        ({"crowding_radius_mm": float("nan")}, "crowding_radius_mm"),
+                                        ({"eject_trials": -1}, "eject_trials"),
+                                        ({"eject_trials": 1.5}, "eject_trials")])
 def test_option_validation(opts, name):
     with pytest.raises(InputError) as e:
         sg.solve_semigreedy(field(5, 0), **opts)
@@ -574,7 +578,8 @@ def test_replace_pass_fast_path_misses_no_move(seed):
             ok = sl[st.movable[sl] & (s.blocked[sl] == 0)]
             for j in ok:
                 dp = int(st.prio[j]) - int(st.prio[c])
-                if dp > 0 or (dp == 0 and st.disp[j] < st.disp[c] - sg._DISP_EPS):
+                dh = int(st.hw[j]) - int(st.hw[c])  # the crowding tie-break, after priority
+                if dp > 0 or (dp == 0 and (dh > 0 or (dh == 0 and st.disp[j] < st.disp[c] - sg._DISP_EPS))):
                     improving = True
         made = sg.replace_pass(st, s, rng)
         assert (made > 0) == improving
@@ -590,3 +595,107 @@ def test_max_stall_ends_the_multistart():
     assert full.stats["iterations"] == 40
     assert sg.SemiGreedyOptions().max_stall == 10 and sg.SemiGreedyOptions().n_iter == 30
 
+
+
+# ------------------------------------------------ crowding tie-break and ejection moves
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_tie_break_weights_match_brute_force_and_the_driver(seed):
+    """The cached-pair computation equals a brute-force count and sequencing.hard_to_place."""
+    from solvers.sequencing import hard_to_place
+
+    rng = np.random.default_rng(seed)
+    p = field(250, seed, "gauss")
+    avail = rng.random(250) < 0.6
+    p = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s,
+                      target_xy_mm=p.target_xy_mm)
+    radius = [15.0, 25.0, 8.0][seed]
+    st = sg.prepare(p, sg.SemiGreedyOptions(crowding_radius_mm=radius))
+    fs = sg._field_static(p, sg._penalty_spec("thesis", 12), 0.0)
+    h = sg.tie_break_weights(p, fs, radius)
+    apt = p.incompatibility.reachability.arms_per_target
+    xy = p.target_xy_mm
+    live = avail & (apt > 0)
+    d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+    near = ((d <= radius) & live[None, :] & live[:, None]).sum(axis=1) - live  # others, not itself
+    brute = np.where(apt > 0, 12 - apt, 0) + np.where(live, near, 0)
+    assert h.tolist() == brute.tolist()
+    assert near.max() >= 3  # the field is crowded enough for the count to matter
+    assert h.tolist() == hard_to_place(p.incompatibility, 12, xy, avail, crowding_radius_mm=radius).tolist()
+    # per assignment: the target's weight, 0 for rest locations
+    a = p.assignments
+    real = st.is_target
+    assert (st.hw[real] == h[a.target[real]]).all() and (st.hw[~real] == 0).all()
+    # a driver-supplied tie-break wins
+    p2 = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s,
+                       target_xy_mm=xy, tie_break=np.arange(250))
+    assert sg.tie_break_weights(p2, fs, radius).tolist() == list(range(250))
+
+
+def _one_arm_field(xy, priorities):
+    """A ConfigProblem on an instrument with only arm 0 in service: one target per configuration."""
+    inst = INST.with_arms_disabled(list(range(1, 12)))
+    xy = np.asarray(xy, float)
+    inc = incompatibility_for_targets(inst, xy[:, 0], xy[:, 1])
+    return inst, ConfigProblem(inc, np.asarray(priorities, np.int64), np.ones(len(xy), bool),
+                               inst.park_configuration, _speeds(), target_xy_mm=xy)
+
+
+def test_crowding_prefers_the_crowded_target_among_equal_priorities():
+    """One arm, equal priorities: an isolated target next to the park tip (least displacement)
+    and a crowded trio near the centre. Without the tie-break the displacement decides (the
+    isolated one); with it the crowded trio goes first."""
+    xy = [(105.0, 8.0), (10.0, 0.0), (10.0, 9.0), (16.0, 4.0), (60.0, -60.0)]
+    inst, p = _one_arm_field(xy, [10, 10, 10, 10, 1])
+    assert (p.incompatibility.reachability.arms_per_target[:4] == 1).all()
+    plain = sg.solve_semigreedy(p, seed=0, crowding=False)
+    crowd = sg.solve_semigreedy(p, seed=0)
+    t = p.assignments.target
+    assert int(t[plain.chosen[0]]) == 0  # shortest move
+    assert int(t[crowd.chosen[0]]) in (1, 2, 3)
+    assert plain.total_priority == crowd.total_priority == 10  # priority stays first
+    for sol in (plain, crowd):
+        assert check_solution(inst, p, sol.chosen) == []
+    # a higher priority still beats any crowding
+    inst, p = _one_arm_field(xy, [10, 5, 5, 5, 1])
+    assert int(p.assignments.target[sg.solve_semigreedy(p, seed=0).chosen[0]]) == 0
+
+
+def _blocked_from_scratch(st, chosen):
+    b = np.zeros(len(st.arm), np.int64)
+    for x in chosen[chosen >= 0]:
+        b[st.indices[st.indptr[x]:st.indptr[x + 1]]] += 1
+    return b
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_eject_pass_improves_and_keeps_the_state_consistent(seed):
+    """Ejection moves strictly improve the key, keep the blocking counts exact, stay
+    collision-free (geometric re-check) and do happen on under-filled tail problems."""
+    rng = np.random.default_rng(seed)
+    p = field(150, seed, "gauss", priorities=np.ones(150, np.int64))
+    # a tail problem: few pending targets, crowded near the centre
+    xy = p.target_xy_mm
+    avail = np.hypot(xy[:, 0], xy[:, 1]) < 45
+    avail &= rng.random(150) < 0.5
+    p = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s, target_xy_mm=xy)
+    st = sg.prepare(p, sg.SemiGreedyOptions())
+    moves = 0
+    for _ in range(20):
+        s = sg.construct(st, 0.8, "pbas", rng)
+        assert sg.pad(st, s)
+        sg.local_search(st, s, rng, eject_trials=0)
+        while True:
+            before = s.key(st)
+            made = sg.eject_pass(st, s, rng, max_trials=1000)
+            if not made:
+                assert s.key(st) == before
+                break
+            moves += made
+            after = s.key(st)
+            assert after[:3] > before[:3] or (after[:3] == before[:3] and after[3] > before[3])
+            assert (s.blocked == _blocked_from_scratch(st, s.chosen)).all()
+            assert sorted(st.arm[s.chosen].tolist()) == list(range(12))
+            assert check_solution(INST, p, s.chosen) == []
+    assert moves > 0
