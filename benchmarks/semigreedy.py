@@ -17,12 +17,12 @@ Sections:
 
   - ``exact``: ``allocate(method="ilp")`` (the library default back-end, ``bnb``) with a
     modest per-configuration limit ``config_time_limit_s = EXACT_CONFIG_S``, one
-    configuration at a time as in the thesis protocol (``--exact-repack``: with the
-    driver's CP-SAT tail repacking, much slower);
+    configuration at a time as in the thesis protocol: no ejection repair, no repacking
+    (``--exact-repack``: with the driver's repair and CP-SAT tail repacking, much slower);
   - ``sg0.2`` / ``sg0.8``: SGPBTA at its defaults (thesis 5.5.3.1: eq. 5.21 matrix, 30 runs,
     gamma 0.1, PBAS) with alpha 0.2 / 0.8, on a structure with ``BLANK_PER_ARM`` blank-sky
-    locations per arm (Algorithm 5 padding), no tail repacking (that is a CP-SAT model,
-    not the heuristic). Every configuration SGPBTA returns is also solved exactly on the
+    locations per arm (Algorithm 5 padding), one configuration at a time too: no
+    sequence repair, no tail repacking (a CP-SAT model, not the heuristic). Every configuration SGPBTA returns is also solved exactly on the
     very same problem (``bnb``, ``GAP_CONFIG_S`` per configuration):
     ``avg_gap_vs_exact`` is the mean relative total-priority gap per configuration
     (0 = optimal), over the configurations whose exact optimum was proven.
@@ -31,8 +31,11 @@ Sections:
 * ``warm_start``: CP-SAT on one configuration, cold and with SGPBTA's solution as hint.
 * ``dense``: 1,200 targets (sigma 60 mm), fields seeded 100, 101, ...: the whole sequence
   to completeness through ``allocate(method="semigreedy", configurations="all")`` at the
-  SGPBTA defaults (only alpha set), ``blank_per_arm=BLANK_PER_ARM``, ``repack=False``,
-  ``time_limit_s=DENSE_BUDGET_S``;
+  SGPBTA defaults (only alpha set), ``blank_per_arm=BLANK_PER_ARM``, ``repack=False``:
+  ``sg<alpha>`` SGPBTA alone (``repair=False``, ``time_limit_s=DENSE_BUDGET_S``);
+  ``sg<alpha>+repair`` (``--dense-repair``) with the driver's ejection repair of the
+  whole sequence (solvers.repair, no geometry, no CP-SAT) inside a call budget of
+  ``time_limit_s=DENSE_REPAIR_BUDGET_S``, which also bounds the repair;
   wall time INCLUDING the incompatibility structure, medians over fields x repeats.
   ``--dense-exact`` also runs the exact allocator on the same fields (20 s budget).
 """
@@ -66,6 +69,9 @@ ALPHAS = (0.2, 0.8)
 # the dense call's budget: allocate()'s default 10 s includes the structure and, on a
 # heavily loaded machine, ran out before the first configuration
 DENSE_BUDGET_S = 60.0
+# with the sequence repair: the whole call, structure included, limited to this (the repair
+# gets at most half of what is left, so the budget bounds it)
+DENSE_REPAIR_BUDGET_S = 4.0
 
 
 def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
@@ -76,7 +82,7 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
 def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | None = None) -> dict:
     t0 = time.perf_counter()
     r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=field_limit_s or EXACT_FIELD_S,
-                 config_time_limit_s=EXACT_CONFIG_S, seed=seed, repack=repack)
+                 config_time_limit_s=EXACT_CONFIG_S, seed=seed, repack=repack, repair=repack)
     return {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
             "before_repack": r.stats["n_configurations_greedy"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"]}
@@ -107,7 +113,7 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
 
     t0 = time.perf_counter()
     r = sequence_configurations(INST, targets, solve, seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap,
-                                blank_per_arm=BLANK_PER_ARM, repack=False)
+                                blank_per_arm=BLANK_PER_ARM, repack=False, repair=False)
     return {"wall_s": time.perf_counter() - t0 - t_gap[0], "configurations": r.stats["n_configurations"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"],
             "gaps": gaps, "exact_not_optimal": not_optimal[0]}
@@ -161,21 +167,27 @@ def protocol(sizes, dists, instances, sides, with_gap, exact_cache, exact_repack
     return rows
 
 
-def dense(n, fields, repeats, with_exact):
+def dense(n, fields, repeats, with_exact, with_repair=False):
     out = {"targets": n, "distribution": "weak (sigma 60 mm)", "blank_per_arm": BLANK_PER_ARM, "repack": False,
-           "ceil_t_over_12": math.ceil(n / 12), "load_before": os.getloadavg(), "runs": []}
+           "repair_budget_s": DENSE_REPAIR_BUDGET_S, "ceil_t_over_12": math.ceil(n / 12),
+           "load_before": os.getloadavg(), "runs": []}
+    variants = [(a, False) for a in ALPHAS] + ([(a, True) for a in ALPHAS] if with_repair else [])
     for i in range(fields):
         targets = make_field(n, "weak", np.random.default_rng(100 + i))  # benchmarks/allocation.py's dense
         for rep in range(repeats):
-            for a in ALPHAS:
+            for a, repair in variants:
                 t0, c0 = time.perf_counter(), time.process_time()
                 r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i, alpha=a,
-                             blank_per_arm=BLANK_PER_ARM, repack=False, time_limit_s=DENSE_BUDGET_S)
+                             blank_per_arm=BLANK_PER_ARM, repack=False, repair=repair,
+                             time_limit_s=DENSE_REPAIR_BUDGET_S if repair else DENSE_BUDGET_S)
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-                out["runs"].append({"field_seed": 100 + i, "repeat": rep, "alpha": a, "wall_s": wall, "cpu_s": cpu,
+                out["runs"].append({"field_seed": 100 + i, "repeat": rep, "alpha": a, "repair": repair,
+                                    "wall_s": wall, "cpu_s": cpu, "load": os.getloadavg()[0],
                                     "incompatibility_s": r.stats["timers_s"]["incompatibility_s"],
                                     "rescue_s": r.stats["timers_s"].get("rescue_s", 0.0),
+                                    "repair_s": r.stats["timers_s"].get("repair_s", 0.0),
                                     "configurations": r.stats["n_configurations"],
+                                    "before_repair": r.stats["n_configurations_greedy"],
                                     "field_completeness": r.stats["field_completeness"],
                                     "stop_reason": r.stats["stop_reason"],
                                     "unallocated": [u.reason for u in r.unallocated]})
@@ -185,14 +197,16 @@ def dense(n, fields, repeats, with_exact):
             out.setdefault("exact", []).append({"field_seed": 100 + i, "wall_s": time.perf_counter() - t0,
                                                 "configurations": r.stats["n_configurations"],
                                                 "field_completeness": r.stats["field_completeness"]})
-    for a in ALPHAS:
-        runs = [r for r in out["runs"] if r["alpha"] == a]
-        out[f"sg{a}"] = {"median_wall_s_with_incompatibility": statistics.median(r["wall_s"] for r in runs),
-                         "max_wall_s_with_incompatibility": max(r["wall_s"] for r in runs),
-                         "median_cpu_s": statistics.median(r["cpu_s"] for r in runs),
-                         "median_incompatibility_s": statistics.median(r["incompatibility_s"] for r in runs),
-                         "configurations_per_field": [r["configurations"] for r in runs if r["repeat"] == 0],
-                         "all_complete": all(r["field_completeness"] >= 1.0 for r in runs)}
+    for a, repair in variants:
+        runs = [r for r in out["runs"] if r["alpha"] == a and r["repair"] == repair]
+        out[f"sg{a}" + ("+repair" if repair else "")] = {
+            "median_wall_s_with_incompatibility": statistics.median(r["wall_s"] for r in runs),
+            "max_wall_s_with_incompatibility": max(r["wall_s"] for r in runs),
+            "median_cpu_s": statistics.median(r["cpu_s"] for r in runs),
+            "median_incompatibility_s": statistics.median(r["incompatibility_s"] for r in runs),
+            "configurations_per_field_and_repeat": [[r["configurations"] for r in runs if r["field_seed"] == 100 + i]
+                                                    for i in range(fields)],
+            "all_complete": all(r["field_completeness"] >= 1.0 for r in runs)}
     out["load_after"] = os.getloadavg()
     return out
 
@@ -248,6 +262,8 @@ def main() -> None:
     ap.add_argument("--dense-fields", type=int, default=3)
     ap.add_argument("--dense-repeats", type=int, default=3)
     ap.add_argument("--dense-exact", action="store_true", help="also run the exact allocator on the dense fields")
+    ap.add_argument("--dense-repair", action="store_true", help="also run SGPBTA + the driver's sequence repair "
+                                                                "(time_limit_s=DENSE_REPAIR_BUDGET_S)")
     ap.add_argument("--skip", default="warm_start", help="comma list of sections to skip: protocol,warm_start,dense")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
@@ -277,7 +293,8 @@ def main() -> None:
         out["warm_start"] = warm_starts([(96, "uniform")] if args.smoke else
                                         [(384, "uniform"), (384, "heavy"), (1200, "weak")], [0] if args.smoke else [0, 1])
     if "dense" not in skip:
-        out["dense"] = dense(300 if args.smoke else 1200, args.dense_fields, args.dense_repeats, args.dense_exact)
+        out["dense"] = dense(300 if args.smoke else 1200, args.dense_fields, args.dense_repeats, args.dense_exact,
+                             args.dense_repair)
     out["total_s"] = time.perf_counter() - t0
     out["load_end"] = os.getloadavg()
     print(json.dumps(out, indent=1, default=float))

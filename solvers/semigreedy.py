@@ -159,7 +159,7 @@ class _FieldStatic:
     indptr_l: list
     reach_h: np.ndarray  # (n_targets,) n_arms - (arms reaching the target), 0 if unreachable
     reachable: np.ndarray  # (n_targets,) bool: some enabled arm reaches the target
-    pairs: dict = field(default_factory=dict)  # radius -> (i, j) target pairs closer than it
+    pairs: dict = field(default_factory=dict)  # radius -> [neighbour CSR ptr, idx, last (live, counts)]
 
 
 _FIELD_CACHE: dict[tuple, tuple[object, _FieldStatic]] = {}
@@ -243,26 +243,43 @@ def tie_break_weights(problem: ConfigProblem, fs: _FieldStatic, radius_mm: float
     :func:`solvers.sequencing.hard_to_place` computes -- ``n_arms - (arms reaching the
     target)`` plus the number of other available, reachable targets within
     ``radius_mm`` -- from the field's fixed neighbour pairs (one k-d tree query per field,
-    cached) and the ``available`` mask: O(pairs) per configuration instead of a tree per
-    configuration. Without ``target_xy_mm`` only the reach term.
+    cached). Along a sequence the pending set only shrinks, so the counts of the previous
+    call are updated for the targets observed since (O(their neighbours)); otherwise they
+    are counted over all pairs. Without ``target_xy_mm`` only the reach term.
     """
     if problem.tie_break is not None:
         return np.asarray(problem.tie_break, np.int64)
-    h = fs.reach_h.copy()
+    h = fs.reach_h
     xy = problem.target_xy_mm
-    if xy is None or not len(h):
-        return h
-    pairs = fs.pairs.get(radius_mm)
-    if pairs is None:
+    n = len(h)
+    if xy is None or not n:
+        return h.copy()
+    nbr = fs.pairs.get(radius_mm)
+    if nbr is None:
         from scipy.spatial import cKDTree
 
         pairs = cKDTree(np.asarray(xy, float)).query_pairs(radius_mm, output_type="ndarray").astype(np.intp)
-        fs.pairs[radius_mm] = pairs
+        # both directions, as CSR: the neighbours of each target
+        src = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        dst = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        order = np.argsort(src, kind="stable")
+        nbr = fs.pairs[radius_mm] = [np.searchsorted(src[order], np.arange(n + 1)), dst[order], None]
+    ptr, idx, last = nbr
     live = problem.available & fs.reachable
-    both = live[pairs[:, 0]] & live[pairs[:, 1]]
-    n = len(h)
-    h += np.bincount(pairs[both, 0], minlength=n) + np.bincount(pairs[both, 1], minlength=n)
-    return h
+    if last is not None and not (live & ~last[0]).any():
+        gone = np.flatnonzero(last[0] & ~live)  # observed since the last call
+        cnt = last[1].copy()
+        if len(gone):
+            lens = ptr[gone + 1] - ptr[gone]
+            nb = idx[np.repeat(ptr[gone] - np.cumsum(lens) + lens, lens) + np.arange(int(lens.sum()))]
+            np.subtract.at(cnt, nb[last[0][nb]], 1)
+            cnt[gone] = 0
+    else:
+        src = np.repeat(np.arange(n), np.diff(ptr))
+        both = live[src] & live[idx]
+        cnt = np.bincount(src[both], minlength=n)
+    nbr[2] = (live, cnt)
+    return h + cnt
 
 
 @dataclass(frozen=True)
@@ -521,11 +538,11 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
     arm_free = (chosen < 0) & st.target_arms
     arm_free_l = arm_free.tolist()
     n_free = int(arm_free.sum())
-    idle = (chosen < 0).tolist()  # arms without a location yet (they will need a rest location)
+    idle = chosen < 0  # arms without a location yet (they will need a rest location)
     elig = tok & arm_free[arm]  # target assignments of free arms (usable unless blocked)
     cnt = st.cnt0.copy()
     live = cnt > 0  # drawable: not drawn yet and still some usable assignment
-    rest_free = st.rest_free0.tolist()
+    rest_free = st.rest_free0.copy()
     pbas = arm_selection == "pbas"
     # uniform draws in batches (one Generator call per 64 draws)
     buf = rng.random(64).tolist()
@@ -581,11 +598,13 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
             if r0 == r1:
                 x = c
                 break
-            lost_rest = np.bincount(rn_arm[r0:r1][blocked[rn_idx[r0:r1]] == 0], minlength=n_arms).tolist()
-            if lookahead and any(lr and lr >= rf and ok and j != k
-                                 for j, (lr, rf, ok) in enumerate(zip(lost_rest, rest_free, idle, strict=True))):
-                lost_rest = None
-                continue
+            lost_rest = np.bincount(rn_arm[r0:r1][blocked[rn_idx[r0:r1]] == 0], minlength=n_arms)
+            if lookahead:
+                starved = (lost_rest > 0) & (lost_rest >= rest_free) & idle
+                starved[k] = False
+                if starved.any():
+                    lost_rest = None
+                    continue
             x = c
             break
         if x < 0:
@@ -599,7 +618,7 @@ def construct(st: Prepared, alpha: float, arm_selection: ArmSelection, rng: np.r
         idle[k] = False
         n_free -= 1
         if lost_rest is not None:
-            rest_free = [rf - lr for rf, lr in zip(rest_free, lost_rest, strict=True)]
+            rest_free -= lost_rest
         nb = indices[indptr_l[x]:indptr_l[x + 1]]
         bnb = blocked[nb]
         free_nb = bnb == 0
@@ -845,6 +864,11 @@ def eject_pass(st: Prepared, s: State, rng: np.random.Generator, max_blockers: i
     order = np.lexsort((rng.random(len(xs)), -st.score[xs]))
     indices, indptr_l, arm_start_l = st.indices64, st.indptr_l, st.arm_start_l
     prio, is_t, hw, disp = st.prio, st.is_target, st.hw, st.disp
+    arm_l, movable, score = st.arm_l, st.movable, st.score
+
+    def prio_l(c: int) -> int:
+        return int(prio[c])
+
     for x in xs[order].tolist():
         k = st.arm_l[x]
         js = owner[indices[indptr_l[x]:indptr_l[x + 1]]]
@@ -862,21 +886,22 @@ def eject_pass(st: Prepared, s: State, rng: np.random.Generator, max_blockers: i
             s0, s1 = arm_start_l[j], arm_start_l[j + 1]
             b = blocked[s0:s1].copy()
             for c in old:
-                b[_row_in(st, c, s0, s1)] -= 1
+                if arm_l[c] != j:  # an arm's own locations never block each other
+                    b[_row_in(st, c, s0, s1)] -= 1
             for c in new:
                 b[_row_in(st, c, s0, s1)] += 1
-            sc = np.where(st.movable[s0:s1] & (b == 0), st.score[s0:s1], -np.inf)
+            sc = np.where(movable[s0:s1] & (b == 0), score[s0:s1], -np.inf)
             y = int(sc.argmax())
             if sc[y] == -np.inf:
                 break
             new.append(s0 + y)
         if len(new) < len(old):
             continue
-        dp = int(prio[new].sum() - prio[old].sum())
-        dy = int(is_t[new].sum()) - int(is_t[old].sum())
-        dh = int(hw[new].sum() - hw[old].sum())
-        dd = float(disp[new].sum() - disp[old].sum())
-        if _better(dp, dy, dh, dd):
+        dp = sum(prio_l(c) for c in new) - sum(prio_l(c) for c in old)
+        dy = sum(is_t[c] for c in new) - sum(is_t[c] for c in old)
+        dh = sum(int(hw[c]) for c in new) - sum(int(hw[c]) for c in old)
+        dd = sum(float(disp[c]) for c in new) - sum(float(disp[c]) for c in old)
+        if _better(int(dp), int(dy), dh, dd):
             for j in [k] + js:
                 s.remove(st, j)
             for y in new:
@@ -888,7 +913,7 @@ def eject_pass(st: Prepared, s: State, rng: np.random.Generator, max_blockers: i
 def _row_in(st: Prepared, c: int, s0: int, s1: int) -> np.ndarray:
     """The assignments in [s0, s1) incompatible with ``c``, as offsets from s0 (CSR rows are sorted)."""
     nb = st.indices64[st.indptr_l[c]:st.indptr_l[c + 1]]
-    return nb[np.searchsorted(nb, s0):np.searchsorted(nb, s1)] - s0
+    return nb[nb.searchsorted(s0):nb.searchsorted(s1)] - s0
 
 
 def local_search(st: Prepared, s: State, rng: np.random.Generator, max_moves: int = 1000,

@@ -627,6 +627,17 @@ def test_tie_break_weights_match_brute_force_and_the_driver(seed):
     a = p.assignments
     real = st.is_target
     assert (st.hw[real] == h[a.target[real]]).all() and (st.hw[~real] == 0).all()
+    # along a sequence the pending set shrinks: the counts are updated incrementally
+    # (then a larger set again: counted afresh); each time equal to the driver's function
+    for _ in range(4):
+        avail = avail & (rng.random(250) < 0.8)
+        p1 = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s, target_xy_mm=xy)
+        assert sg.tie_break_weights(p1, fs, radius).tolist() == \
+            hard_to_place(p.incompatibility, 12, xy, avail, crowding_radius_mm=radius).tolist()
+    avail = np.ones(250, bool)
+    p1 = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s, target_xy_mm=xy)
+    assert sg.tie_break_weights(p1, fs, radius).tolist() == \
+        hard_to_place(p.incompatibility, 12, xy, avail, crowding_radius_mm=radius).tolist()
     # a driver-supplied tie-break wins
     p2 = ConfigProblem(p.incompatibility, p.priority, avail, p.start_q, p.joint_speed_rad_s,
                        target_xy_mm=xy, tie_break=np.arange(250))
