@@ -71,7 +71,7 @@ ALPHAS = (0.2, 0.8)
 DENSE_BUDGET_S = 60.0
 # with the sequence repair: the whole call, structure included, limited to this (the repair
 # gets at most half of what is left, so the budget bounds it)
-DENSE_REPAIR_BUDGET_S = 4.0
+DENSE_REPAIR_BUDGET_S = 3.0
 
 
 def field_rng(n: int, dist: str, i: int) -> np.random.Generator:

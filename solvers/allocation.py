@@ -132,7 +132,10 @@ def allocate(
         if form not in ("aggregated", "pairwise"):
             raise InputError("form", "must be 'aggregated' or 'pairwise'")
     solve_one = _solver_fn(method, solver, method_options)
-    if method == "semigreedy":  # SGPBTA ranks by priority, yield, displacement: no tie-break to compute
+    if method == "semigreedy":
+        # SGPBTA computes its crowding tie-break itself, incrementally from cached neighbour
+        # pairs (solvers.semigreedy.tie_break_weights): the driver's per-configuration k-d
+        # tree is not needed (tie_break=True passes the driver's weights, which SGPBTA then uses)
         seq_opts.setdefault("tie_break", False)
     seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
 
