@@ -89,7 +89,10 @@ def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | N
 
 
 def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1) -> dict:
-    """SGPBTA at its defaults through the driver; each configuration re-solved exactly."""
+    """SGPBTA at its defaults through the driver; each configuration re-solved exactly.
+
+    ``tie_break=False`` as in ``allocate(method="semigreedy")``: SGPBTA then uses its own
+    crowding weights (25 mm), not the driver's (15 mm)."""
     from solvers.bnb import solve_ilp_bnb
 
     gaps: list[float] = []
@@ -113,7 +116,7 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
 
     t0 = time.perf_counter()
     r = sequence_configurations(INST, targets, solve, seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap,
-                                blank_per_arm=BLANK_PER_ARM, repack=False, repair=False)
+                                blank_per_arm=BLANK_PER_ARM, repack=False, repair=False, tie_break=False)
     return {"wall_s": time.perf_counter() - t0 - t_gap[0], "configurations": r.stats["n_configurations"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"],
             "gaps": gaps, "exact_not_optimal": not_optimal[0]}
