@@ -57,25 +57,27 @@ def main() -> None:
     ap.add_argument("--instances", type=int, default=20)
     ap.add_argument("--solver", default="bnb")
     ap.add_argument("--sizes", default="96,192,384")
-    ap.add_argument("--dists", default="uniform,heavy,weak")
+    ap.add_argument("--dists", default="uniform,heavy,weak", help='comma-separated, or "none" (skip the protocol)')
     ap.add_argument("--dense", type=int, default=1200)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--dense-time-limit", type=float, default=20.0)
+    ap.add_argument("--field-time-limit", type=float, default=120.0, help="per protocol field, whole sequence")
     args = ap.parse_args()
     ins = default_instrument()
     sizes = [int(s) for s in args.sizes.split(",")]
     n_inst = args.instances
     if args.smoke:
         sizes, n_inst, args.dense, args.repeats = [96], 2, 200, 1
-    out: dict = {"solver": args.solver, "protocol": {}, "one_configuration_384": {}, "dense": {}}
-    for dist in args.dists.split(","):
+    out: dict = {"solver": args.solver, "field_time_limit_s": args.field_time_limit, "protocol": {}, "one_configuration_384": {}, "dense": {}}
+    for dist in ([] if args.dists == "none" else args.dists.split(",")):
         for n in sizes:
             rng = np.random.default_rng(1000 * n + zlib.crc32(dist.encode()) % 997)  # hash() is salted per process
             counts, greedy, walls, lb, lbf, comp, lbp, lbc = [], [], [], [], [], [], [], []
             for _ in range(n_inst):
                 f = make_field(n, dist, rng)
                 t = time.perf_counter()
-                r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=120.0)
+                r = allocate(ins, f, solver=args.solver, configurations="all",
+                             time_limit_s=args.field_time_limit)
                 walls.append(time.perf_counter() - t)
                 assert r.stats["field_completeness"] == 1.0 or r.unallocated
                 counts.append(r.stats["n_configurations"])
@@ -111,7 +113,7 @@ def main() -> None:
         one.append(time.perf_counter() - t)
     out["one_configuration_384"] = {"median_wall_s_including_incompatibility": statistics.median(one)}
     walls, counts = [], []
-    for i in range(args.repeats):
+    for i in range(args.repeats if args.dense else 0):
         f = make_field(args.dense, "weak", np.random.default_rng(100 + i))
         t = time.perf_counter()
         r = allocate(ins, f, solver=args.solver, configurations="all", time_limit_s=args.dense_time_limit)
@@ -121,8 +123,9 @@ def main() -> None:
             "n_configurations", "n_configurations_greedy", "lower_bound_configurations",
             "lower_bound_configurations_flow", "field_completeness",
             "priority_completeness", "timers_s", "stop_reason")})
-    out["dense"].update({"targets": args.dense, "median_wall_s": statistics.median(walls), "configurations": counts,
-                         "ceil_t_over_12": math.ceil(args.dense / 12)})
+    if walls:
+        out["dense"].update({"targets": args.dense, "median_wall_s": statistics.median(walls),
+                             "configurations": counts, "ceil_t_over_12": math.ceil(args.dense / 12)})
     print(json.dumps(out, indent=1, default=float))
 
 

@@ -243,7 +243,7 @@ def sequence_configurations(
         # up to 1 s kept back: building a model and verifying the result are not covered by
         # the solver's own time limit (0.5 s let a 10 s call on 384 targets overrun by 0.8 s)
         budget = min(time_limit_s - min(0.1 * time_limit_s, 1.0) - (tr - t0),
-                     repack_time_limit_s * 4 * repack_max_window)
+                     max(repack_time_limit_s * 4 * repack_max_window, 0.5 * time_limit_s))
         n0 = len(configs)
         if not extra:
             configs = _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie,
@@ -498,6 +498,7 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
     t0 = time.perf_counter()
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
+    n_active = len(_active_arms(inc, n_arms))
     n_main = len(configs)
     per = [a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in configs] + list(extra)
     n = len(per)
@@ -526,13 +527,18 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
             break
         count = (lo + hi) // 2
         ts = time.perf_counter()
-        packed, pool, infeasible = attempt(h0, count, min(left, attempt_s))
+        # the attempts the bisection still needs share what is left (at least attempt_s each)
+        share = left / max(1, math.ceil(math.log2(hi - lo + 2)))
+        packed, pool, infeasible = attempt(h0, count, min(left, max(attempt_s, share)))
         if packed is not None:
             best = (h0, count, packed, pool, time.perf_counter() - ts)
             hi = count - 1
         else:
             lo = count + 1
-            if infeasible and h0 == 0 and not extra:
+            # with rescued targets in the pool the model (park rests only) is stricter than
+            # the rescue, which may rest idle arms on blank sky — unless the pool fills every
+            # active arm of every configuration, when no arm rests at all
+            if infeasible and h0 == 0 and (not extra or len(pool) >= n_active * count):
                 proven = max(proven, count + 1)
     if best is None:
         return configs, proven, False
@@ -577,6 +583,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
     t0 = time.perf_counter()
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
+    n_active = len(_active_arms(inc, n_arms))
     proven = lower_bound
     extra = list(rescued or [])
     kept = 0  # rescue configurations kept apart after their targets failed to fit any packing
@@ -624,7 +631,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
                                         time.perf_counter() - ts, pool, q0)
                 extra, found = [], True
                 break
-            if h == 0 and st["infeasible"] and not extra:
+            if h == 0 and st["infeasible"] and (not extra or len(pool) >= n_active * (n - 1)):
                 # (with rescued targets in the pool the model is stricter than the rescue,
                 # which may rest idle arms on blank sky: no proof then)
                 proven = max(proven, n)
