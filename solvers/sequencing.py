@@ -394,33 +394,22 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     return out
 
 
-def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, pool, q0=None):
-    """The last ``window`` configurations replaced by the verified ``packed`` ones, highest
-    priority first, each starting where the previous one left the arms (the first at ``q0``,
-    default park)."""
+def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, q0=None):
+    """The last ``window`` configurations replaced by the verified ``packed`` ones, highest priority first (:func:`_rebuild`; the first starts
+    at ``q0``, default park, when nothing is kept)."""
     a = inc.assignments
-    head = configs[:-window]
-    q = head[-1][0].assignments.q[head[-1][1]] if head else (
-        instrument.park_configuration if q0 is None else q0)
-    pending = np.zeros(len(priority), bool)
-    pending[pool] = True
     packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
-    new = []
-    for ch in packed:
-        prob = ConfigProblem(inc, priority, pending.copy(), q, speeds, target_xy_mm=xy, tie_break=tie)
-        _verify(instrument, prob, ch)
-        tg = a.target[ch]
-        pending[tg[tg >= 0]] = False
-        new.append((prob, ch, "feasible", {"solve_s": dt / len(packed), "status": "repacked",
-                                            "longest_move_s": evaluate(prob, ch)[2]}))
-        q = a.q[ch]
-    return head + new
+    head = [ch for _, ch, _, _ in configs[:-window]]
+    return _rebuild(instrument, inc, priority, configs, head + packed, speeds, xy, tie,
+                    instrument.park_configuration if q0 is None else q0, status="repacked",
+                    solve_s=dt / max(len(packed), 1))
 
 
-def _rebuild(instrument, inc, priority, configs, new_chosen, speeds, xy, tie, q0):
-    """``configs`` with their chosen assignments replaced by ``new_chosen`` (same order, some
-    removed): unchanged leading configurations are kept, the rest rebuilt and verified, each
-    starting where the previous one left the arms."""
+def _rebuild(instrument, inc, priority, configs, new_chosen, speeds, xy, tie, q0, status: str = "repaired",
+             solve_s: float = 0.0):
+    """``configs`` with their chosen assignments replaced by ``new_chosen``: the unchanged
+    leading configurations are kept, the rest rebuilt and verified geometrically, each
+    starting where the previous one left the arms (the first at ``q0``)."""
     same = 0
     while (same < min(len(configs), len(new_chosen))
            and np.array_equal(configs[same][1], new_chosen[same])):
@@ -440,7 +429,7 @@ def _rebuild(instrument, inc, priority, configs, new_chosen, speeds, xy, tie, q0
         _verify(instrument, prob, ch)
         tg = a.target[ch]
         pending[tg[tg >= 0]] = False
-        out.append((prob, ch, "feasible", {"solve_s": 0.0, "status": "repaired",
+        out.append((prob, ch, "feasible", {"solve_s": solve_s, "status": status,
                                            "longest_move_s": evaluate(prob, ch)[2]}))
         q = a.q[ch]
     return out
@@ -482,7 +471,7 @@ def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
                               seed=seed, threads=threads, hint=[ch for _, ch, _, _ in tail])
         if packed is not None:
             return _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
-                                 time.perf_counter() - ts, pool)
+                                 time.perf_counter() - ts)
         c += 1
     return configs
 
@@ -557,7 +546,7 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
         else:
             h_hi = mid - 1
     h, count, packed, pool, dt = best
-    return _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie, dt, pool,
+    return _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie, dt,
                          q0), proven, True
 
 
@@ -628,7 +617,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
                                   threads=threads, hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
             if packed is not None:
                 configs = _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie,
-                                        time.perf_counter() - ts, pool, q0)
+                                        time.perf_counter() - ts, q0)
                 extra, found = [], True
                 break
             if h == 0 and st["infeasible"] and (not extra or len(pool) >= n_active * (n - 1)):
