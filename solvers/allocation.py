@@ -29,7 +29,7 @@ CONFIG_MODES = ("one", "all")
 ILP_OPTIONS = {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level", "interface"}
 SEQ_OPTIONS = {"config_time_limit_s", "mip_rel_gap", "threads", "tie_break", "repack", "repack_max_window",
                "repack_time_limit_s", "max_configurations", "adaptive_limits", "lower_bound_flow", "rescue", "blank_per_arm", "tail_fraction",
-               "repair"}
+               "repair", "repair_time_limit_s"}
 BNB_OPTIONS = {"node_limit", "minimize_move", "fallback", "hint", "tie_node_limit", "move_node_limit",
                "fallback_min_s"}
 
@@ -120,7 +120,7 @@ def allocate(
     seq_opts = {k: method_options.pop(k) for k in list(method_options) if k in SEQ_OPTIONS}
     if configurations == "one":
         seq_opts["max_configurations"] = 1
-    for name in ("config_time_limit_s", "repack_time_limit_s"):
+    for name in ("config_time_limit_s", "repack_time_limit_s", "repair_time_limit_s"):
         v = seq_opts.get(name)
         if v is not None and not (math.isfinite(v) and v > 0):
             raise InputError(name, "must be a positive finite number of seconds")
@@ -137,6 +137,12 @@ def allocate(
         # pairs (solvers.semigreedy.tie_break_weights): the driver's per-configuration k-d
         # tree is not needed (tie_break=True passes the driver's weights, which SGPBTA then uses)
         seq_opts.setdefault("tie_break", False)
+        # the fast path: no CP-SAT repacking (seconds of solver time), a short ejection-chain
+        # repair, and blank-sky rests (with park only, a rim target in front of an arm's park
+        # can stay `conflict` — see README, semi-greedy)
+        seq_opts.setdefault("repack", False)
+        seq_opts.setdefault("repair_time_limit_s", 0.5)
+        seq_opts.setdefault("blank_per_arm", 16)
     seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
 
     def run(tgts: PlaneTargets) -> AllocationResult:

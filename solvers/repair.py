@@ -65,12 +65,13 @@ class _Sequence:
 
 
 def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priority: np.ndarray, *, budget_s: float,
-                          loose: list[np.ndarray] | None = None, min_keep: int = 0
-                          ) -> tuple[list[np.ndarray], list[bool]]:
+                          loose: list[np.ndarray] | None = None, min_keep: int = 0,
+                          max_failures: int = 3) -> tuple[list[np.ndarray], list[bool]]:
     """Empty configurations of ``chosen`` (per configuration, the (n_arms,) assignment
     indices) by moving their targets into the others; ``loose`` target groups (e.g. the
     rescue configurations, built on another structure) are absorbed the same way, all of a
-    group or none.  Stops at ``budget_s`` or when ``min_keep`` configurations are left.
+    group or none.  Stops at ``budget_s``, when ``min_keep`` configurations are left, or
+    after ``max_failures`` configurations in a row could not be emptied.
 
     Returns the new list (emptied configurations removed, the rest sorted by total
     priority, highest first, as one-at-a-time sequencing orders them) and, per ``loose``
@@ -159,7 +160,8 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
         if relocate(np.asarray(targets, np.int64), np.zeros(len(s.C), bool)) is not None:
             absorbed[g] = True
     tried = np.zeros(len(s.C), bool)
-    while alive.sum() > min_keep and time.perf_counter() - t0 < budget_s:
+    failures = 0  # in a row: the sparsest configurations are the easiest to empty
+    while alive.sum() > min_keep and failures < max_failures and time.perf_counter() - t0 < budget_s:
         yields = np.where(alive & ~tried, (~is_rest[s.C]).sum(axis=1), np.iinfo(np.int64).max)
         if yields.min() == np.iinfo(np.int64).max:
             break
@@ -172,6 +174,9 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
         if relocate(a.target[ch[~is_rest[ch]]], exclude) is not None:
             alive[victim] = False
             tried[:] = False  # homes have changed: earlier failures may succeed now
+            failures = 0
+        else:
+            failures += 1
     out = [s.C[c].copy() for c in np.flatnonzero(alive)]
     tp = [-sum(int(priority[t]) for t in a.target[ch] if t >= 0) for ch in out]
     order = np.argsort(tp, kind="stable")

@@ -106,6 +106,7 @@ def sequence_configurations(
     tie_break: bool | str = True,
     repack: bool = True,
     repair: bool = True,
+    repair_time_limit_s: float = 5.0,
     repack_max_window: int = 6,
     repack_time_limit_s: float = 2.0,
     progress: Progress | None = None,
@@ -127,7 +128,10 @@ def sequence_configurations(
     the "one configuration" mode.  ``rescue``: targets left as ``conflict`` (reachable only by
     arms that collide with a neighbour's rest location, e.g. a target on another arm's park
     spot) get extra configurations in which idle arms may rest on already observed targets
-    (:func:`_rescue_conflicts`).  Unallocated targets: ``unreachable`` (no enabled arm
+    (:func:`_rescue_conflicts`).  ``repair``: configurations are emptied by ejection chains
+    over the whole sequence (:func:`solvers.repair.absorb_configurations`, no solver calls,
+    at most ``repair_time_limit_s`` and half the time left) before the CP-SAT ``repack``.
+    Unallocated targets: ``unreachable`` (no enabled arm
     reaches them), ``conflict`` (reachable but no further configuration could take them),
     ``no_time``.
     """
@@ -232,7 +236,8 @@ def sequence_configurations(
         rescued_t = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
                      for c in extra]
         left = time_limit_s - min(0.1 * time_limit_s, 1.0) - (tr - t0)
-        new, absorbed_g = absorb_configurations(inc, [ch for _, ch, _, _ in configs], priority, budget_s=min(0.5 * left, 5.0),
+        new, absorbed_g = absorb_configurations(inc, [ch for _, ch, _, _ in configs], priority,
+                                                budget_s=min(0.5 * left, repair_time_limit_s),
                                                 loose=rescued_t, min_keep=lower_bound)
         configs = _rebuild(instrument, inc, priority, configs, new, speeds, xy, tie, q_start)
         extra = [c for c, g in zip(extra, absorbed_g, strict=True) if not g]

@@ -49,3 +49,19 @@ def test_semigreedy_dispatch_is_lazy() -> None:
     except ImportError:
         with pytest.raises(NotImplementedError):
             allocate(INS, T, method="semigreedy")
+
+
+def test_semigreedy_fast_path_defaults() -> None:
+    """method="semigreedy" runs with blank-sky rests by default (park only on request); the
+    exact method keeps park-only rests; the repair budget is validated by name."""
+    r = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0)
+    assert r.stats["field_completeness"] == 1.0
+    n_sg = r.stats["incompatibility"]["assignments"]
+    e = allocate(INS, T, configurations="all", time_limit_s=600.0)
+    n_exact = e.stats["incompatibility"]["assignments"]
+    assert n_sg == n_exact + 16 * INS.n_arms  # 16 blank-sky rests per arm
+    r2 = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0, blank_per_arm=0)
+    assert r2.stats["incompatibility"]["assignments"] == n_exact
+    with pytest.raises(InputError) as err:
+        allocate(INS, T, method="semigreedy", repair_time_limit_s=-1.0)
+    assert err.value.field == "repair_time_limit_s"
