@@ -46,13 +46,19 @@ class _Sequence:
         order = real[np.argsort(a.target[real], kind="stable")]
         self._by_target = order
         self._start = np.searchsorted(a.target[order], np.arange(inc.reachability.n_targets + 1))
+        self._rows: dict[int, np.ndarray] = {}
 
     def assignments_of(self, t: int) -> np.ndarray:
         return self._by_target[self._start[t]:self._start[t + 1]]
 
     def conflict_row(self, x: int) -> np.ndarray:
-        row = np.zeros(len(self.a), bool)
-        row[self.adj.indices[self.adj.indptr[x]:self.adj.indptr[x + 1]]] = True
+        """(n_assignments,) bool: the locations in conflict with ``x`` (cached: chain
+        searches visit the same assignments again and again)."""
+        row = self._rows.get(x)
+        if row is None:
+            row = np.zeros(len(self.a), bool)
+            row[self.adj.indices[self.adj.indptr[x]:self.adj.indptr[x + 1]]] = True
+            self._rows[x] = row
         return row
 
     def fits(self, x: int, rows: np.ndarray) -> np.ndarray:
@@ -84,6 +90,8 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
     # arm, rests included) or swap one target for another on the same arm, so no rest
     # location becomes invalid; only the emptied configurations disappear
     is_rest = a.target < 0
+    prio = np.asarray(priority, np.int64)
+    n_targets = inc.reachability.n_targets
     alive = np.ones(len(s.C), bool)
     groups = list(loose or [])
     absorbed = [False] * len(groups)
@@ -97,22 +105,24 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
         (config, arm, previous assignment); None (nothing applied) if there is none."""
         base = alive & ~exclude
         parent: dict[int, tuple[int, int, int, int] | None] = {t: None}  # v: (prev, c, k, x)
-        on_path: dict[int, frozenset] = {t: frozenset()}
+        seen = np.zeros(n_targets, bool)
+        seen[t] = True
+        on_path: dict[int, tuple[int, ...]] = {t: ()}
         frontier = [t]
         while frontier:
             if time.perf_counter() - t0 > budget_s:
                 return None
             nxt = []
             for v in frontier:
-                rows_all = np.flatnonzero(base)
-                if on_path[v]:
-                    rows_all = rows_all[~np.isin(rows_all, list(on_path[v]))]
+                m = base.copy()
+                m[list(on_path[v])] = False
+                rows_all = np.flatnonzero(m)
+                if not len(rows_all):
+                    continue
                 cand = []
                 for x in s.assignments_of(v):
                     x = int(x)
                     k = int(a.arm[x])
-                    if not len(rows_all):
-                        break
                     ok = rows_all[s.fits(x, rows_all)]
                     idle = ok[is_rest[s.C[ok, k]]]
                     if len(idle):  # a home: apply the chain back to t
@@ -126,15 +136,20 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
                             s.C[c, k] = x
                             w = prev
                         return moves
-                    for c in ok:
-                        u = int(a.target[s.C[c, k]])
-                        if u not in parent:
-                            cand.append((int(priority[u]), -int(c), u, k, x))
+                    us = a.target[s.C[ok, k]]
+                    new = ~seen[us]
+                    if new.any():
+                        cand.append((prio[us[new]], ok[new], us[new], np.full(int(new.sum()), k), np.full(int(new.sum()), x)))
+                if not cand:
+                    continue
+                pr_, c_, u_, k_, x_ = (np.concatenate(z) for z in zip(*cand, strict=True))
                 # the lowest-priority targets are displaced first (then the latest)
-                for _, c, u, k, x in sorted(cand):
-                    if u not in parent:
-                        parent[u] = (v, -c, k, x)
-                        on_path[u] = on_path[v] | {-c}
+                for i in np.lexsort((-c_, pr_)).tolist():
+                    u = int(u_[i])
+                    if not seen[u]:
+                        seen[u] = True
+                        parent[u] = (v, int(c_[i]), int(k_[i]), int(x_[i]))
+                        on_path[u] = on_path[v] + (int(c_[i]),)
                         nxt.append(u)
             frontier = nxt
         return None
