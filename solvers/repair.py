@@ -7,17 +7,20 @@ own.  The CP-SAT repacking of :mod:`solvers.sequencing` works on a suffix of the
 and cannot fix this when the earlier configurations are needed too.  This pass works on the
 whole sequence with the precomputed incompatibility structure only (no geometry calls):
 
-* **insert**: a target goes to an earlier configuration where an arm that reaches it is
+* **insert**: a target goes to another configuration where an arm that reaches it is
   idle (at a rest location) and the new assignment conflicts with none of the other arms;
-* **eject**: a target goes to a configuration where an arm that reaches it is observing
-  another target ``u`` (the new assignment compatible with the other arms), and ``u`` is
-  inserted elsewhere (depth one).
+* **ejection chain**: a target takes an arm that is observing another target ``u`` (the
+  new assignment compatible with the other arms), ``u`` does the same elsewhere, ... until
+  one lands on an idle arm — the shortest such chain, breadth-first over targets, through
+  distinct configurations (so each step, checked on the unchanged configuration, stays
+  valid when the whole chain is applied).
 
 A configuration is removed when every target in it found a new home (all or nothing).
-Configurations are tried fewest targets first; the displaced target is the
-lowest-priority one that works (the latest among equals), so high-priority targets stay in
-the early configurations.  Every move keeps each configuration valid under eqs. 5.13–5.15, so the result
-is checked again by the caller's geometric verification, not trusted.
+Configurations are tried fewest targets first; among the targets a chain could displace,
+the lowest-priority ones come first (then the latest configuration), so high-priority
+targets stay in the early configurations, and the result is sorted by total priority.
+Every move keeps each configuration valid under eqs. 5.13–5.15; the caller still
+re-verifies every changed configuration geometrically.
 """
 
 from __future__ import annotations
