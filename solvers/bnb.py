@@ -64,16 +64,6 @@ class BnbField:
 _CACHE: dict[int, tuple[weakref.ref, BnbField]] = {}
 
 
-def _coarse_weights(problem: ConfigProblem) -> np.ndarray:
-    """``priority * (m + 1) + yield`` per assignment: ``safe_weights`` without the tie-break."""
-    a = problem.assignments
-    n_arms = len(a.arm_start) - 1
-    real = a.target >= 0
-    p = np.zeros(len(a), np.int64)
-    p[real] = np.asarray(problem.priority, np.int64)[a.target[real]]
-    return p * (n_arms + 1) + real
-
-
 def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, list[int]]:
     """Per assignment in ``order`` and per arm ``k'``: ~(bitset over ``order[k']`` of the
     locations in conflict with it) — numpy ``packbits``, one block per arm."""
@@ -108,7 +98,9 @@ def prepare_field(problem: ConfigProblem) -> BnbField:
     inc = problem.incompatibility
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
-    w = _coarse_weights(problem)
+    from solvers.ilp import coarse_weights
+
+    w = coarse_weights(problem, np.arange(len(a)))
     key = w.tobytes()
     hit = _CACHE.get(id(inc))
     if hit is not None and hit[0]() is inc and hit[1].weight_key == key:
@@ -316,15 +308,20 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
         return out
     sol = np.array(sol, np.int64)
     w_c = inc_c
+
+    def subtable(cols_allowed: np.ndarray) -> _TieTables:
+        """Tables over the columns that can still reach coarse weight ``w_c`` (exact
+        probing, one pass: a superset is enough) plus the incumbent's, in full-weight order."""
+        cols = prune_columns(problem, w_c, f, max_passes=1, allowed=cols_allowed)
+        cols[sol] = True
+        return _tie_tables(problem, cols, w_all)
     out.update(chosen=sol, weight=full_w(sol))
     if not done:
         # stage 1 hit its limit (a tier transition): one more search over the columns that
         # can reach the incumbent, in full-weight order — any solution it finds beats the
         # incumbent in priority/yield or, equal there, in the tie-break
         if tie_mult > 1 and tie_node_limit > 0:
-            cols = prune_columns(problem, w_c, f, max_passes=1, allowed=allowed)
-            cols[sol] = True
-            tt = _tie_tables(problem, cols, w_all)
+            tt = subtable(allowed)
             keep = [(1 << len(o)) - 1 for o in tt.order]
             _, w3, s3 = run(tt.weights, keep, full_w(sol), [int(v) for v in sol], -1, tie_node_limit,
                             order=tt.order, nconf=tt.nconf, tw=tt.target_full)
@@ -340,9 +337,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     tt = None
     if tie_mult > 1 or minimize_move:
         lim = mv_best if minimize_move else np.inf
-        cols = prune_columns(problem, w_c, f, max_passes=1, allowed=allowed & (move <= lim))
-        cols[sol] = True
-        tt = _tie_tables(problem, cols, w_all)
+        tt = subtable(allowed & (move <= lim))
         tab_order, tab_nconf, tab_tw = tt.order, tt.nconf, tt.target_full // tie_mult
         tab_coarse = [[v // tie_mult for v in wk] for wk in tt.weights]
     tab = dict(order=tab_order, nconf=tab_nconf, tw=tab_tw)

@@ -94,6 +94,17 @@ class ModelArrays:
         return int(len(self.eq_indices) + len(self.le_indices))
 
 
+def coarse_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> np.ndarray:
+    """``p * (m + 1) + y`` per assignment: the priority and yield part of the safe weight."""
+    a = problem.assignments
+    t = a.target[assignment_index]
+    real = t >= 0
+    p = np.zeros(len(t), dtype=np.int64)
+    p[real] = np.asarray(problem.priority, np.int64)[t[real]]
+    n_arms = len(a.arm_start) - 1
+    return p * (n_arms + 1) + real
+
+
 def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[np.ndarray, int, int]:
     """Safe lexicographic weights ``c_a`` (see module docstring) and the multipliers used.
 
@@ -104,9 +115,7 @@ def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[
     n_arms = len(a.arm_start) - 1
     t = a.target[assignment_index]
     real = t >= 0
-    p = np.zeros(len(t), dtype=np.int64)
-    p[real] = problem.priority[t[real]]
-    y = real.astype(np.int64)
+    coarse = coarse_weights(problem, assignment_index)
     h = np.zeros(len(t), dtype=np.int64)
     tie = getattr(problem, "tie_break", None)
     if tie is not None:
@@ -115,10 +124,10 @@ def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[
             raise ValueError("tie_break must be >= 0")
     yield_mult = n_arms + 1
     tie_mult = n_arms * int(h.max(initial=0)) + 1
-    p_max = int(p.max(initial=0))
+    p_max = int(coarse.max(initial=0)) // yield_mult  # y <= 1 < yield_mult
     if n_arms * (p_max * yield_mult + n_arms) * tie_mult >= MAX_EXACT_DOUBLE:
         tie_mult, h[:] = 1, 0
-    w = (p * yield_mult + y) * tie_mult + h
+    w = coarse * tie_mult + h
     return w, yield_mult, tie_mult
 
 

@@ -28,7 +28,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy import sparse
 
 from models.incompatibility import Incompatibility
 
@@ -43,8 +42,7 @@ class _Sequence:
         self.a = a
         self.n_arms = len(a.arm_start) - 1
         self.C = np.array(chosen, np.int64).reshape(len(chosen), self.n_arms)
-        n = len(a)
-        self.adj = sparse.csr_matrix((np.ones(len(inc.indices), np.bool_), inc.indices, inc.indptr), shape=(n, n))
+        self.indices, self.indptr = inc.indices, inc.indptr  # the structure's CSR adjacency
         real = np.flatnonzero(a.target >= 0)
         order = real[np.argsort(a.target[real], kind="stable")]
         self._by_target = order
@@ -60,7 +58,7 @@ class _Sequence:
         row = self._rows.get(x)
         if row is None:
             row = np.zeros(len(self.a), bool)
-            row[self.adj.indices[self.adj.indptr[x]:self.adj.indptr[x + 1]]] = True
+            row[self.indices[self.indptr[x]:self.indptr[x + 1]]] = True
             self._rows[x] = row
         return row
 

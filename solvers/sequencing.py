@@ -225,16 +225,13 @@ def sequence_configurations(
                                   None if max_configurations is None else max_configurations - len(configs))
         timers["rescue_s"] = time.perf_counter() - tr
         for c in extra:
-            for a_ in c.assignments:
-                if a_.target_index is not None:
-                    pending[a_.target_index] = False
+            pending[_observed(c)] = False
         stop_reason = "complete" if not pending.any() else "conflict"
     if repair and stop_reason in ("complete", "conflict", "tail") and len(configs) + len(extra) > lower_bound:
         # ejection repair first (fast, the whole sequence), then the CP-SAT repacking
         tr = time.perf_counter()
         n0 = len(configs) + len(extra)
-        rescued_t = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
-                     for c in extra]
+        rescued_t = [_observed(c) for c in extra]
         left = time_limit_s - min(0.1 * time_limit_s, 1.0) - (tr - t0)
         new, absorbed_g = absorb_configurations(inc, [ch for _, ch, _, _ in configs], priority,
                                                 budget_s=min(0.5 * left, repair_time_limit_s),
@@ -256,8 +253,7 @@ def sequence_configurations(
         timers["repack_bulk_s"] = time.perf_counter() - tr
         timers["repack_bulk_saved"] = n0 - len(configs)
         budget = min(time_limit_s - (time.perf_counter() - t0), budget - (time.perf_counter() - tr))
-        rescued = [np.array([a_.target_index for a_ in c.assignments if a_.target_index is not None], np.int64)
-                   for c in extra]
+        rescued = [_observed(c) for c in extra]
         n1 = len(configs) + len(extra)
         if n_reachable <= 400 and budget > 2.0:  # beyond that the disc models cost too much
             tc = time.perf_counter()
@@ -314,6 +310,11 @@ def sequence_configurations(
     if progress:
         progress(1.0, "done")
     return AllocationResult(tuple(out), tuple(unalloc), stats)
+
+
+def _observed(c: Configuration) -> np.ndarray:
+    """Target indices a built configuration observes."""
+    return np.array([a.target_index for a in c.assignments if a.target_index is not None], np.int64)
 
 
 def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
@@ -400,8 +401,9 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
 
 
 def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, q0=None):
-    """The last ``window`` configurations replaced by the verified ``packed`` ones, highest priority first (:func:`_rebuild`; the first starts
-    at ``q0``, default park, when nothing is kept)."""
+    """The last ``window`` configurations replaced by the verified ``packed`` ones, highest
+    priority first (:func:`_rebuild`; the first starts at ``q0``, default park, when nothing
+    is kept)."""
     a = inc.assignments
     packed.sort(key=lambda ch: -sum(int(priority[t]) for t in a.target[ch] if t >= 0))
     head = [ch for _, ch, _, _ in configs[:-window]]
