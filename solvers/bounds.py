@@ -18,6 +18,7 @@ can exceed it, both rigorous for any allocator:
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -139,3 +140,93 @@ def crowding_lower_bound(inc: Incompatibility, xy_mm: np.ndarray, targets: np.nd
         rows.append({"radius_mm": r, "targets": int(len(sub)), "max_at_once": m, "proven": proven,
                      "lower_bound": lb})
     return best, rows
+
+
+def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_limit_s: float = 10.0,
+                           columns: list[np.ndarray] | None = None, stop_at: int | None = None,
+                           price_time_limit_s: float = 2.0, threads: int = 2,
+                           seed: int = 0) -> tuple[int, dict]:
+    """Lower bound on the configurations for ``targets`` (bool mask) from the linear
+    relaxation of the set-partitioning model, by column generation.
+
+    Master (LP): minimise sum(lambda_p) over configurations p, every target covered at least
+    once.  Any non-negative target weights pi with sum(pi[t] for t in p) <= M for every
+    configuration p prove at least sum(pi) / M configurations (Farley's bound, valid at every
+    iteration, not only at LP optimality); the crowding bound is the special case pi = 1/m(r)
+    on a disc.  pi are the master's duals; M is the pricing problem — the heaviest single
+    configuration, solved exactly by CP-SAT on integer weights floor(pi * 1e6) over the
+    relaxation of :func:`max_simultaneous_targets` (idle arms absent, so M can only be over-
+    estimated; rounding is covered by adding n_arms / 1e6).  Its optimum is the next column.
+    ``columns``: target-index arrays of known configurations (e.g. the current sequence) to
+    start the master with.  Stops at LP optimality, at ``time_limit_s``, or once the bound
+    reaches ``stop_at``.  Returns (bound, info: iterations, LP value, proven).
+    """
+    from ortools.sat.python import cp_model
+    from scipy.optimize import linprog
+
+    t0 = time.perf_counter()
+    a = inc.assignments
+    n_arms = len(a.arm_start) - 1
+    sel = np.flatnonzero(targets)
+    info: dict = {"iterations": 0, "lp_value": None, "converged": False}
+    if not len(sel):
+        return 0, info
+    local = np.full(inc.reachability.n_targets, -1, np.int64)
+    local[sel] = np.arange(len(sel))
+    cols_a = np.flatnonzero((a.target >= 0) & (local[np.maximum(a.target, 0)] >= 0))
+    col_of = np.full(len(a), -1, np.int64)
+    col_of[cols_a] = np.arange(len(cols_a))
+    p = inc.pairs
+    keep = (col_of[p[:, 0]] >= 0) & (col_of[p[:, 1]] >= 0) & ~inc.same_target
+    pairs = col_of[p[keep]]
+    model = cp_model.CpModel()
+    x = [model.NewBoolVar("") for _ in range(len(cols_a))]
+    for key in (a.arm[cols_a], a.target[cols_a]):
+        order = np.argsort(key, kind="stable")
+        cuts = np.flatnonzero(np.diff(key[order])) + 1
+        for grp in np.split(order, cuts):
+            if len(grp) > 1:
+                model.AddAtMostOne([x[i] for i in grp])
+    for i, j in pairs.tolist():
+        model.AddBoolOr([x[i].Not(), x[j].Not()])
+    tl_of_col = local[a.target[cols_a]]
+    solver = cp_model.CpSolver()
+    solver.parameters.num_workers = max(2, threads)
+    solver.parameters.random_seed = int(seed)
+    scale = 1_000_000
+    master: list[np.ndarray] = [local[np.asarray(c, np.int64)] for c in (columns or [])]
+    master = [c[c >= 0] for c in master]
+    master += [np.array([t]) for t in range(len(sel))]  # singletons keep the master feasible
+    best = 0
+    while True:
+        left = time_limit_s - (time.perf_counter() - t0)
+        if left <= 0.05:
+            break
+        a_ub = np.zeros((len(sel), len(master)))
+        for j, c in enumerate(master):
+            a_ub[c, j] = 1.0
+        res = linprog(np.ones(len(master)), A_ub=-a_ub, b_ub=-np.ones(len(sel)), bounds=(0, None),
+                      method="highs")
+        pi = np.maximum(-res.ineqlin.marginals, 0.0)
+        info["lp_value"] = float(res.fun)
+        w = np.floor(pi * scale).astype(np.int64)
+        model.Maximize(sum(int(w[t]) * x[i] for i, t in enumerate(tl_of_col.tolist()) if w[t] > 0))
+        solver.parameters.max_time_in_seconds = float(min(left, price_time_limit_s))
+        code = solver.Solve(model)
+        info["iterations"] += 1
+        if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
+            break
+        heaviest = (solver.BestObjectiveBound() + n_arms) / scale  # >= max over p of pi(p)
+        if heaviest > 0 and math.ceil(float(pi.sum()) / heaviest - 1e-6) > best:
+            best = math.ceil(float(pi.sum()) / heaviest - 1e-6)
+            info["certificate"] = (sel, pi / heaviest)  # target weights no configuration exceeds 1 of
+        if stop_at is not None and best >= stop_at:
+            break
+        new = np.array(sorted({int(tl_of_col[i]) for i in range(len(x)) if solver.BooleanValue(x[i])}))
+        if code == cp_model.OPTIMAL and float(pi[new].sum()) <= 1.0 + 1e-9:
+            info["converged"] = True  # no column prices out: the LP optimum is reached
+            best = max(best, math.ceil(info["lp_value"] - 1e-6))
+            break
+        master.append(new)
+    info["time_s"] = time.perf_counter() - t0
+    return best, info

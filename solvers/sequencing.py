@@ -36,6 +36,7 @@ from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
 from solvers.bounds import INNER_DISCS_MM, crowding_lower_bound, matching_lower_bound
+from solvers.packing import tabu_pack
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 from solvers.repair import absorb_configurations
 
@@ -327,15 +328,29 @@ def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
 
 def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
                  seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None,
-                 status_out: dict | None = None) -> list[np.ndarray] | None:
+                 status_out: dict | None = None, tabu_fraction: float = 0.4) -> list[np.ndarray] | None:
     """Multi-configuration model: place every pooled target in one of ``n_configs``
     configurations (each obeying eqs. 5.13–5.15).  Returns the chosen assignment indices
-    per configuration, or None when no packing was found in time (CP-SAT, exact int).
-    ``status_out["infeasible"]`` is set True when no packing exists (proven)."""
+    per configuration, or None when no packing was found in time.  First the tabu search
+    of :mod:`solvers.packing` for ``tabu_fraction`` of the time, then CP-SAT (exact int)
+    for the rest: ``status_out["infeasible"]`` is set True when CP-SAT proves that no
+    packing exists."""
     from ortools.sat.python import cp_model
 
     from solvers.ilp import build_model_arrays
 
+    if status_out is not None:
+        status_out["infeasible"] = False
+    t0 = time.perf_counter()
+    if tabu_fraction > 0:
+        # the tabu search finds most packings that exist in a fraction of a second; CP-SAT
+        # (below) is still needed for the proofs of infeasibility
+        found = tabu_pack(inc, pool, n_configs, time_limit_s=tabu_fraction * time_limit_s, seed=seed, hint=hint)
+        if found is not None:
+            if status_out is not None:
+                status_out["found_by"] = "tabu"
+            return found
+    time_limit_s = max(time_limit_s - (time.perf_counter() - t0), 0.05)
     a = inc.assignments
     n_t = inc.reachability.n_targets
     avail = np.zeros(n_t, bool)
@@ -343,8 +358,6 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     n_arms = len(a.arm_start) - 1
     dummy = ConfigProblem(inc, np.ones(n_t, np.int64), avail, np.zeros((n_arms, 2)), np.ones((n_arms, 2)))
     m = build_model_arrays(dummy, "aggregated", None, wildcards=False)
-    if status_out is not None:
-        status_out["infeasible"] = False
     if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
         return None
     model = cp_model.CpModel()
