@@ -29,7 +29,7 @@ CONFIG_MODES = ("one", "all")
 ILP_OPTIONS = {"form", "minimize_move", "candidates_per_arm", "workers", "linearization_level", "interface"}
 SEQ_OPTIONS = {"config_time_limit_s", "mip_rel_gap", "threads", "tie_break", "repack", "repack_max_window",
                "repack_time_limit_s", "max_configurations", "adaptive_limits", "lower_bound_flow", "rescue", "blank_per_arm", "tail_fraction",
-               "repair", "repair_time_limit_s"}
+               "repair", "repair_time_limit_s", "lp_bound_time_limit_s"}
 BNB_OPTIONS = {"node_limit", "minimize_move", "fallback", "hint", "tie_node_limit", "move_node_limit",
                "fallback_min_s"}
 
@@ -124,6 +124,9 @@ def allocate(
         v = seq_opts.get(name)
         if v is not None and not (math.isfinite(v) and v > 0):
             raise InputError(name, "must be a positive finite number of seconds")
+    v = seq_opts.get("lp_bound_time_limit_s")
+    if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+        raise InputError("lp_bound_time_limit_s", "must be a finite number of seconds >= 0 (0: no LP bound)")
     mc = seq_opts.get("max_configurations")
     if mc is not None and not (isinstance(mc, int) and mc >= 1):
         raise InputError("max_configurations", "must be an integer >= 1")

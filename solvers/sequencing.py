@@ -35,7 +35,12 @@ import numpy as np
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, PlaneTargets, Unallocated
-from solvers.bounds import INNER_DISCS_MM, crowding_lower_bound, matching_lower_bound
+from solvers.bounds import (
+    INNER_DISCS_MM,
+    configuration_lp_bound,
+    crowding_lower_bound,
+    matching_lower_bound,
+)
 from solvers.packing import tabu_pack
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 from solvers.repair import absorb_configurations
@@ -110,6 +115,7 @@ def sequence_configurations(
     repair_time_limit_s: float = 5.0,
     repack_max_window: int = 6,
     repack_time_limit_s: float = 2.0,
+    lp_bound_time_limit_s: float = 10.0,
     progress: Progress | None = None,
     incompatibility: Incompatibility | None = None,
     adaptive_limits: bool = True,
@@ -160,7 +166,7 @@ def sequence_configurations(
     speeds = joint_speeds(instrument)
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
     q_start = q.copy()
-    proven_bound = crowd_bound = 0
+    proven_bound = crowd_bound = lp_bound = 0
     xy = np.column_stack([x, y])
     tie = hard_to_place(inc, n_arms) if tie_break else None  # crowding term added per configuration
     configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
@@ -261,10 +267,34 @@ def sequence_configurations(
             crowd_bound, _ = crowding_lower_bound(inc, xy, ~unreachable, time_limit_s=min(0.5, budget / 20),
                                                   radii_mm=INNER_DISCS_MM)
             timers["crowding_bound_s"] = time.perf_counter() - tc
-            budget -= timers["crowding_bound_s"]
+            floor = max(lower_bound, flow_bound, crowd_bound)
+            observed = [_observed_chosen(inc, ch) for _, ch, _, _ in configs]
+            if n1 > floor:
+                # a packing at the bound is optimal and makes every proof unnecessary: a short
+                # tabu search over the whole field first (the one-at-a-time prefix is given up
+                # for it; the packed configurations are ordered by total priority)
+                ts = time.perf_counter()
+                packed = tabu_pack(inc, np.concatenate(observed + rescued), floor, seed=seed,
+                                   time_limit_s=min(0.15 * budget, 5.0), hint=[ch for _, ch, _, _ in configs])
+                if packed is not None:
+                    configs = _replace_tail(instrument, inc, priority, configs, len(configs), packed, speeds, xy,
+                                            tie, time.perf_counter() - ts, q_start)
+                    extra, rescued = [], []
+                timers["packing_at_bound_s"] = time.perf_counter() - ts
+            if len(configs) + len(extra) > floor and lp_bound_time_limit_s > 0:
+                # the LP bound finds crowded clusters anywhere (not only about the centre); it
+                # stops once it proves the current count, and then nothing is left to repack
+                mask = np.zeros(n, bool)
+                for o in observed + rescued:
+                    mask[o] = True
+                lp_bound, _ = configuration_lp_bound(inc, mask, time_limit_s=min(lp_bound_time_limit_s, 0.3 * budget),
+                                                     columns=observed + rescued, stop_at=n1, seed=seed,
+                                                     threads=threads)
+            timers["lower_bounds_s"] = time.perf_counter() - tc
+            budget -= timers["lower_bounds_s"]
         configs, proven_bound, absorbed = _repack_prefix(
-            instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound), speeds, xy, tie,
-            repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
+            instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound, lp_bound), speeds, xy,
+            tie, repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
         if absorbed:
             extra = []
         timers["repack_s"] = time.perf_counter() - tr
@@ -297,8 +327,9 @@ def sequence_configurations(
         "lower_bound_configurations": lower_bound,
         "lower_bound_configurations_flow": flow_bound,
         # CP-SAT proved the allocated targets cannot be packed into fewer configurations
-        "lower_bound_configurations_proven": max(proven_bound, flow_bound, crowd_bound),
+        "lower_bound_configurations_proven": max(proven_bound, flow_bound, crowd_bound, lp_bound),
         "lower_bound_configurations_crowding": crowd_bound,
+        "lower_bound_configurations_lp": lp_bound,
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
         "reachable_completeness": float(allocated.sum() / n_reachable) if n_reachable else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
@@ -316,6 +347,12 @@ def sequence_configurations(
 def _observed(c: Configuration) -> np.ndarray:
     """Target indices a built configuration observes."""
     return np.array([a.target_index for a in c.assignments if a.target_index is not None], np.int64)
+
+
+def _observed_chosen(inc: Incompatibility, chosen: np.ndarray) -> np.ndarray:
+    """Target indices observed by the (n_arms,) chosen assignment indices."""
+    tg = inc.assignments.target[chosen]
+    return tg[tg >= 0]
 
 
 def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
@@ -476,7 +513,7 @@ def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
     if w < 2:
         return configs
     tail = configs[-window:]
-    pool = np.concatenate([a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in tail])
+    pool = np.concatenate([_observed_chosen(inc, ch) for _, ch, _, _ in tail])
     mask = np.zeros(inc.reachability.n_targets, bool)
     mask[pool] = True
     need = max(matching_lower_bound(inc, mask), math.ceil(len(pool) / max(n_arms, 1)),
@@ -509,7 +546,7 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
     n_arms = len(a.arm_start) - 1
     n_active = len(_active_arms(inc, n_arms))
     n_main = len(configs)
-    per = [a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in configs] + list(extra)
+    per = [_observed_chosen(inc, ch) for _, ch, _, _ in configs] + list(extra)
     n = len(per)
     sizes = np.array([len(t) for t in per])
     suffix = np.cumsum(sizes[::-1])[::-1]
@@ -616,7 +653,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
     while len(configs) + len(extra) + kept > max(lower_bound, proven):
         n_main = len(configs)
         n = n_main + len(extra)
-        per = [a.target[ch][a.target[ch] >= 0] for _, ch, _, _ in configs] + extra
+        per = [_observed_chosen(inc, ch) for _, ch, _, _ in configs] + extra
         sizes = np.array([len(t) for t in per])
         suffix = np.cumsum(sizes[::-1])[::-1]  # targets in configs[h:] and the rescued ones
         fits = np.flatnonzero(suffix[:n_main] <= n_arms * (n - 1 - np.arange(n_main)))
