@@ -168,3 +168,30 @@ def test_pack_targets_proves_infeasibility_and_packs_validly() -> None:
     for ch in packed:
         assert a.arm[ch].tolist() == list(range(INS.n_arms))
         assert fcl_configuration_collisions(INS, a.q[ch]) == []
+
+
+def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
+    """Seven targets within 1.5 mm of a point 70 mm from the centre: no two arms can observe
+    two of them at once (their tips would be closer than the bodies allow), so at least seven
+    configurations are needed.  The disc crowding bound (discs about the centre up to 50 mm)
+    and ceil(t / 12) cannot see it; the configuration LP bound must, and the sequence can
+    never use fewer configurations than any proven bound."""
+    from models.incompatibility import incompatibility_for_targets
+    from solvers.bounds import max_simultaneous_targets
+
+    rng = np.random.default_rng(11)
+    ang = rng.random(7) * 2 * np.pi
+    cx, cy = 70.0 + 1.5 * np.cos(ang) * rng.random(7), 1.5 * np.sin(ang) * rng.random(7)
+    base = _targets(rng, 30)
+    x = np.r_[cx, np.asarray(base.x_mm)]
+    y = np.r_[cy, np.asarray(base.y_mm)]
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, np.r_[np.full(7, 10), base.priority])
+    inc = incompatibility_for_targets(INS, x, y)
+    m, proven = max_simultaneous_targets(inc, np.arange(7), time_limit_s=60.0)
+    assert proven and m == 1  # the premise: pairwise exclusive
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=300.0, **LIM)
+    s = r.stats
+    assert s["field_completeness"] == 1.0
+    assert s["lower_bound_configurations_crowding"] < 7 and s["lower_bound_configurations"] < 7
+    assert s["lower_bound_configurations_lp"] >= 7
+    assert s["n_configurations"] >= s["lower_bound_configurations_proven"] >= 7
