@@ -19,8 +19,11 @@ pending ones until every target is observed.  Here:
   b-matching bound (:func:`_repack_bulk`), then bottom-up the longest suffix of <= 200
   targets into as few configurations as bisection finds, keeping the longest prefix of
   maximum-priority configurations (:func:`_pack_fewest`), then one configuration fewer at
-  a time (:func:`_repack_prefix`).  Lower bounds (solvers.bounds: max-flow, crowding,
-  CP-SAT infeasibility) are reported, so a count can be shown optimal.
+  a time (:func:`_repack_prefix`); (3) before that, a tabu search (solvers.packing) tries to
+  pack the whole field into the best cheap lower bound, and it is also the first stage of
+  every :func:`pack_targets` call.  Lower bounds (solvers.bounds: max-flow, crowding, the
+  configuration LP bound, CP-SAT infeasibility) are reported, so a count can be shown
+  optimal, and repacking never tries a count below them.
 """
 
 from __future__ import annotations
