@@ -154,9 +154,9 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
     configuration p prove at least sum(pi) / M configurations (Farley's bound, valid at every
     iteration, not only at LP optimality); the crowding bound is the special case pi = 1/m(r)
     on a disc.  pi are the master's duals; M is the pricing problem — the heaviest single
-    configuration, solved exactly by CP-SAT on integer weights floor(pi * 1e6) over the
+    configuration, solved exactly by CP-SAT on integer weights floor(pi * 1e9) over the
     relaxation of :func:`max_simultaneous_targets` (idle arms absent, so M can only be over-
-    estimated; rounding is covered by adding n_arms / 1e6).  Its optimum is the next column.
+    estimated; rounding is covered by adding n_arms / 1e9).  Its optimum is the next column.
     ``columns``: target-index arrays of known configurations (e.g. the current sequence) to
     start the master with.  Stops at LP optimality, at ``time_limit_s``, or once the bound
     reaches ``stop_at``.  Returns (bound, info: iterations, LP value, proven).
@@ -193,8 +193,9 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = max(2, threads)
     solver.parameters.random_seed = int(seed)
-    scale = 1_000_000
-    master: list[np.ndarray] = [local[np.asarray(c, np.int64)] for c in (columns or [])]
+    scale = 1_000_000_000  # integer pricing weights; the rounding margin is n_arms / scale
+    master = [np.asarray(c, np.int64) for c in (columns or [])]
+    master = [local[c[c >= 0]] for c in master]  # idle arms (< 0) and targets outside the mask dropped
     master = [c[c >= 0] for c in master]
     master += [np.array([t]) for t in range(len(sel))]  # singletons keep the master feasible
     best = 0
@@ -224,8 +225,9 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
             break
         new = np.array(sorted({int(tl_of_col[i]) for i in range(len(x)) if solver.BooleanValue(x[i])}))
         if code == cp_model.OPTIMAL and float(pi[new].sum()) <= 1.0 + 1e-9:
-            info["converged"] = True  # no column prices out: the LP optimum is reached
-            best = max(best, math.ceil(info["lp_value"] - 1e-6))
+            # no column prices out: the LP optimum is reached (the bound stays Farley's, which
+            # covers the rounding of the weights; ceil(lp_value) would not)
+            info["converged"] = True
             break
         master.append(new)
     info["time_s"] = time.perf_counter() - t0

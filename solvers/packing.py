@@ -166,15 +166,20 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             choice = _choose_rests(inc, [rests[k] for k in idle], blocked)
             if choice is None:
                 # eject what blocks the rest of the first idle arm with the fewest blockers
+                # the rest location with the fewest (but some) blockers, of an idle arm
+                # with no free rest first (an arm with a free rest is not the problem)
                 best = None
                 for k in idle:
+                    hits = []
                     for r in rests[k]:
                         nb = np.zeros(n_all, bool)
                         nb[inc.neighbours(int(r))] = True
-                        hit = occ[c][(occ[c] >= 0)][nb[placed]]
-                        if best is None or len(hit) < len(best):
-                            best = hit
-                return c, (best if best is not None else np.zeros(0, np.int64))
+                        hits.append(occ[c][(occ[c] >= 0)][nb[placed]])
+                    free = any(len(h) == 0 for h in hits)
+                    for h in hits:
+                        if len(h) and (best is None or (free, len(h)) < best[0]):
+                            best = ((free, len(h)), h)
+                return c, (best[1] if best is not None else np.zeros(0, np.int64))
         return None
 
     def result() -> list[np.ndarray]:
@@ -216,8 +221,10 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
                 return None  # an idle arm with no rest at all: nothing the search can change
             for i in hit:
                 take(int(i), c)
-                tabu[lt[i], c] = it + 10
             unplaced = int((where < 0).sum())
+            # rest conflicts are not in the move costs: a longer tenure keeps the search
+            # from putting the same targets straight back
+            tabu[lt[hit], c] = it + 10 + int(0.6 * unplaced) + int(rng.integers(0, 10))
         it += 1
         if max_iterations is not None and it > max_iterations:
             return None
