@@ -76,6 +76,32 @@ def matching_lower_bound(inc: Incompatibility, targets: np.ndarray) -> int:
     return lo
 
 
+def _independent_set_model(inc: Incompatibility, in_subset: np.ndarray):
+    """CP-SAT model of one configuration over the targets in ``in_subset`` (bool per target),
+    arms not on a subset target absent: a binary per assignment of a subset target, at most
+    one per arm and per target, at most one of every incompatible pair (eq. 5.15 pairwise).
+    Returns (model, variables, their assignment indices); no objective yet."""
+    from ortools.sat.python import cp_model
+
+    a = inc.assignments
+    cols = np.flatnonzero((a.target >= 0) & in_subset[np.maximum(a.target, 0)])
+    col_of = np.full(len(a), -1, np.int64)
+    col_of[cols] = np.arange(len(cols))
+    p = inc.pairs
+    keep = (col_of[p[:, 0]] >= 0) & (col_of[p[:, 1]] >= 0) & ~inc.same_target
+    model = cp_model.CpModel()
+    x = [model.NewBoolVar("") for _ in range(len(cols))]
+    for key in (a.arm[cols], a.target[cols]):
+        order = np.argsort(key, kind="stable")
+        cuts = np.flatnonzero(np.diff(key[order])) + 1
+        for grp in np.split(order, cuts):
+            if len(grp) > 1:
+                model.AddAtMostOne([x[i] for i in grp])
+    for i, j in col_of[p[keep]].tolist():
+        model.AddBoolOr([x[i].Not(), x[j].Not()])
+    return model, x, cols
+
+
 def max_simultaneous_targets(inc: Incompatibility, subset: np.ndarray, *, time_limit_s: float = 2.0,
                              threads: int = 2, seed: int = 0) -> tuple[int, bool]:
     """Upper bound on how many targets of ``subset`` (target indices) one configuration can
@@ -88,27 +114,11 @@ def max_simultaneous_targets(inc: Incompatibility, subset: np.ndarray, *, time_l
     """
     from ortools.sat.python import cp_model
 
-    a = inc.assignments
     in_subset = np.zeros(inc.reachability.n_targets, bool)
     in_subset[np.asarray(subset, np.int64)] = True
-    cols = np.flatnonzero((a.target >= 0) & in_subset[np.maximum(a.target, 0)])
+    model, x, cols = _independent_set_model(inc, in_subset)
     if not len(cols):
         return 0, True
-    col_of = np.full(len(a), -1, np.int64)
-    col_of[cols] = np.arange(len(cols))
-    p = inc.pairs
-    keep = (col_of[p[:, 0]] >= 0) & (col_of[p[:, 1]] >= 0) & ~inc.same_target
-    pairs = col_of[p[keep]]
-    model = cp_model.CpModel()
-    x = [model.NewBoolVar("") for _ in range(len(cols))]
-    for key in (a.arm[cols], a.target[cols]):
-        order = np.argsort(key, kind="stable")
-        bounds = np.flatnonzero(np.diff(key[order])) + 1
-        for grp in np.split(order, bounds):
-            if len(grp) > 1:
-                model.AddAtMostOne([x[i] for i in grp])
-    for i, j in pairs.tolist():
-        model.AddBoolOr([x[i].Not(), x[j].Not()])
     model.Maximize(sum(x))
     solver = cp_model.CpSolver()
     solver.parameters.max_time_in_seconds = float(time_limit_s)
@@ -117,7 +127,7 @@ def max_simultaneous_targets(inc: Incompatibility, subset: np.ndarray, *, time_l
     code = solver.Solve(model)
     if code == cp_model.OPTIMAL:
         return int(round(solver.ObjectiveValue())), True
-    n_arms = len(a.arm_start) - 1
+    n_arms = len(inc.assignments.arm_start) - 1
     ub = solver.BestObjectiveBound() if code == cp_model.FEASIBLE else min(n_arms, len(cols))
     return int(math.floor(ub + 1e-9)), False
 
@@ -173,22 +183,7 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
         return 0, info
     local = np.full(inc.reachability.n_targets, -1, np.int64)
     local[sel] = np.arange(len(sel))
-    cols_a = np.flatnonzero((a.target >= 0) & (local[np.maximum(a.target, 0)] >= 0))
-    col_of = np.full(len(a), -1, np.int64)
-    col_of[cols_a] = np.arange(len(cols_a))
-    p = inc.pairs
-    keep = (col_of[p[:, 0]] >= 0) & (col_of[p[:, 1]] >= 0) & ~inc.same_target
-    pairs = col_of[p[keep]]
-    model = cp_model.CpModel()
-    x = [model.NewBoolVar("") for _ in range(len(cols_a))]
-    for key in (a.arm[cols_a], a.target[cols_a]):
-        order = np.argsort(key, kind="stable")
-        cuts = np.flatnonzero(np.diff(key[order])) + 1
-        for grp in np.split(order, cuts):
-            if len(grp) > 1:
-                model.AddAtMostOne([x[i] for i in grp])
-    for i, j in pairs.tolist():
-        model.AddBoolOr([x[i].Not(), x[j].Not()])
+    model, x, cols_a = _independent_set_model(inc, local >= 0)
     tl_of_col = local[a.target[cols_a]]
     solver = cp_model.CpSolver()
     solver.parameters.num_workers = max(2, threads)

@@ -34,6 +34,7 @@ import time
 import numpy as np
 
 from models.incompatibility import Incompatibility
+from solvers.ilp import _adjacency
 
 __all__ = ["tabu_pack"]
 
@@ -97,10 +98,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     # dense conflict matrix over the candidate locations: incompatible pairs + same arm
     glob2loc = np.full(n_all, -1, np.int64)
     glob2loc[loc] = np.arange(n_loc)
-    conflict = np.zeros((n_loc, n_loc), bool)
-    for i, g in enumerate(loc):
-        nb = glob2loc[inc.neighbours(int(g))]
-        conflict[i, nb[nb >= 0]] = True
+    conflict = _adjacency(inc)[loc][:, loc].toarray().astype(bool)
     conflict |= arm_of_loc[:, None] == arm_of_loc[None, :]
     np.fill_diagonal(conflict, False)
     conf_i = conflict.astype(np.int32)  # rows added to / subtracted from the count columns
@@ -154,27 +152,26 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
 
     start_from(True)
 
+    def blocked_by(assignments: np.ndarray) -> np.ndarray:
+        """(n_assignments,) bool: the locations in conflict with any of ``assignments``."""
+        mask = np.zeros(n_all, bool)
+        for g in assignments:
+            mask[inc.neighbours(int(g))] = True
+        return mask
+
     def rest_violations() -> tuple[int, np.ndarray] | None:
         """The first configuration whose idle arms cannot all rest, with the local
         locations to eject; None when every configuration can rest its idle arms."""
         for c in range(n_configs):
             placed = loc[occ[c][occ[c] >= 0]]
             idle = [k for k in range(n_arms) if occ[c, k] < 0]
-            blocked = np.zeros(n_all, bool)
-            for g in placed:
-                blocked[inc.neighbours(int(g))] = True
-            choice = _choose_rests(inc, [rests[k] for k in idle], blocked)
+            choice = _choose_rests(inc, [rests[k] for k in idle], blocked_by(placed))
             if choice is None:
-                # eject what blocks the rest of the first idle arm with the fewest blockers
-                # the rest location with the fewest (but some) blockers, of an idle arm
-                # with no free rest first (an arm with a free rest is not the problem)
+                # eject the blockers of the rest location with the fewest (but some), of an
+                # idle arm with no free rest first (an arm with a free rest is not the problem)
                 best = None
                 for k in idle:
-                    hits = []
-                    for r in rests[k]:
-                        nb = np.zeros(n_all, bool)
-                        nb[inc.neighbours(int(r))] = True
-                        hits.append(occ[c][(occ[c] >= 0)][nb[placed]])
+                    hits = [occ[c][(occ[c] >= 0)][blocked_by([r])[placed]] for r in rests[k]]
                     free = any(len(h) == 0 for h in hits)
                     for h in hits:
                         if len(h) and (best is None or (free, len(h)) < best[0]):
@@ -189,10 +186,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             placed = occ[c] >= 0
             ch[placed] = loc[occ[c][placed]]
             idle = np.flatnonzero(~placed)
-            blocked = np.zeros(n_all, bool)
-            for g in ch[placed]:
-                blocked[inc.neighbours(int(g))] = True
-            ch[idle] = _choose_rests(inc, [rests[k] for k in idle], blocked)
+            ch[idle] = _choose_rests(inc, [rests[k] for k in idle], blocked_by(ch[placed]))
             out.append(ch)
         return out
 

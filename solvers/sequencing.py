@@ -387,8 +387,6 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
         # (below) is still needed for the proofs of infeasibility
         found = tabu_pack(inc, pool, n_configs, time_limit_s=tabu_fraction * time_limit_s, seed=seed, hint=hint)
         if found is not None:
-            if status_out is not None:
-                status_out["found_by"] = "tabu"
             return found
     time_limit_s = max(time_limit_s - (time.perf_counter() - t0), 0.05)
     a = inc.assignments
