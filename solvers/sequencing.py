@@ -557,10 +557,16 @@ def _pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds,
     h0 = int(ok.min())
     proven = lower_bound
 
+    n_attempts = [0]
+
     def attempt(h: int, count: int, limit: float):
         pool = np.concatenate(per[h:])
         st: dict = {}
-        packed = pack_targets(inc, pool, count - h, time_limit_s=limit, seed=seed, threads=threads,
+        # a seed per attempt: the same pool, count and hint with the same seed would repeat
+        # the earlier tabu search step for step
+        n_attempts[0] += 1
+        packed = pack_targets(inc, pool, count - h, time_limit_s=limit, seed=seed + 101 * n_attempts[0],
+                              threads=threads,
                               hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
         return packed, pool, st["infeasible"]
 
@@ -634,6 +640,7 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
     proven = lower_bound
     extra = list(rescued or [])
     kept = 0  # rescue configurations kept apart after their targets failed to fit any packing
+    n_attempts = 0
     # bottom-up first: the fewest configurations the suffix that fits the model can reach
     for use_extra in ((True, False) if extra else (False,)):
         # at most half the budget: when the big model times out, small windows still help
@@ -671,8 +678,10 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
             pool = np.concatenate(per[h:])
             st: dict = {}
             ts = time.perf_counter()
-            packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s), seed=seed,
-                                  threads=threads, hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
+            n_attempts += 1  # a seed per attempt, as in _pack_fewest
+            packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s),
+                                  seed=seed + 50_000 + 101 * n_attempts, threads=threads,
+                                  hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
             if packed is not None:
                 configs = _replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie,
                                         time.perf_counter() - ts, q0)
