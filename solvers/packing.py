@@ -106,9 +106,11 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     occ = np.full((n_configs, n_arms), -1, np.int64)  # local location per (configuration, arm)
     where = np.full(len(pool), -1, np.int64)  # configuration of each pooled target
     # per (location, configuration): the weight of the placed targets it conflicts with
-    gamma = np.zeros((n_loc, n_configs), np.int64)
-    n_hit = np.zeros((n_loc, n_configs), np.int32)  # and how many they are
-    tabu = np.zeros((len(pool), n_configs), np.int64)
+    # stored per configuration (rows), so that placing or removing a target updates one
+    # contiguous row
+    gamma = np.zeros((n_configs, n_loc), np.int64)
+    n_hit = np.zeros((n_configs, n_loc), np.int32)  # and how many they are
+    tabu = np.zeros((n_configs, len(pool)), np.int64)  # per configuration: tabu until
     weight = np.ones(len(pool), np.int64)  # grows while a target stays unplaced
     placed_w = np.zeros(len(pool), np.int64)
 
@@ -117,15 +119,15 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
         occ[c, arm_of_loc[i]] = i
         where[t] = c
         placed_w[t] = weight[t]
-        gamma[:, c] += placed_w[t] * conf_i[i]
-        n_hit[:, c] += conf_i[i]
+        gamma[c] += placed_w[t] * conf_i[i]
+        n_hit[c] += conf_i[i]
 
     def take(i: int, c: int) -> None:
         t = lt[i]
         occ[c, arm_of_loc[i]] = -1
         where[t] = -1
-        gamma[:, c] -= placed_w[t] * conf_i[i]
-        n_hit[:, c] -= conf_i[i]
+        gamma[c] -= placed_w[t] * conf_i[i]
+        n_hit[c] -= conf_i[i]
 
     def start_from(use_hint: bool) -> None:
         occ.fill(-1)
@@ -139,13 +141,13 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             for c, j in enumerate(np.argsort(counts, kind="stable")[::-1][:n_configs]):
                 for g in np.asarray(hint[j]):
                     i = int(glob2loc[int(g)])
-                    if i >= 0 and where[lt[i]] < 0 and n_hit[i, c] == 0:
+                    if i >= 0 and where[lt[i]] < 0 and n_hit[c, i] == 0:
                         put(i, c)
         for t in rng.permutation(len(pool)):  # greedy completion of the start
             if where[t] >= 0:
                 continue
             rows = np.arange(start[t], start[t + 1])
-            free = np.argwhere(n_hit[rows] == 0)
+            free = np.argwhere(n_hit[:, rows].T == 0)
             if len(free):
                 r, c = free[rng.integers(len(free))]
                 put(int(rows[r]), int(c))
@@ -190,6 +192,8 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             out.append(ch)
         return out
 
+    rows_of = [np.arange(start[t], start[t + 1]) for t in range(len(pool))]
+    BIG = np.iinfo(np.int64).max // 2
     unplaced = int((where < 0).sum())
     best_unplaced = best_ever = unplaced
     it = last_gain = 0
@@ -218,25 +222,28 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             unplaced = int((where < 0).sum())
             # rest conflicts are not in the move costs: a longer tenure keeps the search
             # from putting the same targets straight back
-            tabu[lt[hit], c] = it + 10 + int(0.6 * unplaced) + int(rng.integers(0, 10))
+            tabu[c, lt[hit]] = it + 10 + int(0.6 * unplaced) + int(rng.integers(0, 10))
         it += 1
         if max_iterations is not None and it > max_iterations:
             return None
         if it % 128 == 0 and time.perf_counter() - t0 > time_limit_s:
             return None
         u = np.flatnonzero(where < 0)
-        rows = np.concatenate([np.arange(start[t], start[t + 1]) for t in u])
-        # weighted: targets that keep ending up unplaced become expensive to eject
-        cost = gamma[rows] - weight[lt[rows]][:, None] if weighting else n_hit[rows].astype(np.int64)
-        is_tabu = tabu[lt[rows]] > it
-        aspire = (n_hit[rows] == 0) & (unplaced - 1 < best_unplaced)
-        cost = np.where(is_tabu & ~aspire, np.iinfo(np.int64).max // 2, cost)
+        rows = np.concatenate([rows_of[t] for t in u]) if len(u) > 1 else rows_of[u[0]]
+        tl = lt[rows]
+        # per (configuration, candidate location); weighted: targets that keep ending up
+        # unplaced become expensive to eject
+        cost = gamma[:, rows] - weight[tl][None, :] if weighting else n_hit[:, rows].astype(np.int64)
+        is_tabu = tabu[:, tl] > it
+        if unplaced - 1 < best_unplaced:  # aspiration: a free location gives a new best
+            is_tabu &= n_hit[:, rows] != 0
+        cost[is_tabu] = BIG
         low = cost.min()
-        if low >= np.iinfo(np.int64).max // 2:
+        if low >= BIG:
             continue  # everything tabu: let the tenures run out
-        cand = np.argwhere(cost == low)
-        r, c = cand[rng.integers(len(cand))]
-        i, c = int(rows[r]), int(c)
+        cand = np.flatnonzero((cost == low).T)  # candidate-major, as the moves are listed
+        r, c = divmod(int(cand[rng.integers(len(cand))]), n_configs)
+        i = int(rows[r])
         ejected = occ[c][(occ[c] >= 0)]
         ejected = ejected[conflict[i, ejected]]
         for e in ejected:
@@ -244,7 +251,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
         put(i, c)
         unplaced += len(ejected) - 1
         tenure = int(0.6 * unplaced) + int(rng.integers(0, 10))
-        tabu[lt[ejected], c] = it + tenure
+        tabu[c, lt[ejected]] = it + tenure
         if unplaced < best_unplaced:
             best_unplaced, last_gain = unplaced, it
         if weighting:
