@@ -526,7 +526,7 @@ def _repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, ti
             break
         ts = time.perf_counter()
         packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), 0.5)),
-                              seed=seed, threads=threads, hint=[ch for _, ch, _, _ in tail])
+                              seed=seed + 20_000 + c, threads=threads, hint=[ch for _, ch, _, _ in tail])
         if packed is not None:
             return _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
                                  time.perf_counter() - ts)

@@ -195,3 +195,35 @@ def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     assert s["lower_bound_configurations_crowding"] < 7 and s["lower_bound_configurations"] < 7
     assert s["lower_bound_configurations_lp"] >= 7
     assert s["n_configurations"] >= s["lower_bound_configurations_proven"] >= 7
+
+
+def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
+    """The tabu search is deterministic in (pool, count, hint, seed): a second call with all
+    four equal repeats the first step for step and wastes its budget.  With the LP bound off,
+    an exclusive cluster of five makes every count below 5 infeasible, so the whole-field
+    packing at the cheap floor fails and the repacking tries the same pool, count and hint
+    again — with another seed."""
+    import solvers.sequencing as seq
+
+    calls: list[tuple] = []
+    real = seq.tabu_pack
+
+    def recording(inc, pool, n_configs, **kw):
+        hint = tuple(tuple(int(v) for v in h) for h in (kw.get("hint") or []))
+        calls.append((tuple(sorted(int(t) for t in pool)), n_configs, hint, kw.get("seed")))
+        return real(inc, pool, n_configs, **kw)
+
+    monkeypatch.setattr(seq, "tabu_pack", recording)
+    rng = np.random.default_rng(11)
+    ang = rng.random(5) * 2 * np.pi
+    cx, cy = 70.0 + 1.5 * np.cos(ang) * rng.random(5), 1.5 * np.sin(ang) * rng.random(5)
+    base = _targets(rng, 30)
+    x = np.r_[cx, np.asarray(base.x_mm)]
+    y = np.r_[cy, np.asarray(base.y_mm)]
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, np.r_[np.full(5, 10), base.priority])
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=0.0, time_limit_s=40.0,
+                                config_time_limit_s=5.0, repack_time_limit_s=1.0)
+    assert r.stats["field_completeness"] == 1.0
+    same = [(a, b) for i, a in enumerate(calls) for b in calls[i + 1:] if a[:3] == b[:3]]
+    assert same  # the premise: the repacking retried a pool, count and hint
+    assert all(a[3] != b[3] for a, b in same)
