@@ -170,6 +170,18 @@ def test_pack_targets_proves_infeasibility_and_packs_validly() -> None:
         assert fcl_configuration_collisions(INS, a.q[ch]) == []
 
 
+def _off_centre_cluster(k: int) -> PlaneTargets:
+    """``k`` targets within 1.5 mm of a point 70 mm from the centre (priority 10, first)
+    and 30 scattered ones."""
+    rng = np.random.default_rng(11)
+    ang = rng.random(k) * 2 * np.pi
+    cx, cy = 70.0 + 1.5 * np.cos(ang) * rng.random(k), 1.5 * np.sin(ang) * rng.random(k)
+    base = _targets(rng, 30)
+    x = np.r_[cx, np.asarray(base.x_mm)]
+    y = np.r_[cy, np.asarray(base.y_mm)]
+    return PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, np.r_[np.full(k, 10), base.priority])
+
+
 def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     """Seven targets within 1.5 mm of a point 70 mm from the centre: no two arms can observe
     two of them at once (their tips would be closer than the bodies allow), so at least seven
@@ -179,14 +191,8 @@ def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     from models.incompatibility import incompatibility_for_targets
     from solvers.bounds import max_simultaneous_targets
 
-    rng = np.random.default_rng(11)
-    ang = rng.random(7) * 2 * np.pi
-    cx, cy = 70.0 + 1.5 * np.cos(ang) * rng.random(7), 1.5 * np.sin(ang) * rng.random(7)
-    base = _targets(rng, 30)
-    x = np.r_[cx, np.asarray(base.x_mm)]
-    y = np.r_[cy, np.asarray(base.y_mm)]
-    t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, np.r_[np.full(7, 10), base.priority])
-    inc = incompatibility_for_targets(INS, x, y)
+    t = _off_centre_cluster(7)
+    inc = incompatibility_for_targets(INS, np.asarray(t.x_mm), np.asarray(t.y_mm))
     m, proven = max_simultaneous_targets(inc, np.arange(7), time_limit_s=60.0)
     assert proven and m == 1  # the premise: pairwise exclusive
     r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=300.0, **LIM)
@@ -214,13 +220,7 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
         return real(inc, pool, n_configs, **kw)
 
     monkeypatch.setattr(seq, "tabu_pack", recording)
-    rng = np.random.default_rng(11)
-    ang = rng.random(5) * 2 * np.pi
-    cx, cy = 70.0 + 1.5 * np.cos(ang) * rng.random(5), 1.5 * np.sin(ang) * rng.random(5)
-    base = _targets(rng, 30)
-    x = np.r_[cx, np.asarray(base.x_mm)]
-    y = np.r_[cy, np.asarray(base.y_mm)]
-    t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, np.r_[np.full(5, 10), base.priority])
+    t = _off_centre_cluster(5)
     r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=0.0, time_limit_s=40.0,
                                 config_time_limit_s=5.0, repack_time_limit_s=1.0)
     assert r.stats["field_completeness"] == 1.0
