@@ -44,7 +44,8 @@ MAX_LOCATIONS = 12_000  # the dense conflict matrix is MAX_LOCATIONS² bytes at 
 def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
               seed: int = 0, hint: list[np.ndarray] | None = None,
               max_iterations: int | None = None, stats: dict | None = None,
-              weighting: bool = True, restart_after: int | None = -1) -> list[np.ndarray] | None:
+              weighting: bool = True, restart_after: int | None = -1,
+              partial_out: list | None = None) -> list[np.ndarray] | None:
     """Place every target of ``pool`` in one of ``n_configs`` configurations.
 
     ``hint``: configurations to start from (per configuration the (n_arms,) assignment
@@ -56,6 +57,9 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     max(5000, 50 per pooled target) — on the protocol's fields every packing found was
     found within ~3,500 moves of a start, and a start can be a bad one, hint included).  ``stats``
     (optional) receives the iterations, restarts and the fewest targets ever left unplaced.
+    ``partial_out`` (optional list) receives, when no packing is found, the partial packing
+    with the fewest unplaced targets: per configuration the assignment indices of its
+    placed targets (a start for CP-SAT, :func:`solvers.packing_cpsat.max_cover`).
     """
     t0 = time.perf_counter()
     a = inc.assignments
@@ -192,10 +196,16 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             out.append(ch)
         return out
 
+    def give_up() -> None:
+        if partial_out is not None:
+            o = best_partial[1]
+            partial_out[:] = [loc[o[c][o[c] >= 0]] for c in range(n_configs)]
+
     rows_of = [np.arange(start[t], start[t + 1]) for t in range(len(pool))]
     BIG = np.iinfo(np.int64).max // 2
     unplaced = int((where < 0).sum())
     best_unplaced = best_ever = unplaced
+    best_partial: list = [unplaced, occ.copy()]
     it = last_gain = 0
     if stats is None:
         stats = {}
@@ -216,7 +226,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
                 return result()
             c, hit = bad
             if not len(hit):
-                return None  # an idle arm with no rest at all: nothing the search can change
+                return give_up()  # an idle arm with no rest at all: nothing the search can change
             for i in hit:
                 take(int(i), c)
             unplaced = int((where < 0).sum())
@@ -224,10 +234,9 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
             # from putting the same targets straight back
             tabu[c, lt[hit]] = it + 10 + int(0.6 * unplaced) + int(rng.integers(0, 10))
         it += 1
-        if max_iterations is not None and it > max_iterations:
-            return None
-        if it % 128 == 0 and time.perf_counter() - t0 > time_limit_s:
-            return None
+        if (max_iterations is not None and it > max_iterations) or \
+                (it % 128 == 0 and time.perf_counter() - t0 > time_limit_s):
+            return give_up()
         u = np.flatnonzero(where < 0)
         rows = np.concatenate([rows_of[t] for t in u]) if len(u) > 1 else rows_of[u[0]]
         tl = lt[rows]
@@ -254,6 +263,8 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
         tabu[c, lt[ejected]] = it + tenure
         if unplaced < best_unplaced:
             best_unplaced, last_gain = unplaced, it
+            if partial_out is not None and unplaced < best_partial[0]:
+                best_partial[0], best_partial[1] = unplaced, occ.copy()
         if weighting:
             weight[where < 0] += 1
 

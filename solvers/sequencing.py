@@ -45,6 +45,7 @@ from solvers.bounds import (
     matching_lower_bound,
 )
 from solvers.packing import tabu_pack
+from solvers.packing_cpsat import exact_cover, max_cover, packing_columns
 from solvers.problem import ConfigProblem, ConfigSolution, check_solution, evaluate
 from solvers.repair import absorb_configurations
 
@@ -169,7 +170,7 @@ def sequence_configurations(
     speeds = joint_speeds(instrument)
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
     q_start = q.copy()
-    proven_bound = crowd_bound = lp_bound = 0
+    proven_bound = crowd_bound = lp_bound = floor_proof = 0
     xy = np.column_stack([x, y])
     tie = hard_to_place(inc, n_arms) if tie_break else None  # crowding term added per configuration
     configs: list[tuple[ConfigProblem, np.ndarray, str, dict]] = []
@@ -277,26 +278,45 @@ def sequence_configurations(
                 # tabu search over the whole field first (the one-at-a-time prefix is given up
                 # for it; the packed configurations are ordered by total priority)
                 ts = time.perf_counter()
-                packed = tabu_pack(inc, np.concatenate(observed + rescued), floor, seed=seed,
-                                   time_limit_s=min(0.15 * budget, 5.0), hint=[ch for _, ch, _, _ in configs])
+                pool = np.concatenate(observed + rescued)
+                hint = [ch for _, ch, _, _ in configs]
+                tabu_s = min(0.15 * budget, 5.0)
+                if floor == math.ceil(len(pool) / max(n_active, 1)):
+                    # the floor is the count bound alone (no crowding): CP-SAT's max-cover
+                    # model finds packings there that the tabu search misses (weak-192
+                    # fields into 16: 6-41 s), and its exact-cover model proves the others
+                    # infeasible in seconds — worth most of the budget, as a packing here
+                    # is optimal; all of it when the sequence is one above the floor (then
+                    # nothing else can lower the count; only the LP bound's proof is lost)
+                    st: dict = {}
+                    limit = max(budget - 2.0 if n1 == floor + 1 else 0.6 * budget, tabu_s)
+                    packed = pack_targets(inc, pool, floor, time_limit_s=limit, seed=seed, threads=threads,
+                                          hint=hint, status_out=st, tabu_fraction=tabu_s / limit,
+                                          proof_fraction=0.15)
+                    if st["infeasible"] and (not rescued or len(pool) >= n_active * floor):
+                        floor_proof = floor = floor + 1
+                else:
+                    packed = tabu_pack(inc, pool, floor, seed=seed, time_limit_s=tabu_s, hint=hint)
                 if packed is not None:
                     configs = _replace_tail(instrument, inc, priority, configs, len(configs), packed, speeds, xy,
                                             tie, time.perf_counter() - ts, q_start)
                     extra, rescued = [], []
                 timers["packing_at_bound_s"] = time.perf_counter() - ts
-            if len(configs) + len(extra) > floor and lp_bound_time_limit_s > 0:
+            lp_s = min(lp_bound_time_limit_s, 0.3 * budget, budget - 1.0 - (time.perf_counter() - tc))
+            if len(configs) + len(extra) > floor and lp_s > 0.5:
                 # the LP bound finds crowded clusters anywhere (not only about the centre); it
                 # stops once it proves the current count, and then nothing is left to repack
                 mask = np.zeros(n, bool)
                 for o in observed + rescued:
                     mask[o] = True
-                lp_bound, _ = configuration_lp_bound(inc, mask, time_limit_s=min(lp_bound_time_limit_s, 0.3 * budget),
+                lp_bound, _ = configuration_lp_bound(inc, mask, time_limit_s=lp_s,
                                                      columns=observed + rescued, stop_at=n1, seed=seed,
                                                      threads=threads)
             timers["lower_bounds_s"] = time.perf_counter() - tc
             budget -= timers["lower_bounds_s"]
         configs, proven_bound, absorbed = _repack_prefix(
-            instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound, lp_bound), speeds, xy,
+            instrument, inc, priority, configs, max(lower_bound, flow_bound, crowd_bound, lp_bound, floor_proof),
+            speeds, xy,
             tie, repack_time_limit_s, budget, seed, threads, q0=q_start, rescued=rescued)
         if absorbed:
             extra = []
@@ -330,7 +350,7 @@ def sequence_configurations(
         "lower_bound_configurations": lower_bound,
         "lower_bound_configurations_flow": flow_bound,
         # CP-SAT proved the allocated targets cannot be packed into fewer configurations
-        "lower_bound_configurations_proven": max(proven_bound, flow_bound, crowd_bound, lp_bound),
+        "lower_bound_configurations_proven": max(proven_bound, flow_bound, crowd_bound, lp_bound, floor_proof),
         "lower_bound_configurations_crowding": crowd_bound,
         "lower_bound_configurations_lp": lp_bound,
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
@@ -368,87 +388,41 @@ def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
 
 def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
                  seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None,
-                 status_out: dict | None = None, tabu_fraction: float = 0.4) -> list[np.ndarray] | None:
+                 status_out: dict | None = None, tabu_fraction: float = 0.4,
+                 proof_fraction: float = 0.3) -> list[np.ndarray] | None:
     """Multi-configuration model: place every pooled target in one of ``n_configs``
     configurations (each obeying eqs. 5.13–5.15).  Returns the chosen assignment indices
-    per configuration, or None when no packing was found in time.  First the tabu search
-    of :mod:`solvers.packing` for ``tabu_fraction`` of the time, then CP-SAT (exact int)
-    for the rest: ``status_out["infeasible"]`` is set True when CP-SAT proves that no
-    packing exists."""
-    from ortools.sat.python import cp_model
-
-    from solvers.ilp import build_model_arrays
-
+    per configuration, or None when no packing was found in time.  Three stages share the
+    time: the tabu search of :mod:`solvers.packing` (``tabu_fraction``), then CP-SAT's
+    exact-cover model (``proof_fraction`` of what is left; it proves infeasibility fast),
+    then CP-SAT's max-cover model for the rest (it finds the hard packings) — see
+    :mod:`solvers.packing_cpsat`.  ``status_out["infeasible"]`` is set True when CP-SAT
+    proves that no packing exists."""
     if status_out is not None:
         status_out["infeasible"] = False
     t0 = time.perf_counter()
+    partial = None
     if tabu_fraction > 0:
-        # the tabu search finds most packings that exist in a fraction of a second; CP-SAT
-        # (below) is still needed for the proofs of infeasibility
-        found = tabu_pack(inc, pool, n_configs, time_limit_s=tabu_fraction * time_limit_s, seed=seed, hint=hint)
+        # the tabu search finds most packings that exist in a fraction of a second
+        partial: list = []
+        found = tabu_pack(inc, pool, n_configs, time_limit_s=tabu_fraction * time_limit_s, seed=seed, hint=hint,
+                          partial_out=partial)
         if found is not None:
             return found
-    time_limit_s = max(time_limit_s - (time.perf_counter() - t0), 0.05)
-    a = inc.assignments
-    n_t = inc.reachability.n_targets
-    avail = np.zeros(n_t, bool)
-    avail[pool] = True
-    n_arms = len(a.arm_start) - 1
-    dummy = ConfigProblem(inc, np.ones(n_t, np.int64), avail, np.zeros((n_arms, 2)), np.ones((n_arms, 2)))
-    m = build_model_arrays(dummy, "aggregated", None, wildcards=False)
-    if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
+    m = packing_columns(inc, pool)
+    if m is None:
         return None
-    model = cp_model.CpModel()
-    x = [[model.NewBoolVar("") for _ in range(m.n_vars)] for _ in range(n_configs)]
-    li = m.le_indices.tolist()
-    for c in range(n_configs):
-        for k in range(n_arms):
-            model.AddExactlyOne([x[c][j] for j in m.eq_indices[m.eq_indptr[k]:m.eq_indptr[k + 1]]])
-        # conflict rows only (target rows are replaced by the global cover rows below)
-        for i in range(m.n_target_rows, len(m.le_indptr) - 1):
-            model.AddAtMostOne([x[c][j] for j in li[m.le_indptr[i]:m.le_indptr[i + 1]]])
-    tgt = a.target[m.var]
-    for t in pool:
-        cols = np.flatnonzero(tgt == t)
-        model.AddExactlyOne([x[c][j] for c in range(n_configs) for j in cols])
-    # redundant but helps the search: exactly n_arms * n_configs - |pool| rest placements
-    rest = np.flatnonzero(tgt < 0)
-    model.Add(sum(x[c][j] for c in range(n_configs) for j in rest) == n_arms * n_configs - len(pool))
-    # symmetry breaking: configurations are interchangeable, so order them by what the arm
-    # with the most pooled targets observes (its rest locations ranked last, ties allowed)
-    arm_of = a.arm[m.var]
-    k_sym = int(np.argmax(np.bincount(arm_of[tgt >= 0], minlength=n_arms)))
-    cols_k = np.flatnonzero(arm_of == k_sym)
-    rank = np.where(tgt[cols_k] >= 0, tgt[cols_k], n_t).astype(np.int64)
-    rank_of = dict(zip(m.var[cols_k].tolist(), rank.tolist(), strict=True))
-    key = [sum(int(r) * x[c][j] for r, j in zip(rank, cols_k, strict=True)) for c in range(n_configs)]
-    for c in range(n_configs - 1):
-        model.Add(key[c] <= key[c + 1])
-    if hint:
-        col_of = {int(v): j for j, v in enumerate(m.var)}
-        hint = sorted(hint[:n_configs], key=lambda ch: rank_of.get(int(ch[k_sym]), n_t))
-        for c, ch in enumerate(hint):
-            for v in ch:
-                if int(v) in col_of:
-                    model.AddHint(x[c][col_of[int(v)]], True)
-    solver = cp_model.CpSolver()
-    solver.parameters.max_time_in_seconds = float(time_limit_s)
-    solver.parameters.num_workers = max(2, threads)
-    solver.parameters.random_seed = int(seed)
-    code = solver.Solve(model)
+    left = time_limit_s - (time.perf_counter() - t0)
+    out = exact_cover(inc, m, pool, n_configs, time_limit_s=proof_fraction * left if proof_fraction < 1 else left,
+                      seed=seed, threads=threads, hint=hint)
+    if out.packing is None and not out.infeasible and proof_fraction < 1:
+        left = time_limit_s - (time.perf_counter() - t0)
+        # the tabu search's best partial packing is the better start: CP-SAT's LNS improves on it
+        out = max_cover(inc, m, pool, n_configs, time_limit_s=left, seed=seed, threads=threads,
+                        hint=partial or hint)
     if status_out is not None:
-        status_out["infeasible"] = code == cp_model.INFEASIBLE
-    if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-        return None
-    out = []
-    for c in range(n_configs):
-        xv = np.array([solver.BooleanValue(v) for v in x[c]], dtype=float)
-        ch = np.full(n_arms, -1, np.int64)
-        for k in range(n_arms):
-            row = m.eq_indices[m.eq_indptr[k]:m.eq_indptr[k + 1]]
-            ch[k] = m.var[row[int(np.argmax(xv[row]))]]
-        out.append(ch)
-    return out
+        status_out["infeasible"] = out.infeasible
+    return out.packing
 
 
 def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, q0=None):
