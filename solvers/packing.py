@@ -57,7 +57,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     max(5000, 50 per pooled target) — on the protocol's fields every packing found was
     found within ~3,500 moves of a start, and a start can be a bad one, hint included).  ``stats``
     (optional) receives the iterations, restarts and the fewest targets ever left unplaced.
-    ``partial_out`` (optional list) receives, when no packing is found, the partial packing
+    ``partial_out`` (optional list) receives, when the search ran and found no packing, the partial packing
     with the fewest unplaced targets: per configuration the assignment indices of its
     placed targets (a start for CP-SAT, :func:`solvers.packing_cpsat.max_cover`).
     """
