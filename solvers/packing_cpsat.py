@@ -17,7 +17,8 @@ different halves of it:
   maximum (= every target) or proves a smaller one, which is also a proof.
 
 Both return per configuration the (n_arms,) chosen assignment indices (idle arms on a rest
-location) or None, and say whether None is a proof.
+location) or None, and say whether None is a proof; max-cover also returns its best
+partial packing.
 """
 
 from __future__ import annotations
@@ -37,6 +38,9 @@ __all__ = ["PackingOutcome", "exact_cover", "max_cover", "packing_columns"]
 class PackingOutcome:
     packing: list[np.ndarray] | None
     infeasible: bool  # True only when CP-SAT proved that no packing exists
+    # max-cover's best solution when it is not a packing: valid configurations that leave
+    # some pooled targets out (a packing into one more configuration may take those)
+    partial: list[np.ndarray] | None = None
 
 
 def packing_columns(inc: Incompatibility, pool: np.ndarray) -> ModelArrays | None:
@@ -161,9 +165,9 @@ def max_cover(inc: Incompatibility, m: ModelArrays, pool: np.ndarray, n_configs:
     solver, code = _solve(model, time_limit_s, seed, threads, light_presolve=True)
     if code in (cp_model.OPTIMAL, cp_model.FEASIBLE) and round(solver.ObjectiveValue()) == len(pool):
         return PackingOutcome(_read(solver, x, m, n_configs, n_arms), False)
-    proven = code == cp_model.INFEASIBLE or (
-        code in (cp_model.OPTIMAL, cp_model.FEASIBLE) and solver.BestObjectiveBound() < len(pool) - 0.5)
-    return PackingOutcome(None, proven)
+    solved = code in (cp_model.OPTIMAL, cp_model.FEASIBLE)
+    proven = code == cp_model.INFEASIBLE or (solved and solver.BestObjectiveBound() < len(pool) - 0.5)
+    return PackingOutcome(None, proven, _read(solver, x, m, n_configs, n_arms) if solved else None)
 
 
 def _add_hint(model, x, m: ModelArrays, hint: list[np.ndarray]) -> None:

@@ -286,13 +286,21 @@ def sequence_configurations(
                     # model finds packings there that the tabu search misses (weak-192
                     # fields into 16: 6-41 s), and its exact-cover model proves the others
                     # infeasible in seconds — worth most of the budget, as a packing here
-                    # is optimal; all of it when the sequence is one above the floor (then
-                    # nothing else can lower the count; only the LP bound's proof is lost)
-                    st: dict = {}
-                    limit = max(budget - 2.0 if n1 == floor + 1 else 0.6 * budget, tabu_s)
+                    # is optimal, all of it but the LP bound's when the sequence is one above
+                    # the floor.  From further above, CP-SAT's best partial packing at the
+                    # floor plus its leftovers in one more configuration usually gets one
+                    # above (weak 192 at 0.6 of the budget and nothing else: fields 4 and 8
+                    # kept 18, the repacking to 17 had too little time left after it)
+                    left = budget - (time.perf_counter() - tc)
+                    st: dict = {"infeasible": False}
+                    partial: list = []
+                    limit = max(left - 2.0 if n1 == floor + 1 else 0.7 * left, tabu_s)
                     packed = pack_targets(inc, pool, floor, time_limit_s=limit, seed=seed, threads=threads,
                                           hint=hint, status_out=st, tabu_fraction=tabu_s / limit,
-                                          proof_fraction=0.15)
+                                          proof_fraction=0.15, partial_out=partial)
+                    if packed is None and partial and n1 > floor + 1:
+                        packed = complete_partial(inc, pool, partial, n1 - 1, time_limit_s=min(
+                            5.0, budget - (time.perf_counter() - tc) - 1.0), seed=seed, threads=threads)
                     if st["infeasible"] and (not rescued or len(pool) >= n_active * floor):
                         floor_proof = floor = floor + 1
                 else:
@@ -389,7 +397,7 @@ def _active_arms(inc: Incompatibility, n_arms: int) -> list[int]:
 def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_limit_s: float,
                  seed: int = 0, threads: int = 2, hint: list[np.ndarray] | None = None,
                  status_out: dict | None = None, tabu_fraction: float = 0.4,
-                 proof_fraction: float = 0.3) -> list[np.ndarray] | None:
+                 proof_fraction: float = 0.3, partial_out: list | None = None) -> list[np.ndarray] | None:
     """Multi-configuration model: place every pooled target in one of ``n_configs``
     configurations (each obeying eqs. 5.13–5.15).  Returns the chosen assignment indices
     per configuration, or None when no packing was found in time.  Three stages share the
@@ -397,7 +405,9 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
     exact-cover model (``proof_fraction`` of what is left; it proves infeasibility fast),
     then CP-SAT's max-cover model for the rest (it finds the hard packings) — see
     :mod:`solvers.packing_cpsat`.  ``status_out["infeasible"]`` is set True when CP-SAT
-    proves that no packing exists."""
+    proves that no packing exists.  ``partial_out`` (optional list) receives the max-cover
+    model's best partial packing when there is no packing (valid configurations that leave
+    some pooled targets out)."""
     if status_out is not None:
         status_out["infeasible"] = False
     t0 = time.perf_counter()
@@ -420,9 +430,35 @@ def pack_targets(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time
         # the tabu search's best partial packing is the better start: CP-SAT's LNS improves on it
         out = max_cover(inc, m, pool, n_configs, time_limit_s=left, seed=seed, threads=threads,
                         hint=partial or hint)
+        if out.partial is not None and partial_out is not None:
+            partial_out.extend(out.partial)
     if status_out is not None:
         status_out["infeasible"] = out.infeasible
     return out.packing
+
+
+def complete_partial(inc: Incompatibility, pool: np.ndarray, partial: list[np.ndarray], max_configs: int, *,
+                     time_limit_s: float, seed: int = 0, threads: int = 2) -> list[np.ndarray] | None:
+    """A packing of ``pool`` into at most ``max_configs`` configurations from a partial one
+    (valid configurations that leave some pooled targets out): its configurations that
+    observe something, plus the leftover targets packed by CP-SAT's max-cover model into
+    as few more as fit.  None when they do not fit in time."""
+    a = inc.assignments
+    kept = [ch for ch in partial if (a.target[ch] >= 0).any()]
+    seen = np.concatenate([a.target[ch] for ch in kept]) if kept else np.zeros(0, np.int64)
+    leftover = np.setdiff1d(pool, seen[seen >= 0])
+    if not len(leftover):
+        return kept if len(kept) <= max_configs else None
+    m = packing_columns(inc, leftover)
+    t0 = time.perf_counter()
+    for n in range(1, max_configs - len(kept) + 1):
+        left = time_limit_s - (time.perf_counter() - t0)
+        if m is None or left <= 0.1:
+            return None
+        out = max_cover(inc, m, leftover, n, time_limit_s=left, seed=seed, threads=threads)
+        if out.packing is not None:
+            return kept + out.packing
+    return None
 
 
 def _replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie, dt, q0=None):

@@ -109,3 +109,28 @@ def test_tabu_partial_packing_is_valid_and_its_best() -> None:
             assert set(seen) <= set(pool.tolist())
             assert len(pool) - len(seen) == stats["best_unplaced"]
             assert len(seen) > 0
+
+
+def test_max_cover_partial_completes_to_a_packing() -> None:
+    """At an impossible count max cover still hands over its best partial packing; with its
+    leftover targets in more configurations (solvers.sequencing.complete_partial) that is a
+    packing checked by FCL and the tips, and never more configurations than allowed."""
+    from solvers.sequencing import complete_partial
+
+    for x, y, inc in CROWDED:
+        pool = _reachable(inc)
+        m = packing_columns(inc, pool)
+        n = math.ceil(len(pool) / INS.n_arms)
+        while exact_cover(inc, m, pool, n, time_limit_s=LONG_S).packing is None:
+            n += 1
+        out = max_cover(inc, m, pool, n - 1, time_limit_s=LONG_S)
+        assert out.packing is None and out.partial is not None and len(out.partial) == n - 1
+        a = inc.assignments
+        observed = np.concatenate([a.target[ch] for ch in out.partial])
+        observed = observed[observed >= 0]
+        assert len(observed) == len(set(observed.tolist())) < len(pool)
+        done = complete_partial(inc, pool, out.partial, n + 1, time_limit_s=LONG_S)
+        assert done is not None and len(done) <= n + 1
+        _check_packing(inc, x, y, pool, done, len(done))
+        # no packing into fewer than the fewest: n - 1 is refuted above, so never returned
+        assert complete_partial(inc, pool, out.partial, n - 1, time_limit_s=10.0) is None
