@@ -297,7 +297,7 @@ def sequence_configurations(
                     limit = max(left - 2.0 if n1 == floor + 1 else 0.7 * left, tabu_s)
                     packed = pack_targets(inc, pool, floor, time_limit_s=limit, seed=seed, threads=threads,
                                           hint=hint, status_out=st, tabu_fraction=tabu_s / limit,
-                                          proof_fraction=0.15, partial_out=partial)
+                                          proof_fraction=0.25, partial_out=partial)
                     if packed is None and partial and n1 > floor + 1:
                         packed = complete_partial(inc, pool, partial, n1 - 1, time_limit_s=min(
                             5.0, budget - (time.perf_counter() - tc) - 1.0), seed=seed, threads=threads)
