@@ -159,7 +159,11 @@ def max_cover(inc: Incompatibility, m: ModelArrays, pool: np.ndarray, n_configs:
         lits = [x[c][j] for c in range(n_configs) for j in cols]
         model.AddAtMostOne(lits)
         observed += lits
-    model.Maximize(sum(observed))
+    # the count as a variable bounded by the pool: with the light presolve CP-SAT did not
+    # derive that bound itself and ran to its time limit after finding the packing
+    n_observed = model.NewIntVar(0, len(pool), "observed")
+    model.Add(n_observed == sum(observed))
+    model.Maximize(n_observed)
     if hint:
         _add_hint(model, x, m, hint[:n_configs])
     solver, code = _solve(model, time_limit_s, seed, threads, light_presolve=True)
