@@ -292,7 +292,7 @@ def sequence_configurations(
                     # above (weak 192 at 0.6 of the budget and nothing else: fields 4 and 8
                     # kept 18, the repacking to 17 had too little time left after it)
                     left = budget - (time.perf_counter() - tc)
-                    st: dict = {"infeasible": False}
+                    st: dict = {}
                     partial: list = []
                     limit = max(left - 2.0 if n1 == floor + 1 else 0.7 * left, tabu_s)
                     packed = pack_targets(inc, pool, floor, time_limit_s=limit, seed=seed, threads=threads,
@@ -452,10 +452,12 @@ def complete_partial(inc: Incompatibility, pool: np.ndarray, partial: list[np.nd
     if not len(leftover):
         return kept if len(kept) <= max_configs else None
     m = packing_columns(inc, leftover)
+    if m is None:
+        return None
     t0 = time.perf_counter()
     for n in range(1, max_configs - len(kept) + 1):
         left = time_limit_s - (time.perf_counter() - t0)
-        if m is None or left <= 0.1:
+        if left <= 0.1:
             return None
         out = max_cover(inc, m, leftover, n, time_limit_s=left, seed=seed, threads=threads)
         if out.packing is not None:

@@ -15,6 +15,7 @@ import numpy as np
 
 from solvers.packing import tabu_pack
 from solvers.packing_cpsat import exact_cover, max_cover, packing_columns
+from solvers.sequencing import complete_partial
 from tests.test_packing import EASY_FIELDS, INS, _check_packing, _field, _reachable
 
 LONG_S = 120.0
@@ -26,6 +27,14 @@ def _crowded(seed: int, n: int, radius_mm: float):
     from models.incompatibility import incompatibility_for_targets
     x, y = r * np.cos(ang), r * np.sin(ang)
     return x, y, incompatibility_for_targets(INS, x, y)
+
+
+def _fewest_configurations(inc, m, pool) -> int:
+    """The fewest configurations exact cover packs the pool into, from ⌈t/12⌉ up."""
+    n = math.ceil(len(pool) / INS.n_arms)
+    while exact_cover(inc, m, pool, n, time_limit_s=LONG_S).packing is None:
+        n += 1
+    return n
 
 
 CROWDED = [_crowded(12, 12, 30.0), _crowded(3, 20, 45.0)]
@@ -66,9 +75,7 @@ def test_max_cover_is_not_fooled_by_a_partial_hint() -> None:
     x, y, inc = CROWDED[0]
     pool = _reachable(inc)
     m = packing_columns(inc, pool)
-    n = math.ceil(len(pool) / INS.n_arms)
-    while exact_cover(inc, m, pool, n, time_limit_s=LONG_S).packing is None:
-        n += 1
+    n = _fewest_configurations(inc, m, pool)
     assert n >= 2, "the crowded field must need more than its count bound"
     partial: list = []
     assert tabu_pack(inc, pool, n - 1, time_limit_s=LONG_S, max_iterations=2000, partial_out=partial) is None
@@ -86,9 +93,7 @@ def test_tabu_partial_packing_is_valid_and_its_best() -> None:
     for _x, _y, inc in CROWDED:
         pool = _reachable(inc)
         m = packing_columns(inc, pool)
-        n = math.ceil(len(pool) / INS.n_arms)
-        while exact_cover(inc, m, pool, n, time_limit_s=LONG_S).packing is None:
-            n += 1
+        n = _fewest_configurations(inc, m, pool)
         for n_configs in (n - 1, n - 2):
             stats: dict = {}
             partial: list = []
@@ -115,14 +120,10 @@ def test_max_cover_partial_completes_to_a_packing() -> None:
     """At an impossible count max cover still hands over its best partial packing; with its
     leftover targets in more configurations (solvers.sequencing.complete_partial) that is a
     packing checked by FCL and the tips, and never more configurations than allowed."""
-    from solvers.sequencing import complete_partial
-
     for x, y, inc in CROWDED:
         pool = _reachable(inc)
         m = packing_columns(inc, pool)
-        n = math.ceil(len(pool) / INS.n_arms)
-        while exact_cover(inc, m, pool, n, time_limit_s=LONG_S).packing is None:
-            n += 1
+        n = _fewest_configurations(inc, m, pool)
         out = max_cover(inc, m, pool, n - 1, time_limit_s=LONG_S)
         assert out.packing is None and out.partial is not None and len(out.partial) == n - 1
         a = inc.assignments
