@@ -21,7 +21,12 @@ from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
 from solvers.allocation import allocate
-from solvers.bounds import INNER_DISCS_MM, configuration_lp_bound, crowding_lower_bound
+from solvers.bounds import (
+    INNER_DISCS_MM,
+    configuration_lp_bound,
+    crowding_lower_bound,
+    radial_lp_bound,
+)
 
 SIGMA_MM = {"uniform": None, "heavy": 30.0, "weak": 60.0}
 
@@ -43,13 +48,17 @@ def make_field(n: int, dist: str, rng: np.random.Generator, radius_mm: float = 1
 
 
 def independent_bound(ins, f: PlaneTargets, count: int, time_limit_s: float) -> int:
-    """Best of the crowding bound (discs up to 50 mm, 1 s per disc) and the configuration LP
-    bound (column generation, ``time_limit_s``, stopping once it reaches ``count``), computed
-    outside the timed allocation."""
+    """Best of the crowding bound (discs up to 50 mm, 1 s per disc), the radial LP bound
+    (rings of small discs about the centre, ``time_limit_s``) and the configuration LP
+    bound over the whole field (column generation, ``time_limit_s``), each stopping once it
+    reaches ``count``; computed outside the timed allocation."""
     x, y = np.asarray(f.x_mm, float), np.asarray(f.y_mm, float)
     inc = incompatibility_for_targets(ins, x, y)
     mask = inc.reachability.arms_per_target > 0
-    lb, _ = crowding_lower_bound(inc, np.column_stack([x, y]), mask, radii_mm=INNER_DISCS_MM, time_limit_s=1.0)
+    xy = np.column_stack([x, y])
+    lb, _ = crowding_lower_bound(inc, xy, mask, radii_mm=INNER_DISCS_MM, time_limit_s=1.0)
+    if lb < count:
+        lb = max(lb, radial_lp_bound(inc, xy, mask, time_limit_s=time_limit_s, stop_at=count)[0])
     if lb < count:
         lp, _ = configuration_lp_bound(inc, mask, time_limit_s=time_limit_s, stop_at=count)
         lb = max(lb, lp)

@@ -13,6 +13,10 @@ can exceed it, both rigorous for any allocator:
   structure with every arm not on a disc target *removed* (not parked), so it can only
   over-estimate the true maximum, and the bound stays valid; when CP-SAT cannot prove
   m(r) in time its proven upper bound is used instead.
+
+:func:`configuration_lp_bound` (Farley's bound from the set-partitioning LP) dominates both
+where its column generation converges; :func:`radial_lp_bound` makes it converge on crowded
+centres by sharing one dual per ring of a small disc about the centre.
 """
 
 from __future__ import annotations
@@ -155,7 +159,7 @@ def crowding_lower_bound(inc: Incompatibility, xy_mm: np.ndarray, targets: np.nd
 def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_limit_s: float = 10.0,
                            columns: list[np.ndarray] | None = None, stop_at: int | None = None,
                            price_time_limit_s: float = 2.0, threads: int = 2,
-                           seed: int = 0) -> tuple[int, dict]:
+                           seed: int = 0, groups: np.ndarray | None = None) -> tuple[int, dict]:
     """Lower bound on the configurations for ``targets`` (bool mask) from the linear
     relaxation of the set-partitioning model, by column generation.
 
@@ -169,7 +173,12 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
     estimated; rounding is covered by adding n_arms / 1e9).  Its optimum is the next column.
     ``columns``: target-index arrays of known configurations (e.g. the current sequence) to
     start the master with.  Stops at LP optimality, at ``time_limit_s``, or once the bound
-    reaches ``stop_at``.  Returns (bound, info: iterations, LP value, proven).
+    reaches ``stop_at``.  ``groups`` (one integer per target, e.g. a radial bin; the mask picks): the
+    aggregated master — one cover row per group (sum of its targets' rows, so a relaxation of
+    the master above and still a valid bound), its duals shared by the group's targets.
+    With ~20 rows instead of hundreds it converges in tens of pricings where the full
+    master's degenerate duals tail off; on centred clusters the radial weights lose little.
+    Returns (bound, info: iterations, LP value, proven).
     """
     from ortools.sat.python import cp_model
     from scipy.optimize import linprog
@@ -193,17 +202,22 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
     master = [local[c[c >= 0]] for c in master]  # idle arms (< 0) and targets outside the mask dropped
     master = [c[c >= 0] for c in master]
     master += [np.array([t]) for t in range(len(sel))]  # singletons keep the master feasible
+    if groups is None:
+        row_of = np.arange(len(sel))
+    else:
+        _, row_of = np.unique(np.asarray(groups)[sel], return_inverse=True)
+    n_rows = int(row_of.max()) + 1
+    rhs = np.bincount(row_of, minlength=n_rows).astype(float)
     best = 0
     while True:
         left = time_limit_s - (time.perf_counter() - t0)
         if left <= 0.05:
             break
-        a_ub = np.zeros((len(sel), len(master)))
+        a_ub = np.zeros((n_rows, len(master)))
         for j, c in enumerate(master):
-            a_ub[c, j] = 1.0
-        res = linprog(np.ones(len(master)), A_ub=-a_ub, b_ub=-np.ones(len(sel)), bounds=(0, None),
-                      method="highs")
-        pi = np.maximum(-res.ineqlin.marginals, 0.0)
+            np.add.at(a_ub[:, j], row_of[c], 1.0)
+        res = linprog(np.ones(len(master)), A_ub=-a_ub, b_ub=-rhs, bounds=(0, None), method="highs")
+        pi = np.maximum(-res.ineqlin.marginals, 0.0)[row_of]  # a group's dual on each of its targets
         info["lp_value"] = float(res.fun)
         w = np.floor(pi * scale).astype(np.int64)
         model.Maximize(sum(int(w[t]) * x[i] for i, t in enumerate(tl_of_col.tolist()) if w[t] > 0))
@@ -211,7 +225,10 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
         code = solver.Solve(model)
         info["iterations"] += 1
         if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
-            break
+            if price_time_limit_s >= left:
+                break
+            price_time_limit_s *= 2  # no answer at all: the same pricing with more time
+            continue
         heaviest = (solver.BestObjectiveBound() + n_arms) / scale  # >= max over p of pi(p)
         if heaviest > 0 and math.ceil(float(pi.sum()) / heaviest - 1e-6) > best:
             best = math.ceil(float(pi.sum()) / heaviest - 1e-6)
@@ -219,11 +236,44 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
         if stop_at is not None and best >= stop_at:
             break
         new = np.array(sorted({int(tl_of_col[i]) for i in range(len(x)) if solver.BooleanValue(x[i])}))
-        if code == cp_model.OPTIMAL and float(pi[new].sum()) <= 1.0 + 1e-9:
-            # no column prices out: the LP optimum is reached (the bound stays Farley's, which
-            # covers the rounding of the weights; ceil(lp_value) would not)
-            info["converged"] = True
-            break
+        if float(pi[new].sum()) <= 1.0 + 1e-9:
+            if code == cp_model.OPTIMAL:
+                # no column prices out: the LP optimum is reached (the bound stays Farley's,
+                # which covers the rounding of the weights; ceil(lp_value) would not)
+                info["converged"] = True
+                break
+            price_time_limit_s *= 2  # an unproven pricing found nothing better: again, longer
+            continue
         master.append(new)
     info["time_s"] = time.perf_counter() - t0
     return best, info
+
+
+def radial_lp_bound(inc: Incompatibility, xy_mm: np.ndarray, targets: np.ndarray, *,
+                    radii_mm: tuple[float, ...] = (15.0, 20.0, 25.0), ring_mm: float = 2.5,
+                    time_limit_s: float = 30.0, stop_at: int | None = None,
+                    threads: int = 2) -> tuple[int, list[dict]]:
+    """Max over discs about the FOV centre of the configuration LP bound of the disc's targets
+    with one cover row per ``ring_mm`` ring (:func:`configuration_lp_bound` with ``groups``).
+    A disc's targets are a subset of the field, so its bound is the field's; one ring per
+    disc is the crowding bound, so rings can only raise it.  On a heavy-384 field (σ 30 mm)
+    the full LP over 384 targets was at 11–32 after 60–120 s, this one at 36 in 2.6 s from
+    the 82 targets within 20 mm.  ``time_limit_s`` is shared by the discs; ``stop_at`` stops
+    once reached.  Returns the bound and one row per disc."""
+    r_mm = np.hypot(xy_mm[:, 0], xy_mm[:, 1])
+    ring = np.floor(r_mm / ring_mm).astype(np.int64)
+    t0 = time.perf_counter()
+    best, rows = 0, []
+    for i, r in enumerate(radii_mm):
+        sub = targets & (r_mm <= r)
+        left = time_limit_s - (time.perf_counter() - t0)
+        if not sub.any() or left <= 0.1:
+            continue
+        lb, info = configuration_lp_bound(inc, sub, time_limit_s=left / (len(radii_mm) - i), groups=ring,
+                                          stop_at=stop_at, threads=threads)
+        best = max(best, lb)
+        rows.append({"radius_mm": r, "targets": int(sub.sum()), "lower_bound": lb,
+                     "converged": info["converged"], "iterations": info["iterations"]})
+        if stop_at is not None and best >= stop_at:
+            break
+    return best, rows

@@ -8,6 +8,8 @@ Oracles, all independent of the column generation:
   special case of the LP's dual, so never above the converged LP bound);
 * an enumeration with FCL clearances of every set of targets one configuration can observe
   (the LP's relaxation: idle arms absent), which checks the certificate and the LP value;
+* for the ring-aggregated master (``groups``, :func:`radial_lp_bound`): the same
+  enumeration with the rows summed per ring, and the crowding bound it generalises;
 * constructed clusters whose targets are pairwise exclusive (``max_simultaneous_targets``
   proves 1), so each needs a configuration of its own.
 """
@@ -30,6 +32,7 @@ from solvers.bounds import (
     crowding_lower_bound,
     matching_lower_bound,
     max_simultaneous_targets,
+    radial_lp_bound,
 )
 from solvers.sequencing import pack_targets
 
@@ -227,3 +230,50 @@ def test_known_columns_do_not_change_the_converged_bound() -> None:
     assert info["converged"] and info_s["converged"]
     assert seeded == plain <= opt
     assert abs(info["lp_value"] - info_s["lp_value"]) < 1e-6
+
+
+def test_grouped_lp_certificate_checked_by_fcl_enumeration() -> None:
+    """Rows summed per 10 mm ring: the certificate gives every target of a ring the same
+    weight, no enumerated configuration (FCL) weighs more than 1, ceil(sum w) is the bound;
+    the LP value equals the aggregated LP over every enumerated configuration, and the
+    bound is never above the per-target master's (it is a relaxation of it)."""
+    for seed, n, radius in ((0, 7, 20.0), (2, 8, 60.0), (11, 8, 60.0)):
+        x, y = _central(np.random.default_rng(seed), n, radius)
+        inc = incompatibility_for_targets(INS, x, y)
+        mask = inc.reachability.arms_per_target > 0
+        ring = np.floor(np.hypot(x, y) / 10.0).astype(int)
+        bound, info = configuration_lp_bound(inc, mask, groups=ring, **LP_LIMITS)
+        assert info["converged"]
+        sel, w = info["certificate"]
+        sel, w = np.asarray(sel), np.asarray(w, float)
+        assert np.array_equal(sel, np.flatnonzero(mask)) and (w >= 0).all()
+        for g in np.unique(ring[sel]):
+            assert np.ptp(w[ring[sel] == g]) < 1e-12
+        weight = dict(zip(sel.tolist(), w.tolist(), strict=True))
+        sets = [s & set(weight) for s in _compatible_target_sets(x, y)]
+        sets = [s for s in sets if s]
+        assert max(sum(weight[t] for t in s) for s in sets) <= 1.0 + 1e-9
+        assert math.ceil(float(w.sum()) - 1e-6) == bound
+        rings = np.unique(ring[sel])
+        a_ub = np.array([[sum(1.0 for t in s if ring[t] == g) for s in sets] for g in rings])
+        b = np.array([float(np.sum(ring[sel] == g)) for g in rings])
+        res = linprog(np.ones(len(sets)), A_ub=-a_ub, b_ub=-b, bounds=(0, None), method="highs")
+        assert res.status == 0
+        assert abs(res.fun - info["lp_value"]) < 1e-6
+        assert bound <= configuration_lp_bound(inc, mask, **LP_LIMITS)[0]
+
+
+def test_radial_lp_bound_between_crowding_and_the_exact_optimum() -> None:
+    """Crowded fields: the radial LP bound is at least the crowding bound over the same discs
+    (one ring per disc is the crowding bound's dual) and at most the CP-SAT optimum."""
+    radii = (20.0, 30.0, 60.0)
+    for seed, n, radius in ((3, 24, 60.0), (12, 12, 30.0), (17, 12, 30.0)):
+        x, y = _central(np.random.default_rng(seed), n, radius)
+        xy = np.column_stack([x, y])
+        inc = incompatibility_for_targets(INS, x, y)
+        mask = inc.reachability.arms_per_target > 0
+        bound, rows = radial_lp_bound(inc, xy, mask, radii_mm=radii, ring_mm=5.0, time_limit_s=300.0)
+        assert rows and all(r["converged"] for r in rows)
+        crowd, _ = crowding_lower_bound(inc, xy, mask, radii_mm=radii, time_limit_s=30.0)
+        opt = _exact_optimum(inc, np.flatnonzero(mask))
+        assert crowd <= bound <= opt, (seed, crowd, bound, opt)
