@@ -208,15 +208,15 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
         _, row_of = np.unique(np.asarray(groups)[sel], return_inverse=True)
     n_rows = int(row_of.max()) + 1
     rhs = np.bincount(row_of, minlength=n_rows).astype(float)
+    # each column's cover counts per row, computed once when the column joins the master
+    col_rows = [np.bincount(row_of[c], minlength=n_rows).astype(float) for c in master]
     best = 0
     while True:
         left = time_limit_s - (time.perf_counter() - t0)
         if left <= 0.05:
             break
-        a_ub = np.zeros((n_rows, len(master)))
-        for j, c in enumerate(master):
-            np.add.at(a_ub[:, j], row_of[c], 1.0)
-        res = linprog(np.ones(len(master)), A_ub=-a_ub, b_ub=-rhs, bounds=(0, None), method="highs")
+        res = linprog(np.ones(len(col_rows)), A_ub=-np.column_stack(col_rows), b_ub=-rhs, bounds=(0, None),
+                      method="highs")
         pi = np.maximum(-res.ineqlin.marginals, 0.0)[row_of]  # a group's dual on each of its targets
         info["lp_value"] = float(res.fun)
         w = np.floor(pi * scale).astype(np.int64)
@@ -244,7 +244,7 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
                 break
             price_time_limit_s *= 2  # an unproven pricing found nothing better: again, longer
             continue
-        master.append(new)
+        col_rows.append(np.bincount(row_of[new], minlength=n_rows).astype(float))
     info["time_s"] = time.perf_counter() - t0
     return best, info
 

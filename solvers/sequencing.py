@@ -56,7 +56,9 @@ class UnverifiedConfigurationError(RuntimeError):
     """A back-end returned a configuration that fails the independent geometric re-check."""
 
 
-# the whole-field CP-SAT packing at the floor pays up to this pool size (weak 192, not 384)
+# the whole-field CP-SAT packing at the floor pays up to this pool size: on weak 192 it
+# found the perfect packings; on weak 384 (32.1 with the tabu search alone, 32.3 with it) it
+# took the budget the prefix repacking needed to go from 33 to 32
 MAX_COVER_POOL = 250
 
 
@@ -285,8 +287,6 @@ def sequence_configurations(
                 pool = np.concatenate(observed + rescued)
                 hint = [ch for _, ch, _, _ in configs]
                 tabu_s = min(0.15 * budget, 5.0)
-                # up to ~250 pooled targets: on weak 384 (32.1 with the tabu search alone) this
-                # step took the budget the prefix repacking needed to go from 33 to 32 (32.3)
                 if floor == math.ceil(len(pool) / max(n_active, 1)) and len(pool) <= MAX_COVER_POOL:
                     # the floor is the count bound alone (no crowding): CP-SAT's max-cover
                     # model finds packings there that the tabu search misses (weak-192
