@@ -20,8 +20,8 @@ its straight, zero-stop move. This module
    it and the whole is played forwards again. Forward handles an R arm whose *goal* is swept
    late (it waits before arriving); reverse handles an R arm whose *start* is swept early.
 
-The result is only a candidate: :func:`planner.prioritized.plan_motion` hands it to the
-independent verifier before returning it.
+The strategy :mod:`planner.strategies.cluster` wraps it; its result is only a candidate,
+which the driver (:mod:`planner.driver`) verifies before returning it.
 """
 
 from __future__ import annotations

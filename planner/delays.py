@@ -21,8 +21,8 @@ arms at once:
   most-constrained arm first, values by earliest arrival, and branch-and-bound on the
   makespan max_k(tau_k + T_k).
 
-Everything is deterministic (no randomness). The result is still handed to the independent
-verifier by :func:`planner.prioritized.plan_motion` before it is returned.
+Everything is deterministic (no randomness). The strategy :mod:`planner.strategies.delays`
+wraps it; the driver (:mod:`planner.driver`) verifies its plans before returning them.
 """
 
 from __future__ import annotations
@@ -292,8 +292,6 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
     for k in range(n):
         b = np.concatenate([o.box for o in options[k]])
         arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
-    import time as _time
-
     for i in range(n):
         if deadline is not None and _time.perf_counter() > deadline:
             return None  # out of time: the caller falls back
@@ -510,79 +508,129 @@ class DelayResult:
     # the last problem with straight options only (both theta2 directions once round 1 ran):
     # the cluster strategy (planner.cluster) reuses its tables
     straight: DelayProblem | None = None
-    external: object = None  # what ``on_straight_fail`` found instead (e.g. a cluster plan)
 
 
-def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
-                horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int], stats: DelayStats,
-                grid: tuple[int, int] = (8, 6), max_rounds: int = 5, max_detour_vertices: int = 8,
-                detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
-                node_budget: int = 20000,
-                deadline: float | None = None, check=None, max_repairs: int = 5,
-                prefer=None, on_straight_fail=None, after_hook_s: float | None = None) -> DelayResult:
-    """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
+class DelaySearch:
+    """The delay CSP over its rounds, in two phases that other strategies can sit between.
 
-    ``check(assignment, options)``, when given, is the independent verifier: it returns the
-    arm pairs it found colliding (empty when the plan passes); their (option, relative
-    delay) entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
+    :meth:`straight_phase` runs the rounds with straight options only. Round 0: each movable
+    arm's shortest straight move (and the other theta2 direction when it is not longer than
+    the lower bound, so it cannot raise the makespan). Round 1: both theta2 directions for
+    every arm. It returns the result when it ended (solved, or failed for good), or None
+    when every straight option failed and detours may still help: :attr:`straight` then holds
+    the straight-move problem (the cluster strategy, :mod:`planner.cluster`, reuses its tables).
 
-    Round 0: each movable arm's shortest straight move (and the other theta2 direction when
-    it is not longer than the lower bound, so it cannot raise the makespan). Round 1: both
-    theta2 directions for every arm. Later rounds add, for the arms the CSP blames (if
-    ``max_start_stop`` >= 1)
-    one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
-    of ``detour_waits_steps`` x dt, the detour (wait included) at most ``detour_extra_s`` longer
-    than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
+    :meth:`detour_phase` goes on: later rounds add, for the arms the CSP blames (if
+    ``max_start_stop`` >= 1), one-stop detours start -> v -> goal (a resting arm: start -> v ->
+    start) with waits at v of ``detour_waits_steps`` x dt, the detour (wait included) at most
+    ``detour_extra_s`` longer than the lower bound or the arm's direct move. One arm is extended
+    per round (usually one arm getting out of the way suffices: tables grow as options_i x
+    options_j). Tables of option pairs already computed are reused.
 
-    Hooks (used by :func:`planner.prioritized.plan_motion`): ``on_straight_fail(straight, blamed)``
-    runs once when every straight option failed, before the detour rounds (its time does not
-    count against ``deadline``); a non-None answer ends the stage (``DelayResult.external``), after
-    a None answer the detour rounds get at most ``after_hook_s`` more. ``prefer(straight, blamed)`` names the arms to
-    extend first (a removal set, :mod:`planner.cluster`), or None when detours are futile.
+    ``check(assignment, options)``, when given, is a collision re-check of a solution: it
+    returns the arm pairs found colliding (empty when clear); their (option, relative delay)
+    entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
     """
-    import time as _time
 
-    n = len(geoms)
-    mv = set(movable)
-    opts: list[list[Option]] = []
-    for k in range(n):
-        if k in mv:
-            o = straight_options(geoms[k], start_q[k], goal_q[k])
-        else:
-            o = [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")]
-        opts.append(o)
-    if any(not o for o in opts):
-        return DelayResult(None, opts, [k for k in range(n) if not opts[k]], 0)
-    lb = max(o[0].duration_s for o in opts)
-    cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= lb + 1e-9] for op in opts]
-    prob = None
-    straight = None
-    extended: set[int] = set()
-    blamed: list[int] = []
-    seen_blamed: list[int] = []
-    for rnd in range(max_rounds):
-        nxt = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob,
-                            deadline=None if rnd == 0 else deadline)
-        if nxt is None:
-            if on_straight_fail is not None and straight is not None and not extended:
-                # out of time while adding the other theta2 directions: the hook still gets the
-                # straight problem of round 0 (fewer options, so its schedules stay valid)
-                ext = on_straight_fail(straight, list(blamed))
-                if ext is not None:
-                    return DelayResult(None, cur, [], rnd, straight=straight, external=ext)
-            break
-        prob = nxt
-        if not extended:  # a snapshot: later rounds append options to the same lists
-            straight = DelayProblem([list(o) for o in prob.options], prob.K, prob.dt_s, prob.horizon_s,
-                                    prob.tables, prob.neighbours)
-        sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
+    def __init__(self, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float,
+                 dt_col_s: float, horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int],
+                 stats: DelayStats, grid: tuple[int, int] = (8, 6), max_rounds: int = 5,
+                 max_detour_vertices: int = 8, detour_waits_steps: tuple[int, ...] = (0, 2, 5),
+                 detour_extra_s: float = 45.0, node_budget: int = 20000, check=None, max_repairs: int = 5):
+        self.geoms, self.start_q, self.goal_q = geoms, start_q, goal_q
+        self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm = dt_s, dt_col_s, horizon_s, buffer_mm
+        self.max_start_stop, self.stats, self.grid, self.max_rounds = max_start_stop, stats, grid, max_rounds
+        self.max_detour_vertices, self.detour_waits_steps = max_detour_vertices, detour_waits_steps
+        self.detour_extra_s, self.node_budget, self.check, self.max_repairs = detour_extra_s, node_budget, check, max_repairs
+        n = len(geoms)
+        self.mv = set(movable)
+        self.opts = [straight_options(geoms[k], start_q[k], goal_q[k]) if k in self.mv
+                     else [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")] for k in range(n)]
+        self.lb = max((o[0].duration_s for o in self.opts if o), default=0.0)
+        self.cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= self.lb + 1e-9] for op in self.opts]
+        self.prob: DelayProblem | None = None
+        self.straight: DelayProblem | None = None
+        self.extended: set[int] = set()
+        self.blamed: list[int] = []
+        self.seen_blamed: list[int] = []
+        self.rnd = 0
+        self.result: DelayResult | None = None  # set once the search ended
+        self.paused = False  # straight_phase stopped where every straight option had failed
+        self._resume_tail = False  # paused mid-round: the detour phase starts with the round's tail
+
+    def _end(self, res: DelayResult) -> DelayResult:
+        self.result = res
+        return res
+
+    def _failed(self) -> DelayResult:
+        return self._end(DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight))
+
+    def straight_phase(self, deadline: float | None = None) -> DelayResult | None:
+        """Straight options only; None when paused (see the class docstring)."""
+        n = len(self.geoms)
+        if any(not o for o in self.opts):
+            return self._end(DelayResult(None, self.opts, [k for k in range(n) if not self.opts[k]], 0))
+        return self._rounds(deadline, pause=True)
+
+    def detour_phase(self, deadline: float | None = None, prefer: list[int] | None = None,
+                     futile: bool = False) -> DelayResult:
+        """The detour rounds after a paused :meth:`straight_phase`; ``prefer`` the arms to extend
+        first (a removal set, :mod:`planner.cluster`); ``futile`` when detours are known not to
+        help (the rounds end at once)."""
+        if self.result is not None:
+            return self.result
+        if self._resume_tail:
+            self._resume_tail = False
+            step = self._tail(deadline, prefer, futile)
+            if step == "break":
+                return self._failed()
+            self.rnd += 1
+        out = self._rounds(deadline, pause=False, prefer=prefer, futile=futile)
+        return out if out is not None else self._failed()
+
+    def _rounds(self, deadline, pause: bool, prefer=None, futile=False) -> DelayResult | None:
+        while self.rnd < self.max_rounds:
+            rnd = self.rnd
+            nxt = build_problem(self.geoms, self.cur, self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm,
+                                self.stats, old=self.prob, deadline=None if rnd == 0 else deadline)
+            if nxt is None:
+                if pause and self.straight is not None and not self.extended:
+                    # out of time while adding the other theta2 directions: pause with the
+                    # straight problem of round 0 (fewer options, so its schedules stay valid)
+                    self.result = DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight)
+                    self.paused = True
+                    return None
+                return self._failed()
+            self.prob = nxt
+            if not self.extended:  # a snapshot: later rounds append options to the same lists
+                p = self.prob
+                self.straight = DelayProblem([list(o) for o in p.options], p.K, p.dt_s, p.horizon_s, p.tables,
+                                             p.neighbours)
+            sol = self._solve_and_repair(deadline)
+            if sol is not None:
+                ms = max(self.cur[k][p].duration_s + t * self.dt_s for k, (p, t) in sol.items())
+                return self._end(DelayResult(sol, self.cur, [], rnd + 1, ms, self.straight))
+            timed_out = deadline is not None and _time.perf_counter() > deadline
+            if pause and self.straight is not None and not self.extended and (
+                    rnd >= 1 or timed_out or not any(len(self.cur[k]) < len(self.opts[k]) for k in self.mv)):
+                self._resume_tail = self.paused = True  # every straight option failed
+                return None
+            step = self._tail(deadline, prefer, futile)
+            if step == "break":
+                return self._failed()
+            self.rnd += 1
+        return self._failed()
+
+    def _solve_and_repair(self, deadline) -> dict[int, tuple[int, int]] | None:
+        prob, cur = self.prob, self.cur
+        sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
         repairs = 0
-        while sol is not None and check is not None and repairs < max_repairs:
-            bad_pairs = check(sol, cur)
+        while sol is not None and self.check is not None and repairs < self.max_repairs:
+            bad_pairs = self.check(sol, cur)
             if not bad_pairs:
                 break
             repairs += 1
-            stats.repairs += 1
+            self.stats.repairs += 1
             for a, b in bad_pairs:
                 (pa, ta), (pb, tb) = sol[a], sol[b]
                 if (a, b) not in prob.tables:  # the table said "never close": make it explicit
@@ -592,28 +640,18 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     prob.neighbours[a].append(b)
                     prob.neighbours[b].append(a)
                 prob.tables[(a, b)][pa, pb, tb - ta + prob.K] = False  # the (b, a) view shares memory
-            sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
-        if sol is not None and (check is None or repairs < max_repairs):
-            ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
-            return DelayResult(sol, cur, [], rnd + 1, ms, straight)
-        timed_out = deadline is not None and _time.perf_counter() > deadline
-        if on_straight_fail is not None and straight is not None and not extended and (
-                rnd >= 1 or timed_out or not any(len(cur[k]) < len(opts[k]) for k in mv)):
-            # every straight option failed: let the caller try something else before the
-            # (expensive) detour rounds; a non-None answer ends the delay stage
-            t_hook = _time.perf_counter()
-            ext = on_straight_fail(straight, list(blamed))
-            on_straight_fail = None
-            if deadline is not None:  # the hook has its own share of the budget
-                deadline += _time.perf_counter() - t_hook
-                if after_hook_s is not None:  # ... and after a failed hook the detour rounds get less
-                    deadline = min(deadline, _time.perf_counter() + after_hook_s)
-            if ext is not None:
-                return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
+            sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
+        if sol is not None and (self.check is None or repairs < self.max_repairs):
+            return sol
+        return None
+
+    def _tail(self, deadline, prefer, futile) -> str:
+        """The end of a failed round: extend the options; "break" when nothing is left to try."""
+        rnd, blamed, cur, opts, mv = self.rnd, self.blamed, self.cur, self.opts, self.mv
         if deadline is not None and _time.perf_counter() > deadline:
-            break
+            return "break"
         if rnd == 0:
-            seen_blamed += blamed
+            self.seen_blamed += blamed
             # round 1: both theta2 directions for every arm (a row of neighbours all swinging J2
             # the same long way blocks itself in a chain; some swinging the other way frees it)
             grown = False
@@ -622,34 +660,43 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     if not any(o is c for c in cur[k]):
                         cur[k].append(o)
                         grown = True
-            stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "both directions"})
+            self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "both directions"})
             if grown:
-                continue
-        # then one arm per round (usually one arm getting out of the way suffices): tables grow
-        # as options_i x options_j, so extending both arms of a conflict at once costs far more
-        seen_blamed += [k for k in blamed if k not in seen_blamed]
-        if prefer is not None and straight is not None and not extended:
-            # extend first the arms whose removal makes the straight CSP solvable
-            first = prefer(straight, list(seen_blamed))
-            if first is None:  # the caller proved the detour rounds futile
-                stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "futile"})
-                break
-            first = [k for k in first if k in mv]
-            seen_blamed[:] = first + [k for k in seen_blamed if k not in first]
-        new = [k for k in seen_blamed if k in mv and k not in extended][:1]
-        stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
+                return "continue"
+        seen = self.seen_blamed
+        seen += [k for k in blamed if k not in seen]
+        if (futile or prefer is not None) and self.straight is not None and not self.extended:
+            if futile:  # the caller proved the detour rounds futile
+                self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "futile"})
+                return "break"
+            first = [k for k in prefer if k in mv]  # extend first the arms of the removal set
+            seen[:] = first + [k for k in seen if k not in first]
+        new = [k for k in seen if k in mv and k not in self.extended][:1]
+        self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
         if not new:
-            break
+            return "break"
         for k in new:
-            extended.add(k)
-            for o in opts[k]:
-                if not any(o is c for c in cur[k]):
-                    cur[k].append(o)
-            if max_start_stop >= 1:
-                V = detour_vertices(geoms[k], start_q[k], goal_q[k], grid)
-                t_direct = min((o.duration_s for o in opts[k]), default=0.0)
-                cur[k].extend(detour_options(geoms[k], start_q[k], goal_q[k], V,
-                                             tuple(w * dt_s for w in detour_waits_steps),
-                                             max_detour_vertices,
-                                             min(horizon_s, max(lb, t_direct) + detour_extra_s)))
-    return DelayResult(None, cur, blamed, max_rounds, straight=straight)
+            self._extend(k)
+        return "continue"
+
+    def _extend(self, k: int) -> None:
+        self.extended.add(k)
+        for o in self.opts[k]:
+            if not any(o is c for c in self.cur[k]):
+                self.cur[k].append(o)
+        if self.max_start_stop >= 1:
+            g, qs, qg = self.geoms[k], self.start_q[k], self.goal_q[k]
+            V = detour_vertices(g, qs, qg, self.grid)
+            t_direct = min((o.duration_s for o in self.opts[k]), default=0.0)
+            self.cur[k].extend(detour_options(g, qs, qg, V, tuple(w * self.dt_s for w in self.detour_waits_steps),
+                                              self.max_detour_vertices,
+                                              min(self.horizon_s, max(self.lb, t_direct) + self.detour_extra_s)))
+
+
+def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, deadline: float | None = None,
+                **kwargs) -> DelayResult:
+    """Straight moves with departure delays; on failure, one-stop detours for the blamed arms
+    (both phases of :class:`DelaySearch`, keyword arguments as there)."""
+    search = DelaySearch(geoms, start_q, goal_q, **kwargs)
+    res = search.straight_phase(deadline)
+    return res if res is not None else search.detour_phase(deadline)
