@@ -205,15 +205,18 @@ def timed_collisions(geoms: Sequence[ArmGeom], timed: Sequence[tuple[np.ndarray,
     T = max(float(t[-1]) for t, _ in timed)
     grid = np.arange(0.0, T + 0.5 * dt_check_s, dt_check_s)
     ts = np.unique(np.round(np.concatenate([grid, *[np.asarray(t, float) for t, _ in timed], [T]]), 9))
+    coarse = np.unique(np.concatenate([np.arange(0, len(ts), stride), [len(ts) - 1]]))
+    tc = ts[coarse]
+    half = 0.5 * float(np.max(np.diff(tc), initial=0.0))
+    speed = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
     seg, box = [], []
     for k in range(n):
-        t, q = timed[k]
-        s, e = geoms[k].segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))
+        s, e = _segments_at(geoms[k], timed[k], tc)
         r = geoms[k].radius[None, :, None]
+        pad = speed[k] * half  # the arm between two coarse samples
         seg.append((s, e))
-        box.append(np.concatenate([(np.minimum(s, e) - r).min(axis=(0, 1)), (np.maximum(s, e) + r).max(axis=(0, 1))]))
-    speed = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
-    coarse = np.unique(np.concatenate([np.arange(0, len(ts), stride), [len(ts) - 1]]))
+        box.append(np.concatenate([(np.minimum(s, e) - r).min(axis=(0, 1)) - pad,
+                                   (np.maximum(s, e) + r).max(axis=(0, 1)) + pad]))
     out = []
     for i in range(n):
         for j in range(i + 1, n):
@@ -221,20 +224,22 @@ def timed_collisions(geoms: Sequence[ArmGeom], timed: Sequence[tuple[np.ndarray,
             if (bi[0] - buffer_mm > bj[2] or bj[0] - buffer_mm > bi[2]
                     or bi[1] - buffer_mm > bj[3] or bj[1] - buffer_mm > bi[3]):
                 continue
-            if _pair_collides(seg[i], geoms[i].radius, seg[j], geoms[j].radius, ts, coarse,
-                              speed[i] + speed[j], buffer_mm):
+            gi, gj = geoms[i], geoms[j]
+            c = clearance_between(seg[i][0], seg[i][1], gi.radius, seg[j][0], seg[j][1], gj.radius)
+            if (c < buffer_mm).any():
+                out.append((i, j))
+                continue
+            unsure = np.flatnonzero(0.5 * (c[:-1] + c[1:]) - 0.5 * (speed[i] + speed[j]) * np.diff(tc) < buffer_mm)
+            if len(unsure) == 0:
+                continue
+            idx = np.unique(np.concatenate([np.arange(coarse[u], coarse[u + 1] + 1) for u in unsure]))
+            sa, ea = _segments_at(gi, timed[i], ts[idx])
+            sb, eb = _segments_at(gj, timed[j], ts[idx])
+            if (clearance_between(sa, ea, gi.radius, sb, eb, gj.radius) < buffer_mm).any():
                 out.append((i, j))
     return out
 
 
-def _pair_collides(sa, ra, sb, rb, ts, coarse, lip_mm_s: float, buffer_mm: float) -> bool:
-    c = clearance_between(sa[0][coarse], sa[1][coarse], ra, sb[0][coarse], sb[1][coarse], rb)
-    if (c < buffer_mm).any():
-        return True
-    span = np.diff(ts[coarse])
-    unsure = np.flatnonzero(0.5 * (c[:-1] + c[1:]) - 0.5 * lip_mm_s * span < buffer_mm)
-    if len(unsure) == 0:
-        return False
-    idx = np.unique(np.concatenate([np.arange(coarse[i], coarse[i + 1] + 1) for i in unsure]))
-    f = clearance_between(sa[0][idx], sa[1][idx], ra, sb[0][idx], sb[1][idx], rb)
-    return bool((f < buffer_mm).any())
+def _segments_at(geom: ArmGeom, tq: tuple[np.ndarray, np.ndarray], ts: np.ndarray):
+    t, q = tq
+    return geom.segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))

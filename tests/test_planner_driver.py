@@ -211,3 +211,30 @@ def test_only_the_driver_imports_the_verifier():
     for f, mods in imports.items():
         if f.startswith("strategies"):
             assert "planner.driver" not in mods and "planner" not in mods, f
+
+
+THIN = [[1.5068486993930823, 2.592683017496547], [1.3948972100113546, 2.6121715572481228]]
+
+
+@pytest.mark.parametrize("case", ["goal_conflict", "thin", "en_route", "planned"])
+def test_planner_recheck_agrees_with_the_verifier(case):
+    """planner.geometry.timed_collisions, the strategies' own re-check, finds the colliding
+    pairs the verifier finds (straight simultaneous moves, a thin en-route crossing, a plan)."""
+    from planner.geometry import ArmGeom, timed_collisions
+
+    if case == "en_route":
+        inst, start, goal = _en_route()
+    else:
+        inst, goal = _two_arm()
+        if case == "thin":
+            goal[[0, 1]] = THIN
+        start = PARK
+    leg = Leg.build(inst, start, goal, MotionOptions())
+    trajs = plan_motion(inst, start, goal).trajectories if case == "planned" else \
+        Unsafe().plan(leg, Budget.of(1.0)).trajectories
+    rep = verify_trajectories(inst, trajs, start, goal, max_start_stop=None)
+    expected = sorted(v.arms for v in rep.violations if v.kind == "collision")
+    timed = [(tr.t_s, np.column_stack([tr.theta1_rad, tr.theta2_rad])) for tr in trajs]
+    found = timed_collisions([ArmGeom.of(inst, k) for k in range(12)], timed, leg.buffer_mm)
+    assert sorted(found) == expected
+    assert bool(expected) == (case != "planned")
