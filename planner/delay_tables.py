@@ -47,7 +47,7 @@ class DelayStats:
     pair_samples: int = 0  # arm-pair x dt_col-sample clearances computed (thesis table 6.2 "checks")
     nodes: int = 0  # CSP nodes (assignments tried)
     tables: int = 0
-    repairs: int = 0  # verifier rejections repaired by forbidding the offending relative delay
+    repairs: int = 0  # re-check rejections repaired by forbidding the offending relative delay
     log: list = field(default_factory=list)
 
 
