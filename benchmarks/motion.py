@@ -44,7 +44,7 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import inspect
+import dataclasses
 import json
 import os
 import subprocess
@@ -63,7 +63,7 @@ sys.path.insert(0, str(ROOT))
 import planner.sequence as sequence_module  # noqa: E402
 from models.instrument import Instrument, default_instrument  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
-from planner import plan_motion, stop_count  # noqa: E402
+from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 
 FOV_RADIUS_MM = 125.0
@@ -186,7 +186,8 @@ def leg_kind(leg: int, n_legs: int) -> str:
 
 def plan_field_legs(instrument: Instrument, configurations_q: Sequence[np.ndarray], *, method: str,
                     field: int, seed: int, leg_budget_s: float) -> list[LegRecord]:
-    """Legs park -> c1 -> ... -> cn -> park, each from where the previous one ended."""
+    """Legs park -> c1 -> ... -> cn -> park, each from where the previous one ended, then
+    park -> c_i for every other configuration."""
     park_q = instrument.park_configuration
     goals = [*configurations_q, park_q]
     current_q = park_q
@@ -195,6 +196,12 @@ def plan_field_legs(instrument: Instrument, configurations_q: Sequence[np.ndarra
         record, current_q = plan_leg(instrument, current_q, goal_q, method=method, field=field,
                                      leg=leg, kind=leg_kind(leg, len(goals)), seed=seed,
                                      leg_budget_s=leg_budget_s)
+        records.append(record)
+    # park -> every other configuration too (thesis 6.4.2: park -> targets for every
+    # assignment plan); leg index -i marks park -> c_(i+1) planned outside the chain
+    for i, goal_q in enumerate(configurations_q[1:], start=1):
+        record, _ = plan_leg(instrument, park_q, goal_q, method=method, field=field, leg=-i,
+                             kind="park_to_configuration", seed=seed, leg_budget_s=leg_budget_s)
         records.append(record)
     return records
 
@@ -241,7 +248,7 @@ def summaries_by_kind(records: Sequence[LegRecord], kinds: Sequence[str]) -> dic
 
 
 def fields_without_failed_legs(records: Sequence[LegRecord], n_fields: int) -> dict:
-    failed_fields = {r.field for r in records if not r.ok}
+    failed_fields = {r.field for r in records if not r.ok and r.leg >= 0}  # the chain's legs
     n_ok = n_fields - len(failed_fields)
     return {"fields": n_fields, "fields_without_failed_legs": n_ok,
             "share": n_ok / n_fields if n_fields else None}
@@ -262,13 +269,13 @@ class SequenceRecord:
 
 
 def run_plan_sequence(plan_sequence, instrument: Instrument, result: AllocationResult,
-                      n_configurations: int, *, field: int, seed: int,
+                      targets: PlaneTargets, n_configurations: int, *, field: int, seed: int,
                       leg_budget_s: float) -> SequenceRecord:
     """The same configurations through ``planner.sequence.plan_sequence``."""
     configurations = result.configurations[:n_configurations]
     options = sequence_module.SequenceOptions(seed=seed, leg_time_limit_s=leg_budget_s)
     t0 = time.perf_counter()
-    plan = plan_sequence(instrument, configurations, options=options)
+    plan = plan_sequence(instrument, configurations, options, targets=targets)
     compute_s = time.perf_counter() - t0
     kinds = Counter(c.kind for c in plan.changes)
     moved = sum(len(c.target_ids) for c in plan.changes if c.kind == "moved_target")
@@ -351,7 +358,7 @@ def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
         log(f"[{method}] field {i} ({shape}): {len(result.configurations)} configurations, "
             f"{len(field_legs)} legs planned, {failed} failed, allocation {alloc_s[-1]:.1f} s")
         if plan_sequence is not None:
-            seq.append(run_plan_sequence(plan_sequence, instrument, result, n_conf, field=i,
+            seq.append(run_plan_sequence(plan_sequence, instrument, result, targets, n_conf, field=i,
                                          seed=params.seed, leg_budget_s=params.leg_budget_s))
             log(f"[{method}] field {i}: plan_sequence executable={seq[-1].executable}")
     return {
@@ -419,14 +426,10 @@ def thesis_field_parameters() -> dict:
 
 
 def planner_defaults() -> dict:
-    """The keyword defaults of plan_motion the benchmark leaves alone (thesis table 6.1)."""
-    out = {}
-    for name, p in inspect.signature(plan_motion).parameters.items():
-        if p.default is inspect.Parameter.empty or name in ("seed", "time_budget_s"):
-            continue
-        d = p.default
-        out[name] = list(d) if isinstance(d, tuple) else d
-    return json.loads(json.dumps(out, default=str))
+    """The planning options the benchmark leaves at their defaults (thesis table 6.1)."""
+    o = MotionOptions()
+    out = {f.name: getattr(o, f.name) for f in dataclasses.fields(o)}
+    return json.loads(json.dumps(out, default=lambda v: list(v) if isinstance(v, tuple) else str(v)))
 
 
 def save_failed_legs(path: Path, records: Sequence[LegRecord], n_arms: int, seed: int) -> None:

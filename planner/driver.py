@@ -37,6 +37,7 @@ import planner.strategies  # noqa: F401 - registers the strategies
 from models.instrument import Instrument
 from models.types import ArmTrajectory, MotionPlan
 from planner import options as sh
+from planner.commands import stop_count
 from planner.options import DEFAULT_STRATEGIES, MotionOptions
 from planner.strategy import (
     STRATEGIES,
@@ -59,13 +60,16 @@ def strategy_sequence(options: MotionOptions) -> list[Strategy]:
     names = options.strategies
     seq: list[Strategy] = []
     if "delays" in names:
-        seq += [STRATEGIES["delays"]] + ([STRATEGIES["cluster"]] if "cluster" in names else [])
-        seq.append(STRATEGIES["detours"])
+        seq.append(STRATEGIES["delays"])
+    if "evasion" in names:
+        seq.append(STRATEGIES["evasion"])
+    if "delays" in names:
+        seq += ([STRATEGIES["cluster"]] if "cluster" in names else []) + [STRATEGIES["detours"]]
     prio = any(n in names for n in PRIORITIZED_NAMES)
     if prio:
         seq.append(STRATEGIES["prioritized"])
     for n in dict.fromkeys(names):
-        if n not in ("delays", "cluster", "via") + PRIORITIZED_NAMES:
+        if n not in ("delays", "cluster", "evasion", "via") + PRIORITIZED_NAMES:
             seq.append(STRATEGIES[n])
     if "via" in names or (prio and options.via is not None):
         seq.append(STRATEGIES["via"])
@@ -208,6 +212,20 @@ def plan_motion(
     return plan_leg(Leg.build(instrument, start_q, goal_q, options), budget)
 
 
+def verified_plan(instrument: Instrument, trajectories: Sequence[ArmTrajectory], start_q: np.ndarray,
+                  goal_q: np.ndarray, *, max_start_stop: int | None, stats: dict) -> MotionPlan | None:
+    """A plan composed of verified pieces (a time reversal, two legs joined at park), verified
+    once as a whole; None when the verifier rejects it. ``max_start_stop`` None leaves the
+    stop count to the caller (a leg through park stops there once more)."""
+    rep = verify_trajectories(instrument, trajectories, start_q, goal_q, max_start_stop=max_start_stop)
+    if not rep.ok:
+        return None
+    stops = max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in trajectories)
+    stats = {**stats, "min_clearance_mm": rep.min_clearance_mm, "max_stops": int(stops),
+             "verify_pair_samples": rep.pair_samples_checked}
+    return MotionPlan("ok", max(float(t.t_s[-1]) for t in trajectories), tuple(trajectories), (), stats)
+
+
 def plan_chain(instrument: Instrument, configurations: Sequence[np.ndarray], *,
                start_q: np.ndarray | None = None, end_q: np.ndarray | None = None,
                **kwargs) -> list[MotionPlan]:
@@ -234,4 +252,4 @@ def plan_chain(instrument: Instrument, configurations: Sequence[np.ndarray], *,
     return out
 
 
-__all__ = ["plan_motion", "plan_chain", "plan_leg", "strategy_sequence", "failed_plan"]
+__all__ = ["plan_motion", "plan_chain", "plan_leg", "strategy_sequence", "failed_plan", "verified_plan"]

@@ -260,10 +260,15 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
             return EvasionResult(sol, opts, rnd, log)
         if time.perf_counter() > deadline or rnd == max_rounds:
             break
-        bad = _infeasible_pairs(prob)
-        if not bad and len(blamed) >= 2:  # a cycle of three or more arms: the two most blamed
-            bad = [tuple(sorted(blamed[:2]))]
         grown = False
+        for a, o, b in _blocked_options(prob, opts, mv):
+            grown |= _aside_of(geoms, prob, opts, a, o, b, start_q, goal_q, mv, tried, buffer_mm, limit_s,
+                               waits, horizon_s, log)
+            if time.perf_counter() > deadline:
+                break
+        bad = [] if grown else _infeasible_pairs(prob)
+        if not grown and not bad and len(blamed) >= 2:  # a cycle of three or more arms: the two most blamed
+            bad = [tuple(sorted(blamed[:2]))]
         for i, j in bad:
             grown |= _evade_pair(geoms, prob, opts, i, j, start_q, goal_q, mv, tried, buffer_mm, limit_s,
                                  waits, horizon_s, log)
@@ -273,6 +278,40 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         if not grown:
             break
     return EvasionResult(None, opts, max_rounds, log)
+
+
+def _blocked_options(prob: DelayProblem, opts: list[list[Option]], mv: set[int]) -> list[tuple[int, int, int]]:
+    """(arm a, option index o, arm b) where every option of a is blocked and a's option o is
+    blocked by b alone: no option of b at any relative delay lets o pass. Shortest o first."""
+    out = []
+    for a in sorted(mv):
+        blockers = []
+        for o in range(len(opts[a])):
+            bs = [b for b in prob.neighbours[a] if not prob.tables[(a, b)][o].any()]
+            blockers.append(bs)
+        if all(blockers):
+            for o in sorted(range(len(opts[a])), key=lambda i: opts[a][i].duration_s):
+                if len(blockers[o]) == 1:
+                    out.append((a, o, blockers[o][0]))
+    return out
+
+
+def _aside_of(geoms, prob, opts, a, o, b, start_q, goal_q, mv, tried, buffer_mm, limit_s, waits, horizon_s,
+              log) -> bool:
+    """Step-aside moves of arm b off the swept path of arm a's option o."""
+    if b not in mv or ("aside-of", b, a * 1000 + o) in tried:
+        return False
+    tried.add(("aside-of", b, a * 1000 + o))
+    for strict in (True, False):
+        new = aside_detours(geoms[b], start_q[b], goal_q[b], geoms[a], opts[a][o],
+                            _neighbour_poses(geoms, prob, b, start_q, goal_q, skip=(a,), strict=strict),
+                            buffer_mm=buffer_mm, max_duration_s=limit_s,
+                            waits_s=waits + tuple(w * 2 for w in waits[1:]), horizon_s=horizon_s)
+        if new:
+            break
+    opts[b] += new
+    log.append({"aside": b, "of": [a, o], "strict": strict, "options": len(new)})
+    return bool(new)
 
 
 def _evade_pair(geoms, prob, opts, i, j, start_q, goal_q, mv, tried, buffer_mm, limit_s, waits, horizon_s,

@@ -23,6 +23,8 @@ CLUSTER_SHARE = (0.25, 2.5)
 # the detour rounds after a cluster strategy that found nothing: they rarely succeed where it
 # failed, so they get at most this much more; the rest goes to the prioritized strategy
 DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
+# the evasion strategy (clear detours and step-aside moves in the delay CSP)
+EVASION_SHARE = (0.4, 4.0)
 # kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it
 VIA_RESERVE_SHARE = (0.15, 1.5)
 # each leg of the "via" fallback gets at least this budget
@@ -36,10 +38,10 @@ SHORTER_SEARCH_SHARE = (0.3, math.inf)
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0
 
-DEFAULT_STRATEGIES = ("delays", "cluster", "forward", "reverse")
+DEFAULT_STRATEGIES = ("delays", "evasion", "cluster", "forward", "reverse")
 # names with a fixed place in the order (planner.driver.strategy_sequence); others are looked up
 # in the registry (planner.strategy.STRATEGIES)
-BUILTIN_NAMES = ("delays", "cluster", "forward", "reverse", "via")
+BUILTIN_NAMES = ("delays", "cluster", "evasion", "forward", "reverse", "via")
 
 
 @dataclass(frozen=True, eq=False)

@@ -32,12 +32,10 @@ import numpy as np
 from models.errors import InputError
 from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
-from planner.commands import compress_waypoints, controller_commands, stop_count
-from planner.prioritized import plan_motion
+from planner.commands import arm_trajectory
+from planner.driver import plan_motion, verified_plan
 from planner.reassign import Placed, new_configuration, take_out, try_place
-from planner.verify import verify_trajectories
-
-TWO_PI = 2.0 * np.pi
+from planner.strategies.reversed import reverse_trajectories
 
 ChangeKind = Literal["via_park", "moved_target", "new_configuration", "dropped_target"]
 
@@ -119,67 +117,36 @@ def end_of(plan: MotionPlan) -> np.ndarray:
     return np.array([[tr.theta1_rad[-1], tr.theta2_rad[-1]] for tr in plan.trajectories])
 
 
-def _shift_theta2(tr: ArmTrajectory, turns: float, t0_s: float = 0.0) -> ArmTrajectory:
-    return ArmTrajectory(tr.arm, tr.t_s + t0_s, tr.theta1_rad.copy(), tr.theta2_rad + turns)
-
-
-def reversed_trajectories(plan: MotionPlan, start_theta2_rad: np.ndarray) -> tuple[ArmTrajectory, ...]:
-    """``plan`` played backwards (t -> T - t), each arm's theta2 shifted by whole turns so that
-    it starts at ``start_theta2_rad`` (kaiju, Sayres 2021: collisions, the zone of avoidance
-    and joint speeds are symmetric in time, and so are the stops)."""
-    T = float(plan.makespan_s)
-    out = []
-    for tr, th2 in zip(plan.trajectories, start_theta2_rad, strict=True):
-        t = T - tr.t_s[::-1]
-        a, b = tr.theta1_rad[::-1], tr.theta2_rad[::-1]
-        if t[0] > 1e-12:  # the arm rested at its end: in reverse it waits before moving
-            t, a, b = np.concatenate([[0.0], t]), np.concatenate([a[:1], a]), np.concatenate([b[:1], b])
-        turns = TWO_PI * np.round((th2 - b[0]) / TWO_PI)
-        out.append(ArmTrajectory(tr.arm, t, a.copy(), b + turns))
-    return tuple(out)
-
-
-def _finish(instrument: Instrument, trajs, start_q: np.ndarray, goal_q: np.ndarray, max_stops: int | None,
-            stats: dict) -> MotionPlan | None:
-    """Controller commands, then the independent verifier on the whole leg."""
-    full = []
-    for tr in trajs:
-        t, q = compress_waypoints(tr.t_s, np.column_stack([tr.theta1_rad, tr.theta2_rad]))
-        full.append(ArmTrajectory(tr.arm, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1])))
-    rep = verify_trajectories(instrument, full, start_q, goal_q, max_start_stop=max_stops)
-    if not rep.ok:
-        return None
-    stats = {**stats, "min_clearance_mm": rep.min_clearance_mm,
-             "max_stops": max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in full)}
-    return MotionPlan("ok", max(float(t.t_s[-1]) for t in full), tuple(full), (), stats)
-
-
 def reversed_leg(instrument: Instrument, from_park: MotionPlan, start_q: np.ndarray) -> MotionPlan | None:
-    """start (= the goal of ``from_park``) -> park as the reversal of ``from_park``, verified."""
-    trajs = reversed_trajectories(from_park, start_q[:, 1])
+    """start (= the goal of ``from_park``) -> park as the time reversal of ``from_park``
+    (kaiju, Sayres 2021: collisions, the zone of avoidance, joint speeds and stops are
+    symmetric in time), verified."""
+    trajs = reverse_trajectories(from_park.trajectories, start_q, from_park.makespan_s)
     stats = {"strategy": "reversed", "lower_bound_s": from_park.stats.get("lower_bound_s"),
              "compute_s": 0.0, "attempts": 0}
-    return _finish(instrument, trajs, start_q, instrument.park_configuration, None, stats)
+    return verified_plan(instrument, trajs, start_q, instrument.park_configuration,
+                         max_start_stop=from_park.stats.get("max_stops"), stats=stats)
 
 
 def via_park_leg(instrument: Instrument, from_park_a: MotionPlan, from_park_b: MotionPlan,
                  start_q: np.ndarray, goal_q: np.ndarray, lower_bound_s: float) -> MotionPlan | None:
     """start -> park -> goal: the reversal of park -> start, then park -> goal; verified as a
-    whole. Each arm comes to rest at park between the two halves (one more stop)."""
-    back = reversed_trajectories(from_park_a, start_q[:, 1])
+    whole. Each arm that moves in both halves comes to rest at park once more."""
+    back = reverse_trajectories(from_park_a.trajectories, start_q, from_park_a.makespan_s)
     T1 = float(from_park_a.makespan_s)
     trajs = []
     for a, b in zip(back, from_park_b.trajectories, strict=True):
         turns = a.theta2_rad[-1] - b.theta2_rad[0]
-        b2 = _shift_theta2(b, turns, T1)
-        keep = b2.t_s > T1 + 1e-12 if len(b2.t_s) > 1 else np.zeros(1, bool)
-        t = np.concatenate([a.t_s, [T1] if a.t_s[-1] < T1 - 1e-12 else [], b2.t_s[keep]])
-        q1 = np.concatenate([a.theta1_rad, a.theta1_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b2.theta1_rad[keep]])
-        q2 = np.concatenate([a.theta2_rad, a.theta2_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b2.theta2_rad[keep]])
-        trajs.append(ArmTrajectory(a.arm, t, q1, q2))
+        keep = b.t_s > 1e-12
+        t = np.concatenate([a.t_s, [T1] if a.t_s[-1] < T1 - 1e-12 else [], b.t_s[keep] + T1])
+        q = np.column_stack([
+            np.concatenate([a.theta1_rad, a.theta1_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b.theta1_rad[keep]]),
+            np.concatenate([a.theta2_rad, a.theta2_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [],
+                            b.theta2_rad[keep] + turns])])
+        trajs.append(arm_trajectory(a.arm, t, q))
     stats = {"strategy": "via_park", "lower_bound_s": lower_bound_s, "compute_s": 0.0, "attempts": 0,
              "via_makespans_s": [T1, float(from_park_b.makespan_s)]}
-    return _finish(instrument, trajs, start_q, goal_q, None, stats)
+    return verified_plan(instrument, trajs, start_q, goal_q, max_start_stop=None, stats=stats)
 
 
 class _Clock:
@@ -356,7 +323,8 @@ def _stationary(instrument: Instrument) -> MotionPlan:
     park = instrument.park_configuration
     trajs = tuple(ArmTrajectory(k, np.array([0.0]), park[k, :1].copy(), park[k, 1:].copy())
                   for k in range(instrument.n_arms))
-    leg = _finish(instrument, trajs, park, park, 0, {"strategy": "stationary", "compute_s": 0.0})
+    leg = verified_plan(instrument, trajs, park, park, max_start_stop=0,
+                        stats={"strategy": "stationary", "compute_s": 0.0})
     if leg is None:  # the parked arms collide: an instrument file error, reported as a failed leg
         return MotionPlan("failed", float("nan"), trajs, tuple(range(instrument.n_arms)),
                           {"reasons": {k: "the parked arms collide" for k in range(instrument.n_arms)}})

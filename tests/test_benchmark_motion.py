@@ -57,12 +57,15 @@ def run_with_recorders(monkeypatch, argv: list[str]) -> tuple[dict, AllocateReco
     return motion.main(argv), alloc, plan
 
 
-def expected_goals(calls: list[dict], max_configurations: int | None) -> list[np.ndarray]:
-    goals = []
+def expected_legs(calls: list[dict], max_configurations: int | None) -> list[tuple[np.ndarray | None, np.ndarray]]:
+    """(start or None for "where the previous leg ended", goal) of every leg the benchmark must
+    plan: the chain park -> c1 -> ... -> cn -> park, then park -> c_i for i >= 2."""
+    legs: list[tuple[np.ndarray | None, np.ndarray]] = []
     for call in calls:
-        configurations = call["result"].configurations[:max_configurations]
-        goals.extend([c.q for c in configurations] + [PARK_Q])
-    return goals
+        qs = [c.q for c in call["result"].configurations[:max_configurations]]
+        legs += [(PARK_Q, qs[0])] + [(None, q) for q in qs[1:] + [PARK_Q]]
+        legs += [(PARK_Q, q) for q in qs[1:]]
+    return legs
 
 
 def test_thesis_protocol_plans_the_allocators_configurations(monkeypatch):
@@ -72,20 +75,16 @@ def test_thesis_protocol_plans_the_allocators_configurations(monkeypatch):
     assert [c["options"]["method"] for c in alloc.calls] == ["ilp", "ilp", "semigreedy", "semigreedy"]
     assert all(c["options"]["configurations"] == "all" for c in alloc.calls)
     assert all(c["options"]["solver"] == "bnb" and c["n_targets"] == 30 for c in alloc.calls)
-    goals = expected_goals(alloc.calls, None)
-    assert len(goals) > len(alloc.calls) * 2  # several configurations per field
-    assert len(plan.legs) == len(goals)
-    for (_, got), want in zip(plan.legs, goals, strict=True):
-        np.testing.assert_array_equal(got, want)
-    # each field starts at park; each leg starts where the previous one ended
-    starts = [s for s, _ in plan.legs]
-    field_starts = np.cumsum([0] + [len(c["result"].configurations) + 1 for c in alloc.calls])[:-1]
-    for i, (start, (_, prev_goal)) in enumerate(zip(starts[1:], plan.legs[:-1], strict=True), 1):
-        np.testing.assert_array_equal(start, PARK_Q if i in field_starts else prev_goal)
-    np.testing.assert_array_equal(starts[0], PARK_Q)
+    want = expected_legs(alloc.calls, None)
+    assert len(want) > len(alloc.calls) * 2  # several configurations per field
+    assert len(plan.legs) == len(want)
+    for i, ((start, got), (want_start, want_goal)) in enumerate(zip(plan.legs, want, strict=True)):
+        np.testing.assert_array_equal(got, want_goal)
+        # a chained leg starts where the previous one ended (the fake ends exactly at its goal)
+        np.testing.assert_array_equal(start, plan.legs[i - 1][1] if want_start is None else want_start)
     legs = out["methods"]["ilp"]["legs"]
     n_conf = [len(c["result"].configurations) for c in alloc.calls[:2]]
-    assert legs["park_to_configuration"]["legs"] == 2
+    assert legs["park_to_configuration"]["legs"] == sum(n_conf)  # park -> every configuration
     assert legs["to_park"]["legs"] == 2
     assert legs["chained"]["legs"] == sum(n - 1 for n in n_conf)
     assert legs["chained"]["strategy_counts"] == {"fake": sum(n - 1 for n in n_conf)}
@@ -98,10 +97,10 @@ def test_max_configurations_keeps_the_first_configurations_and_the_return_to_par
         monkeypatch, ["--fields", "1", "--targets", "40", "--methods", "semigreedy",
                       "--max-configurations", "2"])
     assert len(alloc.calls) == 1 and alloc.calls[0]["options"]["configurations"] == "all"
-    goals = expected_goals(alloc.calls, 2)
-    assert len(goals) == 3
-    for (_, got), want in zip(plan.legs, goals, strict=True):
-        np.testing.assert_array_equal(got, want)
+    want = expected_legs(alloc.calls, 2)
+    assert len(want) == 4  # park -> c1 -> c2 -> park, and park -> c2
+    for (_, got), (_, want_goal) in zip(plan.legs, want, strict=True):
+        np.testing.assert_array_equal(got, want_goal)
 
 
 def test_field_generator_priority_mix_and_clustering():
@@ -161,7 +160,7 @@ class PlanSequenceRecorder:
     def __init__(self):
         self.calls: list[tuple[tuple, object]] = []
 
-    def __call__(self, instrument, configurations, *, options):
+    def __call__(self, instrument, configurations, options, *, targets):
         self.calls.append((tuple(configurations), options))
         ok = MotionPlan("ok", 1.0, (), (), {})
         failed = MotionPlan("failed", float("nan"), (), (3,), {})

@@ -1,12 +1,14 @@
 """The planning strategies, one module each, registered under their names (:mod:`planner.strategy`).
 
-"delays" and "detours" (:mod:`.delays`, the departure-delay CSP), "cluster" (:mod:`.cluster`),
+"delays" and "detours" (:mod:`.delays`, the departure-delay CSP), "evasion" (:mod:`.evasion`:
+the CSP with clear detours and step-aside moves), "cluster" (:mod:`.cluster`),
 "prioritized" (:mod:`.prioritized`, thesis Algorithm 6), "via" (:mod:`.via`) and
 "reversed" (:mod:`.reversed`: the delay strategies on the time-reversed leg).
 """
 
 from planner.strategies.cluster import Cluster
 from planner.strategies.delays import Delays, Detours
+from planner.strategies.evasion import Evasion
 from planner.strategies.prioritized import Prioritized
 from planner.strategies.reversed import Reversed, reverse_trajectories
 from planner.strategies.via import Via
@@ -15,9 +17,10 @@ from planner.strategy import FirstOf, register
 DELAYS = register(Delays())
 CLUSTER = register(Cluster())
 DETOURS = register(Detours())
+EVASION = register(Evasion())
 PRIORITIZED = register(Prioritized())
 VIA = register(Via())
 REVERSED = register(Reversed(FirstOf("delays", (DELAYS, CLUSTER, DETOURS)), name="reversed"))
 
 __all__ = ["Cluster", "Delays", "Detours", "Prioritized", "Reversed", "Via", "reverse_trajectories",
-           "DELAYS", "CLUSTER", "DETOURS", "PRIORITIZED", "VIA", "REVERSED"]
+           "Evasion", "DELAYS", "CLUSTER", "DETOURS", "EVASION", "PRIORITIZED", "VIA", "REVERSED"]
