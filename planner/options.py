@@ -32,7 +32,7 @@ VIA_MIN_BUDGET_S = 0.5
 # a plan longer than CLUSTER_MAKESPAN_RATIO x the lower bound from one of these strategies lets
 # the driver run the prioritized strategy (at most SHORTER_SEARCH_ATTEMPTS attempts, this share
 # of the budget, if at least SHORTER_SEARCH_MIN_LEFT_S is left) and keep the shorter verified plan
-SHORTER_SEARCH_AFTER = ("cluster",)
+SHORTER_SEARCH_AFTER = ("cluster", "evasion")
 CLUSTER_MAKESPAN_RATIO = 1.25
 SHORTER_SEARCH_SHARE = (0.3, math.inf)
 SHORTER_SEARCH_ATTEMPTS = 2
