@@ -20,8 +20,8 @@ its straight, zero-stop move. This module
    it and the whole is played forwards again. Forward handles an R arm whose *goal* is swept
    late (it waits before arriving); reverse handles an R arm whose *start* is swept early.
 
-The result is only a candidate: :func:`planner.prioritized.plan_motion` hands it to the
-independent verifier before returning it.
+The strategy :mod:`planner.strategies.cluster` wraps it; its result is only a candidate,
+which the driver (:mod:`planner.driver`) verifies before returning it.
 """
 
 from __future__ import annotations
@@ -108,40 +108,8 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
                     break
         if found:
             break
-    if not minimal:
-        # several independent local conflicts (e.g. four arms, each with a parked neighbour on
-        # either side blocking both its theta2 directions): no small set covers them all; take
-        # the arms whose options are wiped out pairwise, then add the most blamed arms
-        # first the arms blocking each contradicted arm's shortest move (often parked
-        # neighbours that only need to step aside while it passes), then the arms themselves
-        B = sorted({j for k in C for j in blockers(prob, k)} & set(movable))
-        if B and len(B) <= max_greedy:
-            if stats is not None:
-                stats.removal_tests += 1
-            sol, _ = solve(reduced_problem(prob, set(B), start_q), DelayStats(), node_budget=500, deadline=deadline)
-            if sol is not None:
-                minimal.append((B, sol))
-                if stats is not None:
-                    stats.removal_sets.append(B)
-                yield B, sol
-        G = [k for k in C if k in movable]
-        while G and len(G) <= max_greedy:
-            if deadline is not None and time.perf_counter() > deadline:
-                return
-            if stats is not None:
-                stats.removal_tests += 1
-            sol, blamed = solve(reduced_problem(prob, set(G), start_q), DelayStats(), node_budget=500,
-                                deadline=deadline)
-            if sol is not None:
-                minimal.append((sorted(G), sol))
-                if stats is not None:
-                    stats.removal_sets.append(sorted(G))
-                yield sorted(G), sol
-                break
-            more = [k for k in blamed if k in movable and k not in G]
-            if not more:
-                break
-            G.append(more[0])
+    if not minimal and (yield from _greedy_sets(prob, C, start_q, movable, max_greedy, deadline, stats, minimal)):
+        return  # out of time
     # then each minimal set with one conflicting neighbour more (the rest stays solvable: fewer
     # constraints): a neighbour that sweeps the set's start and goal may need its own detour
     seen = set()
@@ -156,6 +124,47 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             if stats is not None:
                 stats.removal_sets.append(list(R) + [j])
             yield list(R) + [j], {k: v for k, v in sol.items() if k != j}
+
+
+def _greedy_sets(prob: DelayProblem, C: list[int], start_q: np.ndarray, movable: list[int], max_greedy: int,
+                 deadline: float | None, stats: ClusterStats | None, minimal: list):
+    """Removal sets when no small one works: several independent local conflicts (e.g. four
+    arms, each with a parked neighbour on either side blocking both its theta2 directions).
+
+    First the arms blocking each contradicted arm's shortest move (often parked neighbours
+    that only need to step aside while it passes), then the contradicted arms ``C``
+    themselves plus the most blamed arms, one at a time. Yields (R, rest assignment), appends
+    them to ``minimal``; returns True when out of time.
+    """
+    B = sorted({j for k in C for j in blockers(prob, k)} & set(movable))
+    if B and len(B) <= max_greedy:
+        if stats is not None:
+            stats.removal_tests += 1
+        sol, _ = solve(reduced_problem(prob, set(B), start_q), DelayStats(), node_budget=500, deadline=deadline)
+        if sol is not None:
+            minimal.append((B, sol))
+            if stats is not None:
+                stats.removal_sets.append(B)
+            yield B, sol
+    G = [k for k in C if k in movable]
+    while G and len(G) <= max_greedy:
+        if deadline is not None and time.perf_counter() > deadline:
+            return True
+        if stats is not None:
+            stats.removal_tests += 1
+        sol, blamed = solve(reduced_problem(prob, set(G), start_q), DelayStats(), node_budget=500,
+                            deadline=deadline)
+        if sol is not None:
+            minimal.append((sorted(G), sol))
+            if stats is not None:
+                stats.removal_sets.append(sorted(G))
+            yield sorted(G), sol
+            break
+        more = [k for k in blamed if k in movable and k not in G]
+        if not more:
+            break
+        G.append(more[0])
+    return False
 
 
 def contradicted_arms(prob: DelayProblem) -> list[int]:

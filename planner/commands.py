@@ -54,6 +54,13 @@ def trajectory_from_steps(arm: int, q_steps: np.ndarray, dt_s: float) -> ArmTraj
     return ArmTrajectory(arm, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1]))
 
 
+def arm_trajectory(arm: int, t_s: np.ndarray, q: np.ndarray) -> ArmTrajectory:
+    """Timed way-points (t, (theta1, theta2)) as an :class:`ArmTrajectory` with commands,
+    way-points without a velocity change dropped."""
+    t, q = compress_waypoints(t_s, q)
+    return ArmTrajectory(arm, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1]))
+
+
 def stop_count(t_s: np.ndarray, theta1_rad: np.ndarray, theta2_rad: np.ndarray, tol: float = 1e-12) -> int:
     """Start-stop cycles (thesis 6.3.4.4): moving segments of constant velocity, minus one.
 

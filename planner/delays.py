@@ -13,61 +13,37 @@ arms at once:
 * every option departs after a delay tau in {0, dt, 2 dt, ...} and must arrive within the
   horizon;
 * for every arm pair and option pair, the set of collision-free *relative* delays
-  tau_j - tau_i is computed vectorised (:func:`pair_table`): both motions sampled every
-  dt_col, including the rests before departure and after arrival, clearance >= buffer +
-  a Lipschitz margin that makes the dt_col sampling exact in continuous time (clearance
-  of two arms changes no faster than the sum of their body-point speed bounds);
+  tau_j - tau_i is computed vectorised (:func:`planner.delay_tables.pair_table`): both
+  motions sampled every dt_col, including the rests before departure and after arrival,
+  clearance >= buffer at every sample; a solution's re-check (``check`` of
+  :class:`DelaySearch`) forbids what falls between the samples;
 * the delay assignment is a small CSP (:func:`solve`): backtracking with forward checking,
   most-constrained arm first, values by earliest arrival, and branch-and-bound on the
   makespan max_k(tau_k + T_k).
 
-Everything is deterministic (no randomness). The result is still handed to the independent
-verifier by :func:`planner.prioritized.plan_motion` before it is returned.
+Everything is deterministic (no randomness). The strategy :mod:`planner.strategies.delays`
+wraps it; the driver (:mod:`planner.driver`) verifies its plans before returning them.
 """
 
 from __future__ import annotations
 
 import math
 import time as _time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from planner.geometry import ArmGeom, body_speed_bound_mm_s, clearance_between, edges_in_zoa
+from planner.delay_tables import (  # noqa: F401 - the tables' types and builders, used through this module
+    DelayProblem,
+    DelayStats,
+    Option,
+    build_problem,
+    pair_table,
+    prepare,
+)
+from planner.geometry import ArmGeom, edges_in_zoa
 
 TWO_PI = 2.0 * np.pi
-
-
-@dataclass
-class Option:
-    """One motion of one arm, relative to its departure: way-points at times ``t_rel``."""
-
-    arm: int
-    waypoints: np.ndarray  # (n, 2), theta2 unwrapped, waypoints[0] == start
-    t_rel: np.ndarray  # (n,), t_rel[0] == 0
-    stops: int
-    kind: str  # straight | detour | stay | aside
-    # filled by prepare()
-    samples: np.ndarray | None = None  # (N + 1, 2) every dt_col from departure, last = end
-    seg: tuple[np.ndarray, np.ndarray] | None = None
-    box: np.ndarray | None = None  # (N + 1, 4)
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.t_rel[-1])
-
-    @property
-    def n(self) -> int:
-        return len(self.samples) - 1
-
-
-@dataclass
-class DelayStats:
-    pair_samples: int = 0  # arm-pair x dt_col-sample clearances computed (thesis table 6.2 "checks")
-    nodes: int = 0  # CSP nodes (assignments tried)
-    tables: int = 0
-    repairs: int = 0  # verifier rejections repaired by forbidding the offending relative delay
-    log: list = field(default_factory=list)
 
 
 def straight_options(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray) -> list[Option]:
@@ -133,199 +109,6 @@ def detour_options(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, vertices: np.n
     return out
 
 
-def prepare(option: Option, geom: ArmGeom, dt_col_s: float) -> None:
-    """Sample an option every dt_col from its departure until it rests at its end."""
-    T = option.duration_s
-    n = int(math.ceil(T / dt_col_s - 1e-9)) if T > 0 else 0
-    t = np.minimum(np.arange(n + 1) * dt_col_s, T)
-    q = np.column_stack([np.interp(t, option.t_rel, option.waypoints[:, 0]),
-                         np.interp(t, option.t_rel, option.waypoints[:, 1])])
-    option.samples = q
-    s, e = geom.segments(q[:, 0], q[:, 1])
-    option.seg = (s, e)
-    r = geom.radius[None, :, None]
-    lo = np.minimum(s, e) - r
-    hi = np.maximum(s, e) + r
-    option.box = np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
-
-
-def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
-    return ((ba[..., 0] - pad <= bb[..., 2]) & (bb[..., 0] - pad <= ba[..., 2])
-            & (ba[..., 1] - pad <= bb[..., 3]) & (bb[..., 1] - pad <= ba[..., 3]))
-
-
-def _box_gap(ba: np.ndarray, bb: np.ndarray) -> np.ndarray:
-    """Lower bound of the clearance of two arms from their (radius-padded) bounding boxes."""
-    gx = np.maximum(ba[..., 0] - bb[..., 2], bb[..., 0] - ba[..., 2])
-    gy = np.maximum(ba[..., 1] - bb[..., 3], bb[..., 1] - ba[..., 3])
-    return np.maximum(gx, gy)
-
-
-def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib: np.ndarray,
-           pos: np.ndarray, last: np.ndarray, lip_mm: float, thr: float, stats: DelayStats,
-           stride: int = 10) -> np.ndarray:
-    """True where option a at sample ia and option b at sample ib keep clearance >= thr.
-
-    The pairs form sequences consecutive in time (``pos`` the position in its sequence,
-    ``last`` the sequence's last position); clearance changes by at most ``lip_mm`` per
-    sample. Exact clearances are computed on every ``stride``-th sample (or a bounding-box
-    lower bound where that is far enough); a sample within Lipschitz reach of a certified
-    coarse neighbour is certified, the rest are computed exactly.
-    """
-    n = len(ia)
-    ok = np.ones(n, bool)
-    if n == 0:
-        return ok
-    sa, ea = oa.seg
-    sb, eb = ob.seg
-
-    def exact(idx: np.ndarray) -> np.ndarray:
-        c = _box_gap(oa.box[ia[idx]], ob.box[ib[idx]])
-        need = np.flatnonzero(c < thr + lip_mm * stride)
-        if len(need):
-            j = idx[need]
-            c[need] = clearance_between(sa[ia[j]], ea[ia[j]], ga.radius, sb[ib[j]], eb[ib[j]], gb.radius)
-            stats.pair_samples += len(need)
-        return c
-
-    r = pos % stride
-    coarse = (r == 0) | (pos == last)
-    c = np.full(n, np.nan)
-    ci = np.flatnonzero(coarse)
-    c[ci] = exact(ci)
-    fine = np.flatnonzero(~coarse)
-    if len(fine):
-        e_prev = fine - r[fine]
-        e_next = fine + np.minimum(stride - r[fine], last[fine] - pos[fine])
-        lb = np.maximum(c[e_prev] - lip_mm * r[fine], c[e_next] - lip_mm * (e_next - fine))
-        unsure = fine[lb < thr]
-        if len(unsure):
-            c[unsure] = exact(unsure)
-        ok[fine] = (lb >= thr)
-        ok[unsure] = c[unsure] >= thr
-    ok[ci] = c[ci] >= thr
-    return ok
-
-
-def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int, thr: float,
-               lip: tuple[float, float], stats: DelayStats) -> np.ndarray:
-    """ok[k + K] for relative delays k in [-K, K] (b departs k dt after a), both arms resting
-    at their starts before departure and at their ends after arrival."""
-    Na, Nb = oa.n, ob.n
-    la, lb = lip
-    ar_a, ar_b = np.arange(Na + 1), np.arange(Nb + 1)
-    fa, fb = np.full(Na + 1, Na), np.full(Nb + 1, Nb)
-    # a moving vs b at rest at its start / end, and b moving vs a at rest
-    a_bs = _clear(oa, ga, ar_a, ob, gb, np.zeros(Na + 1, int), ar_a, fa, la, thr, stats)
-    a_be = _clear(oa, ga, ar_a, ob, gb, fb[:1].repeat(Na + 1), ar_a, fa, la, thr, stats)
-    b_as = _clear(ob, gb, ar_b, oa, ga, np.zeros(Nb + 1, int), ar_b, fb, lb, thr, stats)
-    b_ae = _clear(ob, gb, ar_b, oa, ga, fa[:1].repeat(Nb + 1), ar_b, fb, lb, thr, stats)
-    cs = lambda ok: np.concatenate([[0], np.cumsum(~ok)])  # noqa: E731 - prefix counts of bad samples
-    c_a_bs, c_a_be, c_b_as, c_b_ae = cs(a_bs), cs(a_be), cs(b_as), cs(b_ae)
-
-    def bad(c: np.ndarray, lo: int, hi: int) -> bool:  # any bad sample in [lo, hi]
-        lo, hi = max(lo, 0), min(hi, len(c) - 2)
-        return hi >= lo and c[hi + 1] - c[lo] > 0
-
-    ks = np.arange(-K, K + 1)
-    ok = np.ones(2 * K + 1, bool)
-    # moving-moving diagonals a - b = M k
-    kmin, kmax = max(-K, -(Nb // M) - 1), min(K, Na // M + 1)
-    ia_l, ib_l, kk_l, pos_l, last_l = [], [], [], [], []
-    for k in range(kmin, kmax + 1):
-        a0, a1 = max(0, M * k), min(Na, Nb + M * k)
-        if a1 < a0:
-            continue
-        a = np.arange(a0, a1 + 1)
-        ia_l.append(a)
-        ib_l.append(a - M * k)
-        kk_l.append(np.full(len(a), k + K))
-        pos_l.append(a - a0)
-        last_l.append(np.full(len(a), a1 - a0))
-    if ia_l:
-        ia, ib, kk = np.concatenate(ia_l), np.concatenate(ib_l), np.concatenate(kk_l)
-        mm = _clear(oa, ga, ia, ob, gb, ib, np.concatenate(pos_l), np.concatenate(last_l), la + lb, thr, stats)
-        badk = np.bincount(kk[~mm], minlength=2 * K + 1) > 0
-        ok &= ~badk
-    for idx, k in enumerate(ks):
-        if not ok[idx]:
-            continue
-        Mk = M * int(k)
-        if (bad(c_a_bs, 0, Mk - 1) or bad(c_a_be, Nb + Mk + 1, Na)
-                or bad(c_b_as, 0, -Mk - 1) or bad(c_b_ae, Na - Mk + 1, Nb)):
-            ok[idx] = False
-    stats.tables += 1
-    return ok
-
-
-@dataclass
-class DelayProblem:
-    """Options per arm and pairwise tables tab[(i, j)][p_i, p_j, k + K] (i != j, both orders)."""
-
-    options: list[list[Option]]
-    K: int  # horizon in dt steps
-    dt_s: float
-    horizon_s: float
-    tables: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
-    neighbours: list[list[int]] = field(default_factory=list)
-
-
-def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float, dt_col_s: float,
-                  horizon_s: float, buffer_mm: float, stats: DelayStats,
-                  old: DelayProblem | None = None, margin_mm: float = 0.0,
-                  deadline: float | None = None) -> DelayProblem | None:
-    """Pairwise relative-delay tables of every arm pair whose options can come close.
-
-    With ``old`` (same arms, options extended by appending), tables of option pairs already
-    computed are reused.
-    """
-    n = len(options)
-    M = max(1, int(round(dt_s / dt_col_s)))
-    K = int(math.floor(horizon_s / dt_s + 1e-9))
-    for k in range(n):
-        for o in options[k]:
-            if o.samples is None:
-                prepare(o, geoms[k], dt_col_s)
-    vmax = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
-    prob = DelayProblem(options, K, dt_s, horizon_s, {}, [[] for _ in range(n)])
-    arm_box = []
-    for k in range(n):
-        b = np.concatenate([o.box for o in options[k]])
-        arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
-    import time as _time
-
-    for i in range(n):
-        if deadline is not None and _time.perf_counter() > deadline:
-            return None  # out of time: the caller falls back
-        for j in range(i + 1, n):
-            if deadline is not None and _time.perf_counter() > deadline:
-                return None
-            if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
-                continue
-            thr = buffer_mm + margin_mm
-            lip = (vmax[i] * dt_col_s, vmax[j] * dt_col_s)
-            Pi, Pj = len(options[i]), len(options[j])
-            tab = np.ones((Pi, Pj, 2 * K + 1), bool)
-            prev = old.tables.get((i, j)) if old is not None else None
-            for a in range(Pi):
-                # detour options multiply the option pairs of one arm pair: honour the
-                # deadline inside a pair too, or one crowded pair overruns the whole budget
-                if a and deadline is not None and _time.perf_counter() > deadline:
-                    return None
-                for b in range(Pj):
-                    if prev is not None and a < prev.shape[0] and b < prev.shape[1]:
-                        tab[a, b] = prev[a, b]
-                    else:
-                        tab[a, b] = pair_table(options[i][a], geoms[i], options[j][b], geoms[j], M, K, thr, lip, stats)
-            if tab.all():
-                continue
-            prob.tables[(i, j)] = tab
-            prob.tables[(j, i)] = tab.transpose(1, 0, 2)[:, :, ::-1]
-            prob.neighbours[i].append(j)
-            prob.neighbours[j].append(i)
-    return prob
-
-
 def _support(tab: np.ndarray, dom_j: np.ndarray, K: int) -> np.ndarray:
     """support[p, t]: value (p, t) of arm i has a compatible value in arm j's domain.
 
@@ -381,19 +164,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
     dur = [np.array([o.duration_s for o in opts]) for opts in prob.options]
     # finish[k][p, tau]
     finish = [d[:, None] + dt * np.arange(K + 1)[None, :] for d in dur]
-    stays = [[o.kind == "stay" for o in opts] for opts in prob.options]
-    base = []
-    for k in range(n):
-        m = finish[k] <= prob.horizon_s + 1e-9
-        for p, s in enumerate(stays[k]):
-            if s:  # an arm that stays has no departure: one value
-                m[p, 1:] = False
-        base.append(m)
-    if fixed:
-        for k, (p, t) in fixed.items():
-            m = np.zeros_like(base[k])
-            m[p, t] = True
-            base[k] = m
+    base = _base_domains(prob, finish, fixed)
     blame = np.zeros(n, int)
     best: dict[int, tuple[int, int]] | None = None
     nodes = 0
@@ -461,14 +232,38 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
     stats.nodes += nodes
     if best is not None:
         return best, []
-    # blame first the arms of pairs that are infeasible on their own (a cycle between two arms:
-    # no relative delay of any option pair works); AC wipe-outs elsewhere may be propagated
+    return None, _blame_order(prob, base, blame)
+
+
+def _base_domains(prob: DelayProblem, finish: list[np.ndarray],
+                  fixed: dict[int, tuple[int, int]] | None) -> list[np.ndarray]:
+    """dom[k][p, tau]: arriving within the horizon; a staying arm has one value; fixed arms one."""
+    base = []
+    for k, opts in enumerate(prob.options):
+        m = finish[k] <= prob.horizon_s + 1e-9
+        for p, o in enumerate(opts):
+            if o.kind == "stay":  # an arm that stays has no departure: one value
+                m[p, 1:] = False
+        base.append(m)
+    for k, (p, t) in (fixed or {}).items():
+        m = np.zeros_like(base[k])
+        m[p, t] = True
+        base[k] = m
+    return base
+
+
+def _blame_order(prob: DelayProblem, base: list[np.ndarray], blame: np.ndarray) -> list[int]:
+    """The arms to blame for an unsolvable CSP, most to blame first.
+
+    First the arms of pairs that are infeasible on their own (a cycle between two arms: no
+    relative delay of any option pair works); AC wipe-outs elsewhere may be propagated.
+    """
     pair_bad: list[int] = []
     for (i, j) in sorted(prob.tables):
-        if i < j and not (base[i] & _support(prob.tables[(i, j)], base[j], K)).any():
+        if i < j and not (base[i] & _support(prob.tables[(i, j)], base[j], prob.K)).any():
             pair_bad += [a for a in (i, j) if a not in pair_bad]
     worst = [int(a) for a in np.argsort(-blame, kind="stable") if blame[a] > 0]
-    return None, pair_bad + [a for a in worst if a not in pair_bad]
+    return pair_bad + [a for a in worst if a not in pair_bad]
 
 
 def trajectory_points(option: Option, tau_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -510,79 +305,129 @@ class DelayResult:
     # the last problem with straight options only (both theta2 directions once round 1 ran):
     # the cluster strategy (planner.cluster) reuses its tables
     straight: DelayProblem | None = None
-    external: object = None  # what ``on_straight_fail`` found instead (e.g. a cluster plan)
 
 
-def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float, dt_col_s: float,
-                horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int], stats: DelayStats,
-                grid: tuple[int, int] = (8, 6), max_rounds: int = 5, max_detour_vertices: int = 8,
-                detour_waits_steps: tuple[int, ...] = (0, 2, 5), detour_extra_s: float = 45.0,
-                node_budget: int = 20000,
-                deadline: float | None = None, check=None, max_repairs: int = 5,
-                prefer=None, on_straight_fail=None, after_hook_s: float | None = None) -> DelayResult:
-    """Straight moves with departure delays; on failure, one-stop detours for the blamed arms.
+class DelaySearch:
+    """The delay CSP over its rounds, in two phases that other strategies can sit between.
 
-    ``check(assignment, options)``, when given, is the independent verifier: it returns the
-    arm pairs it found colliding (empty when the plan passes); their (option, relative
-    delay) entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
+    :meth:`straight_phase` runs the rounds with straight options only. Round 0: each movable
+    arm's shortest straight move (and the other theta2 direction when it is not longer than
+    the lower bound, so it cannot raise the makespan). Round 1: both theta2 directions for
+    every arm. It returns the result when it ended (solved, or failed for good), or None
+    when every straight option failed and detours may still help: :attr:`straight` then holds
+    the straight-move problem (the cluster strategy, :mod:`planner.cluster`, reuses its tables).
 
-    Round 0: each movable arm's shortest straight move (and the other theta2 direction when
-    it is not longer than the lower bound, so it cannot raise the makespan). Round 1: both
-    theta2 directions for every arm. Later rounds add, for the arms the CSP blames (if
-    ``max_start_stop`` >= 1)
-    one-stop detours start -> v -> goal (a resting arm: start -> v -> start) with waits at v
-    of ``detour_waits_steps`` x dt, the detour (wait included) at most ``detour_extra_s`` longer
-    than the lower bound or the arm's direct move. One arm is extended per round. Tables of option pairs already computed are reused.
+    :meth:`detour_phase` goes on: later rounds add, for the arms the CSP blames (if
+    ``max_start_stop`` >= 1), one-stop detours start -> v -> goal (a resting arm: start -> v ->
+    start) with waits at v of ``detour_waits_steps`` x dt, the detour (wait included) at most
+    ``detour_extra_s`` longer than the lower bound or the arm's direct move. One arm is extended
+    per round (usually one arm getting out of the way suffices: tables grow as options_i x
+    options_j). Tables of option pairs already computed are reused.
 
-    Hooks (used by :func:`planner.prioritized.plan_motion`): ``on_straight_fail(straight, blamed)``
-    runs once when every straight option failed, before the detour rounds (its time does not
-    count against ``deadline``); a non-None answer ends the stage (``DelayResult.external``), after
-    a None answer the detour rounds get at most ``after_hook_s`` more. ``prefer(straight, blamed)`` names the arms to
-    extend first (a removal set, :mod:`planner.cluster`), or None when detours are futile.
+    ``check(assignment, options)``, when given, is a collision re-check of a solution: it
+    returns the arm pairs found colliding (empty when clear); their (option, relative delay)
+    entries are then forbidden and the CSP re-solved, at most ``max_repairs`` times.
     """
-    import time as _time
 
-    n = len(geoms)
-    mv = set(movable)
-    opts: list[list[Option]] = []
-    for k in range(n):
-        if k in mv:
-            o = straight_options(geoms[k], start_q[k], goal_q[k])
-        else:
-            o = [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")]
-        opts.append(o)
-    if any(not o for o in opts):
-        return DelayResult(None, opts, [k for k in range(n) if not opts[k]], 0)
-    lb = max(o[0].duration_s for o in opts)
-    cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= lb + 1e-9] for op in opts]
-    prob = None
-    straight = None
-    extended: set[int] = set()
-    blamed: list[int] = []
-    seen_blamed: list[int] = []
-    for rnd in range(max_rounds):
-        nxt = build_problem(geoms, cur, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob,
-                            deadline=None if rnd == 0 else deadline)
-        if nxt is None:
-            if on_straight_fail is not None and straight is not None and not extended:
-                # out of time while adding the other theta2 directions: the hook still gets the
-                # straight problem of round 0 (fewer options, so its schedules stay valid)
-                ext = on_straight_fail(straight, list(blamed))
-                if ext is not None:
-                    return DelayResult(None, cur, [], rnd, straight=straight, external=ext)
-            break
-        prob = nxt
-        if not extended:  # a snapshot: later rounds append options to the same lists
-            straight = DelayProblem([list(o) for o in prob.options], prob.K, prob.dt_s, prob.horizon_s,
-                                    prob.tables, prob.neighbours)
-        sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
+    def __init__(self, geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float,
+                 dt_col_s: float, horizon_s: float, buffer_mm: float, max_start_stop: int, movable: list[int],
+                 stats: DelayStats, grid: tuple[int, int] = (8, 6), max_rounds: int = 5,
+                 max_detour_vertices: int = 8, detour_waits_steps: tuple[int, ...] = (0, 2, 5),
+                 detour_extra_s: float = 45.0, node_budget: int = 20000, check=None, max_repairs: int = 5):
+        self.geoms, self.start_q, self.goal_q = geoms, start_q, goal_q
+        self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm = dt_s, dt_col_s, horizon_s, buffer_mm
+        self.max_start_stop, self.stats, self.grid, self.max_rounds = max_start_stop, stats, grid, max_rounds
+        self.max_detour_vertices, self.detour_waits_steps = max_detour_vertices, detour_waits_steps
+        self.detour_extra_s, self.node_budget, self.check, self.max_repairs = detour_extra_s, node_budget, check, max_repairs
+        n = len(geoms)
+        self.mv = set(movable)
+        self.opts = [straight_options(geoms[k], start_q[k], goal_q[k]) if k in self.mv
+                     else [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")] for k in range(n)]
+        self.lb = max((o[0].duration_s for o in self.opts if o), default=0.0)
+        self.cur = [[o for i, o in enumerate(op) if i == 0 or o.duration_s <= self.lb + 1e-9] for op in self.opts]
+        self.prob: DelayProblem | None = None
+        self.straight: DelayProblem | None = None
+        self.extended: set[int] = set()
+        self.blamed: list[int] = []
+        self.seen_blamed: list[int] = []
+        self.rnd = 0
+        self.result: DelayResult | None = None  # set once the search ended
+        self.paused = False  # straight_phase stopped where every straight option had failed
+        self._resume_tail = False  # paused mid-round: the detour phase starts with the round's tail
+
+    def _end(self, res: DelayResult) -> DelayResult:
+        self.result = res
+        return res
+
+    def _failed(self) -> DelayResult:
+        return self._end(DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight))
+
+    def straight_phase(self, deadline: float | None = None) -> DelayResult | None:
+        """Straight options only; None when paused (see the class docstring)."""
+        n = len(self.geoms)
+        if any(not o for o in self.opts):
+            return self._end(DelayResult(None, self.opts, [k for k in range(n) if not self.opts[k]], 0))
+        return self._rounds(deadline, pause=True)
+
+    def detour_phase(self, deadline: float | None = None, prefer: list[int] | None = None,
+                     futile: bool = False) -> DelayResult:
+        """The detour rounds after a paused :meth:`straight_phase`; ``prefer`` the arms to extend
+        first (a removal set, :mod:`planner.cluster`); ``futile`` when detours are known not to
+        help (the rounds end at once)."""
+        if self.result is not None:
+            return self.result
+        if self._resume_tail:
+            self._resume_tail = False
+            step = self._tail(deadline, prefer, futile)
+            if step == "break":
+                return self._failed()
+            self.rnd += 1
+        out = self._rounds(deadline, pause=False, prefer=prefer, futile=futile)
+        return out if out is not None else self._failed()
+
+    def _rounds(self, deadline, pause: bool, prefer=None, futile=False) -> DelayResult | None:
+        while self.rnd < self.max_rounds:
+            rnd = self.rnd
+            nxt = build_problem(self.geoms, self.cur, self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm,
+                                self.stats, old=self.prob, deadline=None if rnd == 0 else deadline)
+            if nxt is None:
+                if pause and self.straight is not None and not self.extended:
+                    # out of time while adding the other theta2 directions: pause with the
+                    # straight problem of round 0 (fewer options, so its schedules stay valid)
+                    self.result = DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight)
+                    self.paused = True
+                    return None
+                return self._failed()
+            self.prob = nxt
+            if not self.extended:  # a snapshot: later rounds append options to the same lists
+                p = self.prob
+                self.straight = DelayProblem([list(o) for o in p.options], p.K, p.dt_s, p.horizon_s, p.tables,
+                                             p.neighbours)
+            sol = self._solve_and_repair(deadline)
+            if sol is not None:
+                ms = max(self.cur[k][p].duration_s + t * self.dt_s for k, (p, t) in sol.items())
+                return self._end(DelayResult(sol, self.cur, [], rnd + 1, ms, self.straight))
+            timed_out = deadline is not None and _time.perf_counter() > deadline
+            if pause and self.straight is not None and not self.extended and (
+                    rnd >= 1 or timed_out or not any(len(self.cur[k]) < len(self.opts[k]) for k in self.mv)):
+                self._resume_tail = self.paused = True  # every straight option failed
+                return None
+            step = self._tail(deadline, prefer, futile)
+            if step == "break":
+                return self._failed()
+            self.rnd += 1
+        return self._failed()
+
+    def _solve_and_repair(self, deadline) -> dict[int, tuple[int, int]] | None:
+        prob, cur = self.prob, self.cur
+        sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
         repairs = 0
-        while sol is not None and check is not None and repairs < max_repairs:
-            bad_pairs = check(sol, cur)
+        while sol is not None and self.check is not None and repairs < self.max_repairs:
+            bad_pairs = self.check(sol, cur)
             if not bad_pairs:
                 break
             repairs += 1
-            stats.repairs += 1
+            self.stats.repairs += 1
             for a, b in bad_pairs:
                 (pa, ta), (pb, tb) = sol[a], sol[b]
                 if (a, b) not in prob.tables:  # the table said "never close": make it explicit
@@ -592,28 +437,18 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     prob.neighbours[a].append(b)
                     prob.neighbours[b].append(a)
                 prob.tables[(a, b)][pa, pb, tb - ta + prob.K] = False  # the (b, a) view shares memory
-            sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
-        if sol is not None and (check is None or repairs < max_repairs):
-            ms = max(cur[k][p].duration_s + t * dt_s for k, (p, t) in sol.items())
-            return DelayResult(sol, cur, [], rnd + 1, ms, straight)
-        timed_out = deadline is not None and _time.perf_counter() > deadline
-        if on_straight_fail is not None and straight is not None and not extended and (
-                rnd >= 1 or timed_out or not any(len(cur[k]) < len(opts[k]) for k in mv)):
-            # every straight option failed: let the caller try something else before the
-            # (expensive) detour rounds; a non-None answer ends the delay stage
-            t_hook = _time.perf_counter()
-            ext = on_straight_fail(straight, list(blamed))
-            on_straight_fail = None
-            if deadline is not None:  # the hook has its own share of the budget
-                deadline += _time.perf_counter() - t_hook
-                if after_hook_s is not None:  # ... and after a failed hook the detour rounds get less
-                    deadline = min(deadline, _time.perf_counter() + after_hook_s)
-            if ext is not None:
-                return DelayResult(None, cur, [], rnd + 1, straight=straight, external=ext)
+            sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
+        if sol is not None and (self.check is None or repairs < self.max_repairs):
+            return sol
+        return None
+
+    def _tail(self, deadline, prefer, futile) -> str:
+        """The end of a failed round: extend the options; "break" when nothing is left to try."""
+        rnd, blamed, cur, opts, mv = self.rnd, self.blamed, self.cur, self.opts, self.mv
         if deadline is not None and _time.perf_counter() > deadline:
-            break
+            return "break"
         if rnd == 0:
-            seen_blamed += blamed
+            self.seen_blamed += blamed
             # round 1: both theta2 directions for every arm (a row of neighbours all swinging J2
             # the same long way blocks itself in a chain; some swinging the other way frees it)
             grown = False
@@ -622,34 +457,43 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
                     if not any(o is c for c in cur[k]):
                         cur[k].append(o)
                         grown = True
-            stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "both directions"})
+            self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "both directions"})
             if grown:
-                continue
-        # then one arm per round (usually one arm getting out of the way suffices): tables grow
-        # as options_i x options_j, so extending both arms of a conflict at once costs far more
-        seen_blamed += [k for k in blamed if k not in seen_blamed]
-        if prefer is not None and straight is not None and not extended:
-            # extend first the arms whose removal makes the straight CSP solvable
-            first = prefer(straight, list(seen_blamed))
-            if first is None:  # the caller proved the detour rounds futile
-                stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "futile"})
-                break
-            first = [k for k in first if k in mv]
-            seen_blamed[:] = first + [k for k in seen_blamed if k not in first]
-        new = [k for k in seen_blamed if k in mv and k not in extended][:1]
-        stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
+                return "continue"
+        seen = self.seen_blamed
+        seen += [k for k in blamed if k not in seen]
+        if (futile or prefer is not None) and self.straight is not None and not self.extended:
+            if futile:  # the caller proved the detour rounds futile
+                self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": "futile"})
+                return "break"
+            first = [k for k in prefer if k in mv]  # extend first the arms of the removal set
+            seen[:] = first + [k for k in seen if k not in first]
+        new = [k for k in seen if k in mv and k not in self.extended][:1]
+        self.stats.log.append({"round": rnd, "blamed": list(blamed), "extend": list(new)})
         if not new:
-            break
+            return "break"
         for k in new:
-            extended.add(k)
-            for o in opts[k]:
-                if not any(o is c for c in cur[k]):
-                    cur[k].append(o)
-            if max_start_stop >= 1:
-                V = detour_vertices(geoms[k], start_q[k], goal_q[k], grid)
-                t_direct = min((o.duration_s for o in opts[k]), default=0.0)
-                cur[k].extend(detour_options(geoms[k], start_q[k], goal_q[k], V,
-                                             tuple(w * dt_s for w in detour_waits_steps),
-                                             max_detour_vertices,
-                                             min(horizon_s, max(lb, t_direct) + detour_extra_s)))
-    return DelayResult(None, cur, blamed, max_rounds, straight=straight)
+            self._extend(k)
+        return "continue"
+
+    def _extend(self, k: int) -> None:
+        self.extended.add(k)
+        for o in self.opts[k]:
+            if not any(o is c for c in self.cur[k]):
+                self.cur[k].append(o)
+        if self.max_start_stop >= 1:
+            g, qs, qg = self.geoms[k], self.start_q[k], self.goal_q[k]
+            V = detour_vertices(g, qs, qg, self.grid)
+            t_direct = min((o.duration_s for o in self.opts[k]), default=0.0)
+            self.cur[k].extend(detour_options(g, qs, qg, V, tuple(w * self.dt_s for w in self.detour_waits_steps),
+                                              self.max_detour_vertices,
+                                              min(self.horizon_s, max(self.lb, t_direct) + self.detour_extra_s)))
+
+
+def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, deadline: float | None = None,
+                **kwargs) -> DelayResult:
+    """Straight moves with departure delays; on failure, one-stop detours for the blamed arms
+    (both phases of :class:`DelaySearch`, keyword arguments as there)."""
+    search = DelaySearch(geoms, start_q, goal_q, **kwargs)
+    res = search.straight_phase(deadline)
+    return res if res is not None else search.detour_phase(deadline)

@@ -11,11 +11,14 @@
   :func:`models.kinematics.segment_in_zoa` (an excursion deeper than ``tol_mm`` is always
   found; tested), at a fraction of the samples.
 * :func:`body_speed_bound_mm_s` — an upper bound on how fast any body point of an arm can
-  move, used by the verifier to skip provably clear intervals.
+  move, used to skip provably clear intervals.
+* :func:`timed_collisions` — the planner's own collision re-check of timed way-points of
+  all arms (the strategies' repair and feedback oracle; the driver's verifier is separate).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -185,3 +188,58 @@ def clearance_between(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
     )
     d = d - ra[:, None] - rb[None, :]
     return d.min(axis=(-2, -1))
+
+
+def timed_collisions(geoms: Sequence[ArmGeom], timed: Sequence[tuple[np.ndarray, np.ndarray]], buffer_mm: float,
+                     dt_check_s: float = 0.01, stride: int = 10) -> list[tuple[int, int]]:
+    """Arm pairs whose timed way-points ``timed[k] = (t, q)`` (linear joint motion between
+    them, at rest after the last) come closer than ``buffer_mm``.
+
+    The planner's own re-check of a candidate (the driver's verifier stays independent):
+    both arms are sampled on one grid of ``dt_check_s`` plus every way-point time; the exact
+    clearance is computed on every ``stride``-th sample, and the samples in between only
+    where the clearance, changing no faster than the two arms' body-point speed bounds
+    (:func:`body_speed_bound_mm_s` at full joint speed), could drop below the buffer.
+    """
+    n = len(timed)
+    T = max(float(t[-1]) for t, _ in timed)
+    grid = np.arange(0.0, T + 0.5 * dt_check_s, dt_check_s)
+    ts = np.unique(np.round(np.concatenate([grid, *[np.asarray(t, float) for t, _ in timed], [T]]), 9))
+    coarse = np.unique(np.concatenate([np.arange(0, len(ts), stride), [len(ts) - 1]]))
+    tc = ts[coarse]
+    half = 0.5 * float(np.max(np.diff(tc), initial=0.0))
+    speed = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
+    seg, box = [], []
+    for k in range(n):
+        s, e = _segments_at(geoms[k], timed[k], tc)
+        r = geoms[k].radius[None, :, None]
+        pad = speed[k] * half  # the arm between two coarse samples
+        seg.append((s, e))
+        box.append(np.concatenate([(np.minimum(s, e) - r).min(axis=(0, 1)) - pad,
+                                   (np.maximum(s, e) + r).max(axis=(0, 1)) + pad]))
+    out = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            bi, bj = box[i], box[j]
+            if (bi[0] - buffer_mm > bj[2] or bj[0] - buffer_mm > bi[2]
+                    or bi[1] - buffer_mm > bj[3] or bj[1] - buffer_mm > bi[3]):
+                continue
+            gi, gj = geoms[i], geoms[j]
+            c = clearance_between(seg[i][0], seg[i][1], gi.radius, seg[j][0], seg[j][1], gj.radius)
+            if (c < buffer_mm).any():
+                out.append((i, j))
+                continue
+            unsure = np.flatnonzero(0.5 * (c[:-1] + c[1:]) - 0.5 * (speed[i] + speed[j]) * np.diff(tc) < buffer_mm)
+            if len(unsure) == 0:
+                continue
+            idx = np.unique(np.concatenate([np.arange(coarse[u], coarse[u + 1] + 1) for u in unsure]))
+            sa, ea = _segments_at(gi, timed[i], ts[idx])
+            sb, eb = _segments_at(gj, timed[j], ts[idx])
+            if (clearance_between(sa, ea, gi.radius, sb, eb, gj.radius) < buffer_mm).any():
+                out.append((i, j))
+    return out
+
+
+def _segments_at(geom: ArmGeom, tq: tuple[np.ndarray, np.ndarray], ts: np.ndarray):
+    t, q = tq
+    return geom.segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))

@@ -21,10 +21,23 @@ time reversal / concatenation of verified plans, verified again as a whole.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
-from models.types import Configuration, MotionPlan, Unallocated
+import numpy as np
+
+from models.errors import InputError
+from models.instrument import Instrument
+from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
+from planner.commands import compress_waypoints, controller_commands, stop_count
+from planner.prioritized import plan_motion
+from planner.reassign import Placed, new_configuration, take_out, try_place
+from planner.verify import verify_trajectories
+
+TWO_PI = 2.0 * np.pi
 
 ChangeKind = Literal["via_park", "moved_target", "new_configuration", "dropped_target"]
 
@@ -86,3 +99,265 @@ class SequenceOptions:
     leg_time_limit_s: float = 10.0  # each plan_motion call
     time_limit_s: float | None = None  # the whole sequence (None: no limit beyond the legs')
     max_changes: int = 24  # allocation changes tried before a leg is left failed
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise InputError("seed", "must be an integer")
+        if not (math.isfinite(self.leg_time_limit_s) and self.leg_time_limit_s > 0):
+            raise InputError("leg_time_limit_s", "must be a positive finite number of seconds")
+        if self.time_limit_s is not None and not (math.isfinite(self.time_limit_s) and self.time_limit_s > 0):
+            raise InputError("time_limit_s", "must be a positive finite number of seconds or None")
+        if not (isinstance(self.max_changes, int) and self.max_changes >= 0):
+            raise InputError("max_changes", "must be an integer >= 0")
+
+
+MIN_LEG_S = 0.5  # a leg is never given less than this, even when the sequence's time is short
+
+
+def end_of(plan: MotionPlan) -> np.ndarray:
+    """Where a verified plan leaves the arms (theta2 unwrapped, as the next leg starts)."""
+    return np.array([[tr.theta1_rad[-1], tr.theta2_rad[-1]] for tr in plan.trajectories])
+
+
+def _shift_theta2(tr: ArmTrajectory, turns: float, t0_s: float = 0.0) -> ArmTrajectory:
+    return ArmTrajectory(tr.arm, tr.t_s + t0_s, tr.theta1_rad.copy(), tr.theta2_rad + turns)
+
+
+def reversed_trajectories(plan: MotionPlan, start_theta2_rad: np.ndarray) -> tuple[ArmTrajectory, ...]:
+    """``plan`` played backwards (t -> T - t), each arm's theta2 shifted by whole turns so that
+    it starts at ``start_theta2_rad`` (kaiju, Sayres 2021: collisions, the zone of avoidance
+    and joint speeds are symmetric in time, and so are the stops)."""
+    T = float(plan.makespan_s)
+    out = []
+    for tr, th2 in zip(plan.trajectories, start_theta2_rad, strict=True):
+        t = T - tr.t_s[::-1]
+        a, b = tr.theta1_rad[::-1], tr.theta2_rad[::-1]
+        if t[0] > 1e-12:  # the arm rested at its end: in reverse it waits before moving
+            t, a, b = np.concatenate([[0.0], t]), np.concatenate([a[:1], a]), np.concatenate([b[:1], b])
+        turns = TWO_PI * np.round((th2 - b[0]) / TWO_PI)
+        out.append(ArmTrajectory(tr.arm, t, a.copy(), b + turns))
+    return tuple(out)
+
+
+def _finish(instrument: Instrument, trajs, start_q: np.ndarray, goal_q: np.ndarray, max_stops: int | None,
+            stats: dict) -> MotionPlan | None:
+    """Controller commands, then the independent verifier on the whole leg."""
+    full = []
+    for tr in trajs:
+        t, q = compress_waypoints(tr.t_s, np.column_stack([tr.theta1_rad, tr.theta2_rad]))
+        full.append(ArmTrajectory(tr.arm, t, q[:, 0].copy(), q[:, 1].copy(), controller_commands(t, q[:, 0], q[:, 1])))
+    rep = verify_trajectories(instrument, full, start_q, goal_q, max_start_stop=max_stops)
+    if not rep.ok:
+        return None
+    stats = {**stats, "min_clearance_mm": rep.min_clearance_mm,
+             "max_stops": max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in full)}
+    return MotionPlan("ok", max(float(t.t_s[-1]) for t in full), tuple(full), (), stats)
+
+
+def reversed_leg(instrument: Instrument, from_park: MotionPlan, start_q: np.ndarray) -> MotionPlan | None:
+    """start (= the goal of ``from_park``) -> park as the reversal of ``from_park``, verified."""
+    trajs = reversed_trajectories(from_park, start_q[:, 1])
+    stats = {"strategy": "reversed", "lower_bound_s": from_park.stats.get("lower_bound_s"),
+             "compute_s": 0.0, "attempts": 0}
+    return _finish(instrument, trajs, start_q, instrument.park_configuration, None, stats)
+
+
+def via_park_leg(instrument: Instrument, from_park_a: MotionPlan, from_park_b: MotionPlan,
+                 start_q: np.ndarray, goal_q: np.ndarray, lower_bound_s: float) -> MotionPlan | None:
+    """start -> park -> goal: the reversal of park -> start, then park -> goal; verified as a
+    whole. Each arm comes to rest at park between the two halves (one more stop)."""
+    back = reversed_trajectories(from_park_a, start_q[:, 1])
+    T1 = float(from_park_a.makespan_s)
+    trajs = []
+    for a, b in zip(back, from_park_b.trajectories, strict=True):
+        turns = a.theta2_rad[-1] - b.theta2_rad[0]
+        b2 = _shift_theta2(b, turns, T1)
+        keep = b2.t_s > T1 + 1e-12 if len(b2.t_s) > 1 else np.zeros(1, bool)
+        t = np.concatenate([a.t_s, [T1] if a.t_s[-1] < T1 - 1e-12 else [], b2.t_s[keep]])
+        q1 = np.concatenate([a.theta1_rad, a.theta1_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b2.theta1_rad[keep]])
+        q2 = np.concatenate([a.theta2_rad, a.theta2_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b2.theta2_rad[keep]])
+        trajs.append(ArmTrajectory(a.arm, t, q1, q2))
+    stats = {"strategy": "via_park", "lower_bound_s": lower_bound_s, "compute_s": 0.0, "attempts": 0,
+             "via_makespans_s": [T1, float(from_park_b.makespan_s)]}
+    return _finish(instrument, trajs, start_q, goal_q, None, stats)
+
+
+class _Clock:
+    def __init__(self, limit_s: float | None) -> None:
+        self.t0 = time.perf_counter()
+        self.limit_s = limit_s
+
+    def left_s(self) -> float:
+        return math.inf if self.limit_s is None else self.limit_s - (time.perf_counter() - self.t0)
+
+
+class _Sequencer:
+    """The state of one pointing's plan while its legs are planned and repaired."""
+
+    def __init__(self, instrument: Instrument, configurations: Sequence[Configuration],
+                 options: SequenceOptions, priority_of: dict[str, int]) -> None:
+        self.ins = instrument
+        self.opt = options
+        self.priority_of = priority_of
+        self.configs = list(configurations)
+        self.clock = _Clock(options.time_limit_s)
+        self.changes: list[PlanChange] = []
+        self.dropped: list[Unallocated] = []
+        self.legs: list[MotionPlan] = []
+        self.from_park: dict[int, MotionPlan] = {}  # id(config) -> park -> config plan
+        self.edits = 0
+        self.plans = 0
+        self.buffer_mm = instrument.collision_buffer_mm
+
+    # ---------------------------------------------------------------- planning primitives
+
+    def budget_s(self) -> float:
+        legs_left = max(1, len(self.configs) + 1 - len(self.legs))
+        return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.clock.left_s() / legs_left))
+
+    def plan(self, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan:
+        self.plans += 1
+        return plan_motion(self.ins, start_q, goal_q, seed=self.opt.seed, time_budget_s=self.budget_s(),
+                           via=None)
+
+    def park_to(self, config: Configuration) -> MotionPlan:
+        key = id(config)
+        if key not in self.from_park:
+            self.from_park[key] = self.plan(self.ins.park_configuration, config.q)
+        return self.from_park[key]
+
+    # ---------------------------------------------------------------- one transition
+
+    def transition(self, i: int, start_q: np.ndarray) -> MotionPlan:
+        """The leg into configuration i (i == len(configs): back to park), repaired if need be."""
+        park = self.ins.park_configuration
+        last = i == len(self.configs)
+        goal = park if last else self.configs[i].q
+        leg = self.from_park[id(self.configs[i])] if i == 0 and id(self.configs[0]) in self.from_park else None
+        if leg is None:
+            leg = self.plan(start_q, goal)
+        if i == 0 and leg.status == "ok":
+            self.from_park[id(self.configs[0])] = leg
+        if leg.status == "ok":
+            return leg
+        if last:
+            return self._to_park(start_q, leg)
+        if i > 0:
+            via = self._via_park(i, start_q)
+            if via is not None:
+                return via
+        return self._change(i, start_q, leg)
+
+    def _to_park(self, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan:
+        back = self.park_to(self.configs[-1])
+        if back.status == "ok":
+            leg = reversed_leg(self.ins, back, start_q)
+            if leg is not None:
+                return leg
+        return failed
+
+    def _via_park(self, i: int, start_q: np.ndarray) -> MotionPlan | None:
+        a, b = self.park_to(self.configs[i - 1]), self.park_to(self.configs[i])
+        if a.status != "ok" or b.status != "ok":
+            return None
+        lb = float(b.stats.get("lower_bound_s", 0.0))
+        leg = via_park_leg(self.ins, a, b, start_q, self.configs[i].q, lb)
+        if leg is not None:
+            self.changes.append(PlanChange("via_park", i, i, (), (),
+                                           "no direct motion found between the two configurations"))
+        return leg
+
+    def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan:
+        """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
+        leg = failed
+        while leg.status != "ok" and self.edits < self.opt.max_changes and self.clock.left_s() > MIN_LEG_S:
+            config = self.configs[i]
+            blockers = [k for k in leg.failed_arms if config.assignments[k].kind == "target"]
+            if not blockers:
+                break
+            k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
+                                             blockers.index(a)))
+            changed, out = take_out(self.ins, config, [k], self.priority_of)
+            self.edits += 1
+            self.configs[i] = changed
+            self.pending.extend(out)
+            self.changes.append(PlanChange("moved_target", i, i, (k,), tuple(p.target_id for p in out),
+                                           f"arm {k} blocked the motion into configuration {i + 1}; "
+                                           "its target moves to another configuration"))
+            leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
+            if i == 0 and leg.status == "ok":
+                self.from_park[id(changed)] = leg
+        return leg
+
+    def _direct_or_via(self, i: int, start_q: np.ndarray) -> MotionPlan:
+        leg = self.plan(start_q, self.configs[i].q)
+        if leg.status == "ok":
+            return leg
+        return self._via_park(i, start_q) or leg
+
+    # ---------------------------------------------------------------- moved targets
+
+    def place_pending(self, after: int) -> None:
+        """Put the targets taken out into configurations after ``after`` or into new ones."""
+        while self.pending:
+            p = self.pending.pop(0)
+            placed = False
+            for j in range(after + 1, len(self.configs)):
+                c = try_place(self.ins, self.configs[j], p, self.buffer_mm)
+                if c is not None:
+                    self.configs[j] = c
+                    placed = True
+                    break
+            if not placed:
+                c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm)
+                if c is None:
+                    self.dropped.append(Unallocated(p.target_index if p.target_index is not None else -1,
+                                                    p.target_id, "conflict"))
+                    continue
+                self.configs.append(c)
+                self.changes.append(PlanChange("new_configuration", len(self.configs), len(self.configs) - 1,
+                                               (), (p.target_id,), "a configuration added for moved targets"))
+
+    def run(self) -> SequencePlan:
+        self.pending: list[Placed] = []
+        cur = self.ins.park_configuration
+        i = 0
+        while i <= len(self.configs):
+            leg = self.transition(i, cur)
+            self.legs.append(leg)
+            if self.pending:
+                self.place_pending(i)
+            cur = end_of(leg) if leg.status == "ok" else (self.configs[i].q if i < len(self.configs)
+                                                          else self.ins.park_configuration)
+            i += 1
+        configs = tuple(replace(c, index=n) for n, c in enumerate(self.configs))
+        stats = {"legs": len(self.legs), "plans": self.plans, "edits": self.edits,
+                 "compute_s": time.perf_counter() - self.clock.t0}
+        return SequencePlan(configs, tuple(self.legs), tuple(self.changes), tuple(self.dropped), stats)
+
+
+def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration],
+                  options: SequenceOptions | None = None, *, targets: PlaneTargets | None = None) -> SequencePlan:
+    """Plans park -> c1 -> ... -> park and repairs the plan where a leg cannot be planned.
+
+    ``targets`` (the pointing's targets, as given to the allocator) supply the priorities that
+    decide which blocking target moves first (the lowest); without them all count the same.
+    Returns a :class:`SequencePlan`; ``executable`` is False only when every change was tried.
+    """
+    options = options or SequenceOptions()
+    priority_of = {} if targets is None else {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
+    if not configurations:
+        return SequencePlan((), (_stationary(instrument),), (), (), {"legs": 1})
+    return _Sequencer(instrument, configurations, options, priority_of).run()
+
+
+def _stationary(instrument: Instrument) -> MotionPlan:
+    """park -> park: every arm stays where it is (verified like any other leg)."""
+    park = instrument.park_configuration
+    trajs = tuple(ArmTrajectory(k, np.array([0.0]), park[k, :1].copy(), park[k, 1:].copy())
+                  for k in range(instrument.n_arms))
+    leg = _finish(instrument, trajs, park, park, 0, {"strategy": "stationary", "compute_s": 0.0})
+    if leg is None:  # the parked arms collide: an instrument file error, reported as a failed leg
+        return MotionPlan("failed", float("nan"), trajs, tuple(range(instrument.n_arms)),
+                          {"reasons": {k: "the parked arms collide" for k in range(instrument.n_arms)}})
+    return leg

@@ -92,6 +92,60 @@ def _point_speed_bound(instrument: Instrument, arm: int, w1: np.ndarray, w2: np.
     return v3 + v4 + r * (v3 + v4) / a.stop_min_mm
 
 
+def _by_arm(trajectories: Sequence[ArmTrajectory], n: int) -> tuple[dict[int, ArmTrajectory], list[Violation]]:
+    """One trajectory per arm, or structure violations."""
+    vio: list[Violation] = []
+    by_arm = {}
+    for tr in trajectories:
+        if tr.arm in by_arm or not 0 <= tr.arm < n:
+            vio.append(Violation("structure", (int(tr.arm),), 0.0, "duplicate or unknown arm"))
+            continue
+        by_arm[tr.arm] = tr
+    for k in range(n):
+        if k not in by_arm:
+            vio.append(Violation("structure", (k,), 0.0, "no trajectory"))
+    return by_arm, vio
+
+
+def _check_arm(instrument: Instrument, tr: ArmTrajectory, start_q: np.ndarray, goal_q: np.ndarray,
+               max_start_stop: int | None, angle_tol_rad: float, vio: list[Violation]) -> float:
+    """Structure, ends, speeds, stops and commands of one arm's trajectory (violations
+    appended to ``vio``); returns its end time (0 when malformed)."""
+    k = tr.arm
+    t = np.asarray(tr.t_s, float)
+    q = np.column_stack([np.asarray(tr.theta1_rad, float), np.asarray(tr.theta2_rad, float)])
+    if t.ndim != 1 or len(t) == 0 or q.shape != (len(t), 2) or not np.all(np.isfinite(t)) or not np.all(np.isfinite(q)):
+        vio.append(Violation("structure", (k,), 0.0, "way-points must be finite arrays of equal length"))
+        return 0.0
+    if np.any(np.diff(t) <= 0) or t[0] < 0:
+        vio.append(Violation("structure", (k,), float(t[0]), "way-point times must start >= 0 and increase"))
+        return 0.0
+    if abs(q[0, 0] - start_q[0]) > angle_tol_rad or _angle_diff(q[0, 1], start_q[1]) > angle_tol_rad:
+        vio.append(Violation("start", (k,), float(t[0]), f"starts at {q[0].tolist()}, expected {start_q.tolist()}"))
+    if abs(q[-1, 0] - goal_q[0]) > angle_tol_rad or _angle_diff(q[-1, 1], goal_q[1]) > angle_tol_rad:
+        vio.append(Violation("goal", (k,), float(t[-1]), f"ends at {q[-1].tolist()}, expected {goal_q.tolist()}"))
+    if len(t) > 1:
+        a = instrument.arms[k]
+        sp = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
+        vmax = np.array([a.joint1_speed_rad_s, a.joint2_speed_rad_s])
+        bad = np.nonzero(sp > vmax * (1 + 1e-9) + 1e-12)
+        for i, j in zip(*bad, strict=True):
+            vio.append(Violation("speed", (k,), float(t[i]),
+                                 f"joint {j + 1} at {sp[i, j]:.6g} rad/s > {vmax[j]:.6g}"))
+            break
+        if max_start_stop is not None:
+            ns = _stop_count(t, q)
+            if ns > max_start_stop:
+                vio.append(Violation("stops", (k,), 0.0, f"{ns} start-stop cycles > {max_start_stop}"))
+    for c in tr.commands:
+        th = q[:, c.joint - 1]
+        i = np.flatnonzero(np.abs(t - c.t_start_s) < 1e-9)
+        if len(i) == 0 or i[0] + 1 >= len(t) or abs(th[i[0]] - c.from_rad) > 1e-9 or abs(th[i[0] + 1] - c.to_rad) > 1e-9:
+            vio.append(Violation("commands", (k,), float(c.t_start_s), "command does not match the way-points"))
+            break
+    return float(t[-1])
+
+
 def verify_trajectories(
     instrument: Instrument,
     trajectories: Sequence[ArmTrajectory],
@@ -110,53 +164,13 @@ def verify_trajectories(
     start_q = np.asarray(start_q, float)
     goal_q = np.asarray(goal_q, float)
     n = instrument.n_arms
-    vio: list[Violation] = []
-    by_arm = {}
-    for tr in trajectories:
-        if tr.arm in by_arm or not 0 <= tr.arm < n:
-            vio.append(Violation("structure", (int(tr.arm),), 0.0, "duplicate or unknown arm"))
-            continue
-        by_arm[tr.arm] = tr
-    for k in range(n):
-        if k not in by_arm:
-            vio.append(Violation("structure", (k,), 0.0, "no trajectory"))
+    by_arm, vio = _by_arm(trajectories, n)
     if vio:
         return VerificationReport(False, tuple(vio), float("nan"), 0, 0)
     T_end = 0.0
     for k in range(n):
-        tr = by_arm[k]
-        t = np.asarray(tr.t_s, float)
-        q = np.column_stack([np.asarray(tr.theta1_rad, float), np.asarray(tr.theta2_rad, float)])
-        if t.ndim != 1 or len(t) == 0 or q.shape != (len(t), 2) or not np.all(np.isfinite(t)) or not np.all(np.isfinite(q)):
-            vio.append(Violation("structure", (k,), 0.0, "way-points must be finite arrays of equal length"))
-            continue
-        if np.any(np.diff(t) <= 0) or t[0] < 0:
-            vio.append(Violation("structure", (k,), float(t[0]), "way-point times must start >= 0 and increase"))
-            continue
-        T_end = max(T_end, float(t[-1]))
-        if abs(q[0, 0] - start_q[k, 0]) > angle_tol_rad or _angle_diff(q[0, 1], start_q[k, 1]) > angle_tol_rad:
-            vio.append(Violation("start", (k,), float(t[0]), f"starts at {q[0].tolist()}, expected {start_q[k].tolist()}"))
-        if abs(q[-1, 0] - goal_q[k, 0]) > angle_tol_rad or _angle_diff(q[-1, 1], goal_q[k, 1]) > angle_tol_rad:
-            vio.append(Violation("goal", (k,), float(t[-1]), f"ends at {q[-1].tolist()}, expected {goal_q[k].tolist()}"))
-        if len(t) > 1:
-            a = instrument.arms[k]
-            sp = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
-            vmax = np.array([a.joint1_speed_rad_s, a.joint2_speed_rad_s])
-            bad = np.nonzero(sp > vmax * (1 + 1e-9) + 1e-12)
-            for i, j in zip(*bad, strict=True):
-                vio.append(Violation("speed", (k,), float(t[i]),
-                                     f"joint {j + 1} at {sp[i, j]:.6g} rad/s > {vmax[j]:.6g}"))
-                break
-            if max_start_stop is not None:
-                ns = _stop_count(t, q)
-                if ns > max_start_stop:
-                    vio.append(Violation("stops", (k,), 0.0, f"{ns} start-stop cycles > {max_start_stop}"))
-        for c in tr.commands:
-            th = q[:, c.joint - 1]
-            i = np.flatnonzero(np.abs(t - c.t_start_s) < 1e-9)
-            if len(i) == 0 or i[0] + 1 >= len(t) or abs(th[i[0]] - c.from_rad) > 1e-9 or abs(th[i[0] + 1] - c.to_rad) > 1e-9:
-                vio.append(Violation("commands", (k,), float(c.t_start_s), "command does not match the way-points"))
-                break
+        T_end = max(T_end, _check_arm(instrument, by_arm[k], start_q[k], goal_q[k], max_start_stop,
+                                      angle_tol_rad, vio))
     if any(v.kind == "structure" for v in vio):
         return VerificationReport(False, tuple(vio), float("nan"), 0, 0)
 
@@ -189,26 +203,7 @@ def verify_trajectories(
     w1 = np.abs(np.diff(th1, axis=1)) / dt
     w2 = np.abs(np.diff(th2, axis=1)) / dt
     Lf = np.stack([_point_speed_bound(instrument, k, w1[k], w2[k]) for k in range(n)])  # (n, N-1)
-    coarse = np.unique(np.concatenate([np.arange(0, N, max(1, coarse_stride)), [N - 1]]))
-    checked = 0
-    if exhaustive or N < 3:
-        fine_pairs = [(p, np.arange(N)) for p in range(len(pi))]
-    else:
-        cc = clearance_mm((S[pi][:, coarse], E[pi][:, coarse], R[pi][:, coarse]),
-                          (S[pj][:, coarse], E[pj][:, coarse], R[pj][:, coarse]))  # (P, C)
-        checked += cc.size
-        Lc = np.maximum.reduceat(Lf, coarse[:-1], axis=1) if len(coarse) > 1 else np.zeros((n, 0))
-        span = t[coarse[1:]] - t[coarse[:-1]]
-        lower = 0.5 * (cc[:, :-1] + cc[:, 1:]) - 0.5 * (Lc[pi] + Lc[pj]) * span
-        need = lower < buffer_mm
-        fine_pairs = []
-        for p in np.flatnonzero(need.any(1)):
-            iv = np.flatnonzero(need[p])
-            idx = np.unique(np.concatenate([np.arange(coarse[i], coarse[i + 1] + 1) for i in iv]))
-            fine_pairs.append((p, idx))
-        if (cc < buffer_mm).any():
-            for p in np.flatnonzero((cc < buffer_mm).any(1)):
-                fine_pairs.append((p, coarse))
+    fine_pairs, checked, coarse_min = _fine_pairs(S, E, R, pi, pj, t, Lf, buffer_mm, coarse_stride, exhaustive)
     min_clear = np.inf
     for p, idx in fine_pairs:
         a, b = pi[p], pj[p]
@@ -219,9 +214,39 @@ def verify_trajectories(
             i = int(np.argmax(c < buffer_mm))
             vio.append(Violation("collision", (int(a), int(b)), float(t[idx[i]]),
                                  f"clearance {c[i]:.3f} mm < buffer {buffer_mm} mm"))
-    if not exhaustive and N >= 3:
-        min_clear = min(min_clear, float(cc.min()))
-    # de-duplicate collision reports per pair
+    min_clear = min(min_clear, coarse_min)
+    out = _dedupe(vio)
+    return VerificationReport(not out, tuple(out), float(min_clear), N, int(checked))
+
+
+def _fine_pairs(S, E, R, pi: np.ndarray, pj: np.ndarray, t: np.ndarray, Lf: np.ndarray, buffer_mm: float,
+                coarse_stride: int, exhaustive: bool) -> tuple[list, int, float]:
+    """(pair, sample indices) whose clearance must be computed at every sample: intervals of
+    the coarse sub-grid not provably clear (see module docstring). Also the coarse clearances
+    computed and their minimum."""
+    N = len(t)
+    if exhaustive or N < 3:
+        return [(p, np.arange(N)) for p in range(len(pi))], 0, np.inf
+    coarse = np.unique(np.concatenate([np.arange(0, N, max(1, coarse_stride)), [N - 1]]))
+    cc = clearance_mm((S[pi][:, coarse], E[pi][:, coarse], R[pi][:, coarse]),
+                      (S[pj][:, coarse], E[pj][:, coarse], R[pj][:, coarse]))  # (P, C)
+    Lc = np.maximum.reduceat(Lf, coarse[:-1], axis=1) if len(coarse) > 1 else np.zeros((len(Lf), 0))
+    span = t[coarse[1:]] - t[coarse[:-1]]
+    lower = 0.5 * (cc[:, :-1] + cc[:, 1:]) - 0.5 * (Lc[pi] + Lc[pj]) * span
+    need = lower < buffer_mm
+    fine_pairs = []
+    for p in np.flatnonzero(need.any(1)):
+        iv = np.flatnonzero(need[p])
+        idx = np.unique(np.concatenate([np.arange(coarse[i], coarse[i + 1] + 1) for i in iv]))
+        fine_pairs.append((p, idx))
+    if (cc < buffer_mm).any():
+        for p in np.flatnonzero((cc < buffer_mm).any(1)):
+            fine_pairs.append((p, coarse))
+    return fine_pairs, int(cc.size), float(cc.min())
+
+
+def _dedupe(vio: list[Violation]) -> list[Violation]:
+    """One collision report per pair."""
     seen, out = set(), []
     for v in vio:
         key = (v.kind, v.arms)
@@ -229,7 +254,7 @@ def verify_trajectories(
             continue
         seen.add(key)
         out.append(v)
-    return VerificationReport(not out, tuple(out), float(min_clear), N, int(checked))
+    return out
 
 
 def verify_plan(instrument: Instrument, plan: MotionPlan, start_q: np.ndarray, goal_q: np.ndarray,

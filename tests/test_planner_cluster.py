@@ -18,8 +18,11 @@ from planner import plan_motion, stop_count, verify_trajectories
 from planner.cluster import plan_cluster, reduced_problem, removal_sets
 from planner.commands import compress_waypoints
 from planner.geometry import ArmGeom
+from planner.options import MotionOptions
 from planner.roadmap import RoadmapParams
 from planner.single_arm import SearchParams, SearchStats
+from planner.strategies.cluster import Cluster
+from planner.strategy import Candidate, Leg
 
 INST = default_instrument()
 GEOMS = [ArmGeom.of(INST, k) for k in range(12)]
@@ -109,70 +112,62 @@ def test_benchmark_cycle_legs_plan(leg):
     assert max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in plan.trajectories) <= 1
 
 
+def _cluster(start, goal, straight, blamed):
+    """The cluster strategy on a straight-move problem, without a deadline."""
+    leg = Leg.build(INST, start, goal, MotionOptions(collision_buffer_mm=5.0))
+    strategy = Cluster(params=SearchParams(max_states_per_arm=1500), rparams=RoadmapParams(max_edges_per_path=2))
+    return strategy.plan_straight(leg, straight, blamed, float("inf"))
+
+
 def test_cluster_solves_a_leg_the_straight_delays_cannot():
     start, goal = LEG_129
     prob = _straight(start, goal)
-    st: dict = {"collision_checks": 0, "states_explored": 0, "attempt_log": []}
-    from planner.prioritized import _try_cluster
-
-    plan = _try_cluster(INST, GEOMS, start, goal, prob, [], ALL, 5.0, 1, st, float("inf"),
-                        params=SearchParams(max_states_per_arm=1500), rparams=RoadmapParams(max_edges_per_path=2),
-                        seed=0)
-    assert plan is not None and plan.status == "ok" and st["strategy"] == "cluster"
-    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+    out = _cluster(start, goal, prob, [])
+    assert isinstance(out, Candidate) and out.strategy == "cluster"
+    st = out.stats
+    assert verify_trajectories(INST, out.trajectories, start, goal, max_start_stop=1).ok
     # a single arm detouring is not enough here: arm 5 sweeps arm 6's start and goal for 90 s
     assert st["cluster"]["removal_sets"][0] == [6]
-    assert len([a for a in st["cluster"]["attempts"] if a.get("verified")]) == 1
+    assert len([a for a in st["cluster"]["attempts"] if a.get("clear")]) == 1
     assert len(st["cluster"]["attempts"][-1]["arms"]) == 2
 
 
-def test_delay_stage_hooks():
-    """on_straight_fail runs once, on straight options only, and its answer ends the stage;
-    prefer returning None (detours proven futile) ends the detour rounds."""
+def test_delay_stage_pauses_for_the_cluster_strategy():
+    """The straight phase pauses once, on straight options only, when every straight option
+    failed; detour rounds known to be futile end at once (no detour round runs)."""
     start, goal = LEG_130
-    calls = []
-
-    def hook(straight, blamed):
-        calls.append((straight, blamed))
-        return "sentinel"
-
     st = D.DelayStats()
-    res = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                        max_start_stop=1, movable=ALL, stats=st, on_straight_fail=hook)
-    assert res.external == "sentinel" and res.assignment is None and len(calls) == 1
-    straight, blamed = calls[0]
+    search = D.DelaySearch(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                           max_start_stop=1, movable=ALL, stats=st)
+    assert search.straight_phase() is None and search.paused
+    straight, blamed = search.straight, search.blamed
     assert all(o.kind == "straight" for opts in straight.options for o in opts) and blamed
     # both theta2 directions were offered before giving up on straight moves
     assert sum(len(o) for o in straight.options) == sum(len(D.straight_options(GEOMS[k], start[k], goal[k]))
                                                         for k in ALL)
     st2 = D.DelayStats()
-    res2 = D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
-                         max_start_stop=1, movable=ALL, stats=st2, prefer=lambda *_: None)
-    assert res2.assignment is None and res2.external is None
+    search2 = D.DelaySearch(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                            max_start_stop=1, movable=ALL, stats=st2)
+    assert search2.straight_phase() is None
+    res2 = search2.detour_phase(futile=True)
+    assert res2.assignment is None
     assert any(e.get("extend") == "futile" for e in st2.log)
     assert all(o.kind == "straight" for opts in res2.options for o in opts)  # no detour round ran
 
 
 def test_cluster_runs_even_when_the_delay_stage_is_out_of_time():
     """A loaded machine can use up the delay stage's share on the straight tables alone: the
-    cluster hook (its own share) still gets the round-0 straight problem and solves the leg."""
+    search still pauses with the round-0 straight problem, and the cluster strategy (its own
+    share) solves the leg from it."""
     import time
 
-    from planner.prioritized import _try_cluster
-
     start, goal = LEG_130
-    calls = []
-    D.plan_delays(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0, max_start_stop=1,
-                  movable=ALL, stats=D.DelayStats(), deadline=time.perf_counter(),
-                  on_straight_fail=lambda s, b: calls.append((s, b)) or "x")
-    assert len(calls) == 1
-    straight, blamed = calls[0]
-    st: dict = {"collision_checks": 0, "states_explored": 0, "attempt_log": []}
-    plan = _try_cluster(INST, GEOMS, start, goal, straight, blamed, ALL, 5.0, 1, st, float("inf"),
-                        params=SearchParams(max_states_per_arm=1500), rparams=RoadmapParams(max_edges_per_path=2),
-                        seed=0)
-    assert plan is not None
-    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+    search = D.DelaySearch(GEOMS, start, goal, dt_s=6.0, dt_col_s=0.1, horizon_s=220.0, buffer_mm=5.0,
+                           max_start_stop=1, movable=ALL, stats=D.DelayStats())
+    assert search.straight_phase(deadline=time.perf_counter()) is None and search.paused
+    out = _cluster(start, goal, search.straight, list(search.blamed))
+    assert isinstance(out, Candidate)
+    assert verify_trajectories(INST, out.trajectories, start, goal, max_start_stop=1).ok
 
 
 def test_long_cluster_plan_gets_a_shorter_search():

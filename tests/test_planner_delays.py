@@ -11,7 +11,6 @@ from models.instrument import default_instrument
 from planner import delays as D
 from planner import plan_motion, stop_count, verify_trajectories
 from planner.geometry import ArmGeom
-from planner.prioritized import _plan_via
 
 INST = default_instrument()
 PARK = INST.park_configuration
@@ -130,17 +129,16 @@ def test_other_direction_resolves_cycle():
 
 
 def test_two_legs_via_a_configuration():
-    """c1 -> via -> c2 as two zero-stop legs (plan_motion's fallback uses via = park): one stop
+    """c1 -> via -> c2 as two zero-stop legs (the driver's fallback uses via = park): one stop
     per moving arm, at via, and the concatenation verified as a whole."""
     inst = INST.with_arms_disabled([k for k in range(12) if k not in ER_ARMS])
     c1, c2 = _goal(ER_START, ER_ARMS), _goal(ER_GOAL, ER_ARMS)
     via = c1.copy()  # arm 0 80 % of the way, arm 3 20 %: collision-free (the midpoint is not)
     via[0] += 0.8 * (c2[0] - c1[0])
     via[3] += 0.2 * (c2[3] - c1[3])
-    stats: dict = {}
-    plan = _plan_via(inst, c1, via, c2, 5.0, 1, dict(dt_s=6.0, dt_col_s=0.1, seed=0, horizon_s=220.0,
-                                                      grid=(8, 6), time_budget_s=5.0), stats)
-    assert plan is not None and plan.status == "ok" and stats["strategy"] == "via"
+    plan = plan_motion(inst, c1, c2, collision_buffer_mm=5.0, max_start_stop=1, strategies=("via",), via=via,
+                       time_budget_s=5.0)
+    assert plan.status == "ok" and plan.stats["strategy"] == "via"
     rep = verify_trajectories(inst, plan.trajectories, c1, c2, exhaustive=True)
     assert rep.ok
     stops = [stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in plan.trajectories]
@@ -150,7 +148,8 @@ def test_two_legs_via_a_configuration():
         tr = plan.trajectories[k]
         at_via = np.isclose(tr.theta1_rad, via[k, 0]) & np.isclose(tr.theta2_rad, via[k, 1])
         assert at_via[1:-1].any()
-    assert _plan_via(inst, PARK, PARK, c2, 5.0, 1, {}, {}) is None  # via == start: not a detour
+    # via == start: not a detour
+    assert plan_motion(inst, PARK, c2, strategies=("via",), via=PARK, time_budget_s=5.0).status == "failed"
 
 
 def test_delay_plans_deterministic():

@@ -1,0 +1,243 @@
+"""Pairwise relative-delay tables of the departure-delay CSP (:mod:`planner.delays`).
+
+For every arm pair and option pair, the set of collision-free *relative* delays
+tau_j - tau_i is computed vectorised (:func:`pair_table`): both motions sampled every
+dt_col, including the rests before departure and after arrival, clearance >= buffer at
+every sample; exact clearances on a coarse sub-grid, the samples in between certified by a
+Lipschitz bound (clearance of two arms changes no faster than the sum of their body-point
+speed bounds) or computed exactly (:func:`_clear`).
+"""
+
+from __future__ import annotations
+
+import math
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.geometry import ArmGeom, body_speed_bound_mm_s, clearance_between
+
+
+@dataclass
+class Option:
+    """One motion of one arm, relative to its departure: way-points at times ``t_rel``."""
+
+    arm: int
+    waypoints: np.ndarray  # (n, 2), theta2 unwrapped, waypoints[0] == start
+    t_rel: np.ndarray  # (n,), t_rel[0] == 0
+    stops: int
+    kind: str  # straight | detour | stay | aside
+    # filled by prepare()
+    samples: np.ndarray | None = None  # (N + 1, 2) every dt_col from departure, last = end
+    seg: tuple[np.ndarray, np.ndarray] | None = None
+    box: np.ndarray | None = None  # (N + 1, 4)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_rel[-1])
+
+    @property
+    def n(self) -> int:
+        return len(self.samples) - 1
+
+
+@dataclass
+class DelayStats:
+    pair_samples: int = 0  # arm-pair x dt_col-sample clearances computed (thesis table 6.2 "checks")
+    nodes: int = 0  # CSP nodes (assignments tried)
+    tables: int = 0
+    repairs: int = 0  # re-check rejections repaired by forbidding the offending relative delay
+    log: list = field(default_factory=list)
+
+
+
+def prepare(option: Option, geom: ArmGeom, dt_col_s: float) -> None:
+    """Sample an option every dt_col from its departure until it rests at its end."""
+    T = option.duration_s
+    n = int(math.ceil(T / dt_col_s - 1e-9)) if T > 0 else 0
+    t = np.minimum(np.arange(n + 1) * dt_col_s, T)
+    q = np.column_stack([np.interp(t, option.t_rel, option.waypoints[:, 0]),
+                         np.interp(t, option.t_rel, option.waypoints[:, 1])])
+    option.samples = q
+    s, e = geom.segments(q[:, 0], q[:, 1])
+    option.seg = (s, e)
+    r = geom.radius[None, :, None]
+    lo = np.minimum(s, e) - r
+    hi = np.maximum(s, e) + r
+    option.box = np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
+
+
+def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
+    return ((ba[..., 0] - pad <= bb[..., 2]) & (bb[..., 0] - pad <= ba[..., 2])
+            & (ba[..., 1] - pad <= bb[..., 3]) & (bb[..., 1] - pad <= ba[..., 3]))
+
+
+def _box_gap(ba: np.ndarray, bb: np.ndarray) -> np.ndarray:
+    """Lower bound of the clearance of two arms from their (radius-padded) bounding boxes."""
+    gx = np.maximum(ba[..., 0] - bb[..., 2], bb[..., 0] - ba[..., 2])
+    gy = np.maximum(ba[..., 1] - bb[..., 3], bb[..., 1] - ba[..., 3])
+    return np.maximum(gx, gy)
+
+
+def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib: np.ndarray,
+           pos: np.ndarray, last: np.ndarray, lip_mm: float, thr: float, stats: DelayStats,
+           stride: int = 10) -> np.ndarray:
+    """True where option a at sample ia and option b at sample ib keep clearance >= thr.
+
+    The pairs form sequences consecutive in time (``pos`` the position in its sequence,
+    ``last`` the sequence's last position); clearance changes by at most ``lip_mm`` per
+    sample. Exact clearances are computed on every ``stride``-th sample (or a bounding-box
+    lower bound where that is far enough); a sample within Lipschitz reach of a certified
+    coarse neighbour is certified, the rest are computed exactly.
+    """
+    n = len(ia)
+    ok = np.ones(n, bool)
+    if n == 0:
+        return ok
+    sa, ea = oa.seg
+    sb, eb = ob.seg
+
+    def exact(idx: np.ndarray) -> np.ndarray:
+        c = _box_gap(oa.box[ia[idx]], ob.box[ib[idx]])
+        need = np.flatnonzero(c < thr + lip_mm * stride)
+        if len(need):
+            j = idx[need]
+            c[need] = clearance_between(sa[ia[j]], ea[ia[j]], ga.radius, sb[ib[j]], eb[ib[j]], gb.radius)
+            stats.pair_samples += len(need)
+        return c
+
+    r = pos % stride
+    coarse = (r == 0) | (pos == last)
+    c = np.full(n, np.nan)
+    ci = np.flatnonzero(coarse)
+    c[ci] = exact(ci)
+    fine = np.flatnonzero(~coarse)
+    if len(fine):
+        e_prev = fine - r[fine]
+        e_next = fine + np.minimum(stride - r[fine], last[fine] - pos[fine])
+        lb = np.maximum(c[e_prev] - lip_mm * r[fine], c[e_next] - lip_mm * (e_next - fine))
+        unsure = fine[lb < thr]
+        if len(unsure):
+            c[unsure] = exact(unsure)
+        ok[fine] = (lb >= thr)
+        ok[unsure] = c[unsure] >= thr
+    ok[ci] = c[ci] >= thr
+    return ok
+
+
+def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int, thr: float,
+               lip: tuple[float, float], stats: DelayStats) -> np.ndarray:
+    """ok[k + K] for relative delays k in [-K, K] (b departs k dt after a), both arms resting
+    at their starts before departure and at their ends after arrival."""
+    Na, Nb = oa.n, ob.n
+    la, lb = lip
+    ar_a, ar_b = np.arange(Na + 1), np.arange(Nb + 1)
+    fa, fb = np.full(Na + 1, Na), np.full(Nb + 1, Nb)
+    # a moving vs b at rest at its start / end, and b moving vs a at rest
+    a_bs = _clear(oa, ga, ar_a, ob, gb, np.zeros(Na + 1, int), ar_a, fa, la, thr, stats)
+    a_be = _clear(oa, ga, ar_a, ob, gb, fb[:1].repeat(Na + 1), ar_a, fa, la, thr, stats)
+    b_as = _clear(ob, gb, ar_b, oa, ga, np.zeros(Nb + 1, int), ar_b, fb, lb, thr, stats)
+    b_ae = _clear(ob, gb, ar_b, oa, ga, fa[:1].repeat(Nb + 1), ar_b, fb, lb, thr, stats)
+    cs = lambda ok: np.concatenate([[0], np.cumsum(~ok)])  # noqa: E731 - prefix counts of bad samples
+    c_a_bs, c_a_be, c_b_as, c_b_ae = cs(a_bs), cs(a_be), cs(b_as), cs(b_ae)
+
+    def bad(c: np.ndarray, lo: int, hi: int) -> bool:  # any bad sample in [lo, hi]
+        lo, hi = max(lo, 0), min(hi, len(c) - 2)
+        return hi >= lo and c[hi + 1] - c[lo] > 0
+
+    ks = np.arange(-K, K + 1)
+    ok = np.ones(2 * K + 1, bool)
+    # moving-moving diagonals a - b = M k
+    kmin, kmax = max(-K, -(Nb // M) - 1), min(K, Na // M + 1)
+    ia_l, ib_l, kk_l, pos_l, last_l = [], [], [], [], []
+    for k in range(kmin, kmax + 1):
+        a0, a1 = max(0, M * k), min(Na, Nb + M * k)
+        if a1 < a0:
+            continue
+        a = np.arange(a0, a1 + 1)
+        ia_l.append(a)
+        ib_l.append(a - M * k)
+        kk_l.append(np.full(len(a), k + K))
+        pos_l.append(a - a0)
+        last_l.append(np.full(len(a), a1 - a0))
+    if ia_l:
+        ia, ib, kk = np.concatenate(ia_l), np.concatenate(ib_l), np.concatenate(kk_l)
+        mm = _clear(oa, ga, ia, ob, gb, ib, np.concatenate(pos_l), np.concatenate(last_l), la + lb, thr, stats)
+        badk = np.bincount(kk[~mm], minlength=2 * K + 1) > 0
+        ok &= ~badk
+    for idx, k in enumerate(ks):
+        if not ok[idx]:
+            continue
+        Mk = M * int(k)
+        if (bad(c_a_bs, 0, Mk - 1) or bad(c_a_be, Nb + Mk + 1, Na)
+                or bad(c_b_as, 0, -Mk - 1) or bad(c_b_ae, Na - Mk + 1, Nb)):
+            ok[idx] = False
+    stats.tables += 1
+    return ok
+
+
+@dataclass
+class DelayProblem:
+    """Options per arm and pairwise tables tab[(i, j)][p_i, p_j, k + K] (i != j, both orders)."""
+
+    options: list[list[Option]]
+    K: int  # horizon in dt steps
+    dt_s: float
+    horizon_s: float
+    tables: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)
+    neighbours: list[list[int]] = field(default_factory=list)
+
+
+def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float, dt_col_s: float,
+                  horizon_s: float, buffer_mm: float, stats: DelayStats,
+                  old: DelayProblem | None = None, margin_mm: float = 0.0,
+                  deadline: float | None = None) -> DelayProblem | None:
+    """Pairwise relative-delay tables of every arm pair whose options can come close.
+
+    With ``old`` (same arms, options extended by appending), tables of option pairs already
+    computed are reused.
+    """
+    n = len(options)
+    M = max(1, int(round(dt_s / dt_col_s)))
+    K = int(math.floor(horizon_s / dt_s + 1e-9))
+    for k in range(n):
+        for o in options[k]:
+            if o.samples is None:
+                prepare(o, geoms[k], dt_col_s)
+    vmax = [body_speed_bound_mm_s(g, g.v1_max, g.v2_max) for g in geoms]
+    prob = DelayProblem(options, K, dt_s, horizon_s, {}, [[] for _ in range(n)])
+    arm_box = []
+    for k in range(n):
+        b = np.concatenate([o.box for o in options[k]])
+        arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
+    for i in range(n):
+        if deadline is not None and _time.perf_counter() > deadline:
+            return None  # out of time: the caller falls back
+        for j in range(i + 1, n):
+            if deadline is not None and _time.perf_counter() > deadline:
+                return None
+            if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
+                continue
+            thr = buffer_mm + margin_mm
+            lip = (vmax[i] * dt_col_s, vmax[j] * dt_col_s)
+            Pi, Pj = len(options[i]), len(options[j])
+            tab = np.ones((Pi, Pj, 2 * K + 1), bool)
+            prev = old.tables.get((i, j)) if old is not None else None
+            for a in range(Pi):
+                # detour options multiply the option pairs of one arm pair: honour the
+                # deadline inside a pair too, or one crowded pair overruns the whole budget
+                if a and deadline is not None and _time.perf_counter() > deadline:
+                    return None
+                for b in range(Pj):
+                    if prev is not None and a < prev.shape[0] and b < prev.shape[1]:
+                        tab[a, b] = prev[a, b]
+                    else:
+                        tab[a, b] = pair_table(options[i][a], geoms[i], options[j][b], geoms[j], M, K, thr, lip, stats)
+            if tab.all():
+                continue
+            prob.tables[(i, j)] = tab
+            prob.tables[(j, i)] = tab.transpose(1, 0, 2)[:, :, ::-1]
+            prob.neighbours[i].append(j)
+            prob.neighbours[j].append(i)
+    return prob

@@ -1,0 +1,237 @@
+"""The motion-planning driver: strategies tried in order, one verifier at the exit (thesis 6.3).
+
+:func:`plan_motion` builds the options (:class:`planner.options.MotionOptions`) and the leg
+(:class:`planner.strategy.Leg`) once, rejects unplannable ends (6.3.1 assumes feasible
+ends), then tries the strategies (:mod:`planner.strategies`) in this order:
+
+1. "delays": straight zero-stop moves with departure delays; when every straight option
+   fails, "cluster" (with ``max_start_stop`` >= 1): state-time detours for the smallest
+   conflicting arm set; then "detours": the delay CSP's one-stop detour rounds;
+2. "prioritized" when "forward" / "reverse" are named: thesis Algorithm 6 with priority
+   rotation and time reversal;
+3. any other registered strategy named in ``strategies``, in the given order;
+4. "via" (when named, or after the prioritized strategy when ``via`` is set): two zero-stop
+   legs through park or another configuration.
+
+Every candidate goes through :func:`planner.verify.verify_trajectories` exactly once; a
+rejected candidate is logged in ``stats["attempt_log"]`` and the next strategy is tried.
+A verified plan from a strategy of :data:`planner.options.SHORTER_SEARCH_AFTER` longer
+than ``CLUSTER_MAKESPAN_RATIO`` x the lower bound lets the prioritized strategy try for a
+shorter one with part of the remaining budget; the shorter verified plan is kept. The
+budget shares are those of :mod:`planner.options`.
+
+Only the driver imports the verifier. Unplannable input fails fast with status "failed";
+only malformed input raises :class:`models.errors.InputError`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+import planner.strategies  # noqa: F401 - registers the strategies
+from models.instrument import Instrument
+from models.types import ArmTrajectory, MotionPlan
+from planner import options as sh
+from planner.options import DEFAULT_STRATEGIES, MotionOptions
+from planner.strategy import (
+    STRATEGIES,
+    Budget,
+    Candidate,
+    Leg,
+    Refusal,
+    Strategy,
+    merge_stats,
+    stage_budget,
+    unplannable,
+)
+from planner.verify import verify_trajectories
+
+PRIORITIZED_NAMES = ("forward", "reverse", "prioritized")
+
+
+def strategy_sequence(options: MotionOptions) -> list[Strategy]:
+    """The strategies of ``options.strategies`` in the driver's order (module docstring)."""
+    names = options.strategies
+    seq: list[Strategy] = []
+    if "delays" in names:
+        seq += [STRATEGIES["delays"]] + ([STRATEGIES["cluster"]] if "cluster" in names else [])
+        seq.append(STRATEGIES["detours"])
+    prio = any(n in names for n in PRIORITIZED_NAMES)
+    if prio:
+        seq.append(STRATEGIES["prioritized"])
+    for n in dict.fromkeys(names):
+        if n not in ("delays", "cluster", "via") + PRIORITIZED_NAMES:
+            seq.append(STRATEGIES[n])
+    if "via" in names or (prio and options.via is not None):
+        seq.append(STRATEGIES["via"])
+    return seq
+
+
+def failed_plan(leg: Leg, arms: Sequence[int], stats: dict) -> MotionPlan:
+    """Status "failed": every arm resting at its start, ``arms`` named."""
+    q = leg.start_q
+    trajs = tuple(ArmTrajectory(k, np.array([0.0]), q[k, :1].copy(), q[k, 1:].copy()) for k in range(leg.n_arms))
+    return MotionPlan("failed", float("nan"), trajs, tuple(sorted({int(a) for a in arms})), stats)
+
+
+def _verify(leg: Leg, cand: Candidate, stats: dict):
+    """The one verification of a candidate; the result stamped on its attempt-log entry."""
+    rep = verify_trajectories(leg.instrument, cand.trajectories, leg.start_q, leg.goal_q,
+                              collision_buffer_mm=leg.buffer_mm, max_start_stop=leg.options.max_start_stop)
+    log = stats.setdefault("attempt_log", [])
+    if not cand.stats.get("attempt_log"):
+        log.append({"direction": cand.strategy})
+    log[-1]["verified"] = rep.ok
+    stats["verify_pair_samples"] = rep.pair_samples_checked
+    if rep.ok:
+        stats["strategy"] = cand.strategy
+        stats["min_clearance_mm"] = rep.min_clearance_mm
+    else:
+        log[-1]["violations"] = [(v.kind, v.arms, v.detail) for v in rep.violations[:5]]
+    return rep
+
+
+def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
+    """The driver's "keep the shorter plan" policy after a long verified candidate."""
+    o = leg.options
+    if not (cand.strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse"))
+            and leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S
+            and cand.makespan_s > sh.CLUSTER_MAKESPAN_RATIO * leg.lower_bound_s):
+        return None
+    opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
+    alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
+                  leg.lower_bound_s, dataclasses.replace(leg.cache))
+    t_a = time.perf_counter()
+    frac, _ = sh.SHORTER_SEARCH_SHARE
+    out = STRATEGIES["prioritized"].plan(alt_leg, budget.share(frac, budget.left_s()))
+    alt_stats = merge_stats({}, out.stats)
+    ok = isinstance(out, Candidate) and _verify(alt_leg, out, alt_stats).ok
+    stats["cluster_makespan_s"] = cand.makespan_s
+    stats["shorter_search"] = {"status": "ok" if ok else "failed", "makespan_s": out.makespan_s if ok else math.nan,
+                               "compute_s": time.perf_counter() - t_a}
+    if ok and out.makespan_s < cand.makespan_s:
+        merge_stats(stats, alt_stats)
+        return MotionPlan("ok", float(out.makespan_s), out.trajectories, (), stats)
+    return None
+
+
+def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = None) -> MotionPlan:
+    """Plan one leg: precheck, the strategies in order, each candidate verified once."""
+    t0 = time.perf_counter()
+    stats: dict = {"lower_bound_s": leg.lower_bound_s, "attempts": 0, "collision_checks": 0,
+                   "states_explored": 0, "paths_explored": 0, "attempt_log": []}
+    reasons = unplannable(leg)
+    if reasons:
+        stats["reasons"] = {int(k): v for k, v in reasons.items()}
+        stats["compute_s"] = time.perf_counter() - t0
+        return failed_plan(leg, list(reasons), stats)
+    refusal: Refusal | None = None
+    rejected: tuple[tuple[int, ...], dict[int, str]] | None = None
+    for strategy in strategy_sequence(leg.options) if sequence is None else sequence:
+        out = strategy.plan(leg, stage_budget(strategy.name, leg, budget))
+        merge_stats(stats, out.stats)
+        if isinstance(out, Refusal):
+            if out.arms:
+                refusal = out
+            if out.final:
+                break
+            continue
+        rep = _verify(leg, out, stats)
+        if rep.ok:
+            plan = _shorter(leg, out, budget, stats) or MotionPlan("ok", float(out.makespan_s), out.trajectories, (),
+                                                                    stats)
+            stats["compute_s"] = time.perf_counter() - t0
+            return plan
+        kind = rep.violations[0].kind if rep.violations else "unknown"
+        rejected = (rep.arms, {int(a): "verification failed: " + kind for a in rep.arms})
+    if refusal is not None:
+        arms, why = refusal.arms, refusal.reasons
+    elif rejected is not None:
+        arms, why = rejected
+    else:
+        arms, why = tuple(leg.enabled), {int(a): "no strategy left" for a in leg.enabled}
+    stats["reasons"] = {int(a): why.get(a, "not planned") for a in arms}
+    stats["compute_s"] = time.perf_counter() - t0
+    return failed_plan(leg, arms, stats)
+
+
+def plan_motion(
+    instrument: Instrument,
+    start_q: np.ndarray,
+    goal_q: np.ndarray,
+    *,
+    dt_s: float = 6.0,
+    dt_col_s: float = 0.1,
+    max_start_stop: int = 1,
+    collision_buffer_mm: float | None = None,
+    seed: int = 0,
+    horizon_s: float = 220.0,
+    max_attempts: int = 10,
+    time_budget_s: float = 10.0,
+    grid: tuple[int, int] = (8, 6),
+    strategies: Sequence[str] = DEFAULT_STRATEGIES,
+    rpp: bool = False,
+    rpp_max_paths: int = 8,
+    turn_sense: int = 1,
+    turn_bias_s: float = 0.0,
+    via: np.ndarray | None | str = "park",
+    options: MotionOptions | None = None,
+) -> MotionPlan:
+    """Collision-free, verified trajectories of all arms from ``start_q`` to ``goal_q`` (thesis 6.3).
+
+    ``start_q`` / ``goal_q`` are (n_arms, 2) joint angles (theta1, theta2) in rad; the
+    start's theta2 may be unwrapped (continuing a previous trajectory), the goal's counts
+    modulo 2 pi. Returns a :class:`~models.types.MotionPlan`: per arm timed way-points
+    (linear joint motion between them; the MCC2 really executes each move as a trapezoidal
+    LSPB profile from rest to rest) and controller commands per joint. ``status`` is "ok"
+    only when the independent verifier passed; "failed" plans name ``failed_arms`` and give
+    reasons in ``stats["reasons"]`` (never an exception for an unplannable case).
+
+    The keywords are the fields of :class:`~planner.options.MotionOptions` (thesis table
+    6.1: ``dt_s`` the motion-action step, ``dt_col_s`` the collision-check step,
+    ``max_start_stop`` the stops allowed per arm, ``horizon_s`` T_f); ``options``, when
+    given, replaces them all. ``time_budget_s`` is shared by the strategies (module
+    docstring). Same input and ``seed`` -> same plan.
+    """
+    if options is None:
+        options = MotionOptions(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
+                                collision_buffer_mm=collision_buffer_mm, seed=seed, horizon_s=horizon_s,
+                                max_attempts=max_attempts, grid=grid, strategies=tuple(strategies), rpp=rpp,
+                                rpp_max_paths=rpp_max_paths, turn_sense=turn_sense, turn_bias_s=turn_bias_s,
+                                via=via)
+    budget = Budget.of(time_budget_s)
+    return plan_leg(Leg.build(instrument, start_q, goal_q, options), budget)
+
+
+def plan_chain(instrument: Instrument, configurations: Sequence[np.ndarray], *,
+               start_q: np.ndarray | None = None, end_q: np.ndarray | None = None,
+               **kwargs) -> list[MotionPlan]:
+    """Plans park -> c1 -> c2 -> ... -> park (one :class:`MotionPlan` per leg, len = len(configs) + 1).
+
+    ``start_q`` / ``end_q`` default to the park configuration. Each leg starts where the
+    previous one really ended (theta2 unwrapped); after a failed leg the next one starts
+    from that leg's intended goal (the arms must be brought there by other means first).
+    ``kwargs`` go to :func:`plan_motion`.
+    """
+    park = instrument.park_configuration
+    seq = [park if start_q is None else np.asarray(start_q, float)]
+    seq += [np.asarray(c, float) for c in configurations]
+    seq.append(park if end_q is None else np.asarray(end_q, float))
+    out = []
+    cur = seq[0]
+    for goal in seq[1:]:
+        p = plan_motion(instrument, cur, goal, **kwargs)
+        out.append(p)
+        if p.status == "ok":
+            cur = np.array([[tr.theta1_rad[-1], tr.theta2_rad[-1]] for tr in p.trajectories])
+        else:
+            cur = goal
+    return out
+
+
+__all__ = ["plan_motion", "plan_chain", "plan_leg", "strategy_sequence", "failed_plan"]

@@ -1,0 +1,147 @@
+"""Planning options of one leg (thesis table 6.1) and the budget shares of the strategies.
+
+:class:`MotionOptions` holds every option of :func:`planner.driver.plan_motion` except the
+time budget; it is validated once, when built, and shared read-only by the driver and
+the strategies. The budget shares below are the only place where the strategies' parts of
+a leg's time budget are set.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.errors import InputError
+
+# Budget shares, as (fraction of the leg's time budget, cap in s).
+# the departure-delay CSP's straight moves and detour rounds together
+DELAY_SHARE = (0.3, 3.0)
+# the cluster strategy, its own share, counted from when it starts
+CLUSTER_SHARE = (0.25, 2.5)
+# the detour rounds after a cluster strategy that found nothing: they rarely succeed where it
+# failed, so they get at most this much more; the rest goes to the prioritized strategy
+DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
+# kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it
+VIA_RESERVE_SHARE = (0.15, 1.5)
+# each leg of the "via" fallback gets at least this budget
+VIA_MIN_BUDGET_S = 0.5
+# a plan longer than CLUSTER_MAKESPAN_RATIO x the lower bound from one of these strategies lets
+# the driver run the prioritized strategy (at most SHORTER_SEARCH_ATTEMPTS attempts, this share
+# of the budget, if at least SHORTER_SEARCH_MIN_LEFT_S is left) and keep the shorter verified plan
+SHORTER_SEARCH_AFTER = ("cluster",)
+CLUSTER_MAKESPAN_RATIO = 1.25
+SHORTER_SEARCH_SHARE = (0.3, math.inf)
+SHORTER_SEARCH_ATTEMPTS = 2
+SHORTER_SEARCH_MIN_LEFT_S = 1.0
+
+DEFAULT_STRATEGIES = ("delays", "cluster", "forward", "reverse")
+# names with a fixed place in the order (planner.driver.strategy_sequence); others are looked up
+# in the registry (planner.strategy.STRATEGIES)
+BUILTIN_NAMES = ("delays", "cluster", "forward", "reverse", "via")
+
+
+@dataclass(frozen=True, eq=False)
+class MotionOptions:
+    """Every planning option of a leg (thesis table 6.1 and the strategy settings).
+
+    ``dt_s`` the motion-action step, ``dt_col_s`` the collision-check step (a sub-multiple of
+    ``dt_s``), ``max_start_stop`` the stops allowed per arm, ``horizon_s`` T_f,
+    ``collision_buffer_mm`` the clearance (None: the instrument's), ``max_attempts`` the
+    prioritized planning attempts, ``grid`` the roadmap grid (thesis fig. 6.8),
+    ``strategies`` the strategy names in order, ``rpp`` revised prioritized planning with
+    ``rpp_max_paths`` roadmap paths, ``turn_sense`` / ``turn_bias_s`` the roadmap's preferred
+    theta2 sense, ``via`` the configuration of the two-leg fallback ("park", an
+    (n_arms, 2) array or None). Same options and ``seed`` -> same plan.
+    """
+
+    dt_s: float = 6.0
+    dt_col_s: float = 0.1
+    max_start_stop: int = 1
+    collision_buffer_mm: float | None = None
+    seed: int = 0
+    horizon_s: float = 220.0
+    max_attempts: int = 10
+    grid: tuple[int, int] = (8, 6)
+    strategies: tuple[str, ...] = DEFAULT_STRATEGIES
+    rpp: bool = False
+    rpp_max_paths: int = 8
+    turn_sense: int = 1
+    turn_bias_s: float = 0.0
+    via: np.ndarray | str | None = "park"
+
+    def __post_init__(self) -> None:
+        dt, dtc = self.dt_s, self.dt_col_s
+        if not (_real(dt) and _real(dtc) and dt > 0 and dtc > 0 and math.isfinite(dt) and math.isfinite(dtc)):
+            raise InputError("dt_s", "dt_s and dt_col_s must be positive")
+        m = max(1, int(round(dt / dtc)))
+        if abs(m * dtc - dt) > 1e-6 * dt:
+            raise InputError("dt_col_s", "must divide dt_s into a whole number of collision steps")
+        self._int("max_start_stop", 0, "must be >= 0")
+        b = self.collision_buffer_mm
+        if b is not None and not (_real(b) and math.isfinite(b) and b >= 0):
+            raise InputError("collision_buffer_mm", "must be a finite number >= 0 (or None)")
+        self._int("seed", None, "must be an integer")
+        if not (_real(self.horizon_s) and math.isfinite(self.horizon_s) and self.horizon_s > 0):
+            raise InputError("horizon_s", "must be a positive number of seconds")
+        self._int("max_attempts", 0, "must be an integer >= 0")
+        grid = tuple(self.grid) if isinstance(self.grid, (tuple, list)) else ()
+        if len(grid) != 2 or not all(_integer(g) and g >= 1 for g in grid):
+            raise InputError("grid", "must be two positive integers (theta1, theta2 vertices)")
+        object.__setattr__(self, "grid", (int(grid[0]), int(grid[1])))
+        self._check_strategies()
+        self._int("rpp_max_paths", 1, "must be an integer >= 1")
+        if self.turn_sense not in (1, -1):
+            raise InputError("turn_sense", "must be 1 or -1")
+        if not (_real(self.turn_bias_s) and math.isfinite(self.turn_bias_s)):
+            raise InputError("turn_bias_s", "must be a finite number of seconds")
+        self._check_via()
+
+    def _int(self, name: str, minimum: int | None, message: str) -> None:
+        v = getattr(self, name)
+        if not (_integer(v) or (_real(v) and math.isfinite(v) and float(v).is_integer())):
+            raise InputError(name, message)
+        if minimum is not None and v < minimum:
+            raise InputError(name, message)
+        object.__setattr__(self, name, int(v))
+
+    def _check_strategies(self) -> None:
+        s = self.strategies
+        if isinstance(s, str) or not all(isinstance(x, str) for x in s):
+            raise InputError("strategies", "must be a sequence of strategy names")
+        s = tuple(s)
+        from planner.strategy import STRATEGIES  # the registry, filled by planner.strategies
+
+        bad = [x for x in s if x not in BUILTIN_NAMES and x not in STRATEGIES]
+        if bad:
+            raise InputError("strategies", f"unknown strategy {bad[0]!r}")
+        object.__setattr__(self, "strategies", s)
+
+    def _check_via(self) -> None:
+        v = self.via
+        if v is None or (isinstance(v, str) and v == "park"):
+            return
+        if isinstance(v, str):
+            raise InputError("via", "must be 'park', a configuration or None")
+        a = np.asarray(v, dtype=float)
+        if a.ndim != 2 or a.shape[1] != 2 or not np.all(np.isfinite(a)):
+            raise InputError("via", "must be a finite (n_arms, 2) configuration")
+        object.__setattr__(self, "via", a)
+
+    @property
+    def collision_steps(self) -> int:
+        """dt_col samples per motion step (m = dt / dt_col)."""
+        return max(1, int(round(self.dt_s / self.dt_col_s)))
+
+    @property
+    def horizon_steps(self) -> int:
+        return max(1, math.ceil(self.horizon_s / self.dt_s - 1e-9))
+
+
+def _real(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool)
+
+
+def _integer(x) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)

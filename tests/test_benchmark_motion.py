@@ -1,0 +1,192 @@
+"""benchmarks/motion.py: the thesis 6.4.2 protocol plans the allocator's own configurations."""
+
+from __future__ import annotations
+
+import json
+import types
+
+import numpy as np
+
+from benchmarks import motion
+from models.instrument import default_instrument
+from models.types import ArmTrajectory, MotionPlan
+from planner.sequence import PlanChange, SequenceOptions, SequencePlan
+
+INST = default_instrument()
+PARK_Q = INST.park_configuration
+
+
+class AllocateRecorder:
+    """Wraps the real allocator: records every call and the result it returned."""
+
+    def __init__(self, real):
+        self.real = real
+        self.calls: list[dict] = []
+
+    def __call__(self, instrument, targets, *, method, solver, configurations, time_limit_s, seed):
+        result = self.real(instrument, targets, method=method, solver=solver,
+                           configurations=configurations, time_limit_s=time_limit_s, seed=seed)
+        options = {"method": method, "solver": solver, "configurations": configurations}
+        self.calls.append({"options": options, "n_targets": len(targets.ids), "result": result})
+        return result
+
+
+class PlanMotionRecorder:
+    """A cheap stand-in for plan_motion: straight 1 s moves, always "ok"."""
+
+    def __init__(self):
+        self.legs: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def __call__(self, instrument, start_q, goal_q, *, seed, time_budget_s):
+        start_q, goal_q = np.array(start_q, float), np.array(goal_q, float)
+        self.legs.append((start_q, goal_q))
+        trajectories = tuple(
+            ArmTrajectory(k, np.array([0.0, 1.0]), np.array([start_q[k, 0], goal_q[k, 0]]),
+                          np.array([start_q[k, 1], goal_q[k, 1]]))
+            for k in range(instrument.n_arms))
+        return MotionPlan("ok", 1.0, trajectories, (), {"lower_bound_s": 1.0, "strategy": "fake"})
+
+
+def run_with_recorders(monkeypatch, argv: list[str]) -> tuple[dict, AllocateRecorder,
+                                                               PlanMotionRecorder]:
+    alloc = AllocateRecorder(motion.allocate)
+    plan = PlanMotionRecorder()
+    monkeypatch.setattr(motion, "allocate", alloc)
+    monkeypatch.setattr(motion, "plan_motion", plan)
+    monkeypatch.setattr(motion, "sequence_module", types.SimpleNamespace())  # no plan_sequence
+    return motion.main(argv), alloc, plan
+
+
+def expected_goals(calls: list[dict], max_configurations: int | None) -> list[np.ndarray]:
+    goals = []
+    for call in calls:
+        configurations = call["result"].configurations[:max_configurations]
+        goals.extend([c.q for c in configurations] + [PARK_Q])
+    return goals
+
+
+def test_thesis_protocol_plans_the_allocators_configurations(monkeypatch):
+    out, alloc, plan = run_with_recorders(
+        monkeypatch, ["--fields", "2", "--targets", "30", "--methods", "ilp,semigreedy",
+                      "--alloc-time-limit", "10"])
+    assert [c["options"]["method"] for c in alloc.calls] == ["ilp", "ilp", "semigreedy", "semigreedy"]
+    assert all(c["options"]["configurations"] == "all" for c in alloc.calls)
+    assert all(c["options"]["solver"] == "bnb" and c["n_targets"] == 30 for c in alloc.calls)
+    goals = expected_goals(alloc.calls, None)
+    assert len(goals) > len(alloc.calls) * 2  # several configurations per field
+    assert len(plan.legs) == len(goals)
+    for (_, got), want in zip(plan.legs, goals, strict=True):
+        np.testing.assert_array_equal(got, want)
+    # each field starts at park; each leg starts where the previous one ended
+    starts = [s for s, _ in plan.legs]
+    field_starts = np.cumsum([0] + [len(c["result"].configurations) + 1 for c in alloc.calls])[:-1]
+    for i, (start, (_, prev_goal)) in enumerate(zip(starts[1:], plan.legs[:-1], strict=True), 1):
+        np.testing.assert_array_equal(start, PARK_Q if i in field_starts else prev_goal)
+    np.testing.assert_array_equal(starts[0], PARK_Q)
+    legs = out["methods"]["ilp"]["legs"]
+    n_conf = [len(c["result"].configurations) for c in alloc.calls[:2]]
+    assert legs["park_to_configuration"]["legs"] == 2
+    assert legs["to_park"]["legs"] == 2
+    assert legs["chained"]["legs"] == sum(n - 1 for n in n_conf)
+    assert legs["chained"]["strategy_counts"] == {"fake": sum(n - 1 for n in n_conf)}
+    assert out["methods"]["ilp"]["whole_field"]["planner_alone"]["share"] == 1.0
+    assert out["methods"]["ilp"]["whole_field"]["plan_sequence"] == {"available": False}
+
+
+def test_max_configurations_keeps_the_first_configurations_and_the_return_to_park(monkeypatch):
+    _, alloc, plan = run_with_recorders(
+        monkeypatch, ["--fields", "1", "--targets", "40", "--methods", "semigreedy",
+                      "--max-configurations", "2"])
+    assert len(alloc.calls) == 1 and alloc.calls[0]["options"]["configurations"] == "all"
+    goals = expected_goals(alloc.calls, 2)
+    assert len(goals) == 3
+    for (_, got), want in zip(plan.legs, goals, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_field_generator_priority_mix_and_clustering():
+    rng = np.random.default_rng(5)
+    uniform = motion.make_field(2000, None, rng)
+    shares = {p: float(np.mean(uniform.priority == p)) for p in motion.PRIORITY_VALUES}
+    for p, share in zip(motion.PRIORITY_VALUES, motion.PRIORITY_SHARES, strict=True):
+        assert abs(shares[p] - share) < 0.03, (p, shares[p])
+    radius_mm = {}
+    for sigma_mm in (40.0, 60.0, 90.0, None):
+        f = motion.make_field(2000, sigma_mm, np.random.default_rng(6))
+        r_mm = np.hypot(f.x_mm, f.y_mm)
+        assert r_mm.max() <= motion.FOV_RADIUS_MM + 1e-9
+        radius_mm[sigma_mm] = float(np.median(r_mm))
+    assert radius_mm[40.0] < radius_mm[60.0] < radius_mm[90.0] < radius_mm[None]
+
+
+def test_thesis_fields_cycle_shapes_and_are_seeded():
+    shapes = [motion.thesis_field(20, 0, i)[0] for i in range(5)]
+    assert shapes == ["uniform", "gauss40", "gauss60", "gauss90", "uniform"]
+    a, b = motion.thesis_field(50, 3, 2)[1], motion.thesis_field(50, 3, 2)[1]
+    np.testing.assert_array_equal(a.x_mm, b.x_mm)
+    np.testing.assert_array_equal(a.priority, b.priority)
+    assert not np.array_equal(a.x_mm, motion.thesis_field(50, 3, 6)[1].x_mm)
+
+
+def test_smoke_output_has_the_reported_keys(tmp_path, capsys):
+    out_file, legs_file = tmp_path / "motion.json", tmp_path / "legs.npz"
+    out = motion.main(["--smoke", "--fields", "1", "--targets", "40", "--max-configurations", "1",
+                       "--methods", "ilp", "--out", str(out_file), "--save-legs", str(legs_file)])
+    assert json.loads(capsys.readouterr().out) == json.loads(out_file.read_text())
+    for key in ("parameters", "commit", "load_average_start", "load_average_end", "wall_s"):
+        assert key in out
+    assert out["protocol"] == "thesis" and out["parameters"]["leg_budget_s"] == 3.0
+    legs = out["methods"]["ilp"]["legs"]
+    assert set(legs) == {"park_to_configuration", "chained", "to_park"}
+    assert legs["park_to_configuration"]["legs"] == 1 and legs["to_park"]["legs"] == 1
+    assert legs["chained"]["legs"] == 0
+    for key in ("success_rate", "compute_s_median", "compute_s_p90", "compute_s_p99",
+                "compute_s_max", "makespan_s_median", "makespan_over_lower_bound_median",
+                "makespan_over_lower_bound_p90", "makespan_le_120s_rate", "stops_per_arm_max",
+                "stops_per_arm_mean", "strategy_counts", "failed_legs"):
+        assert key in legs["to_park"]
+    whole = out["methods"]["ilp"]["whole_field"]
+    assert whole["planner_alone"]["fields"] == 1
+    assert "available" in whole["plan_sequence"]
+    n_failed = sum(len(s["failed_legs"]) for s in legs.values())
+    saved = np.load(legs_file)
+    assert saved["start_q"].shape == (n_failed, INST.n_arms, 2)
+    assert saved["goal_q"].shape == (n_failed, INST.n_arms, 2)
+
+
+class PlanSequenceRecorder:
+    """A stand-in for planner.sequence.plan_sequence: one leg through park, two moved targets
+    and one added configuration per field; every other field not executable."""
+
+    def __init__(self):
+        self.calls: list[tuple[tuple, object]] = []
+
+    def __call__(self, instrument, configurations, *, options):
+        self.calls.append((tuple(configurations), options))
+        ok = MotionPlan("ok", 1.0, (), (), {})
+        failed = MotionPlan("failed", float("nan"), (), (3,), {})
+        changes = (PlanChange("via_park", 1, None, (), (), "test"),
+                   PlanChange("moved_target", 1, 0, (3,), ("t1", "t2"), "test"))
+        final = (*configurations, configurations[0])
+        last = ok if len(self.calls) % 2 else failed
+        return SequencePlan(final, (ok,) * len(final) + (last,), changes)
+
+
+def test_plan_sequence_section_counts_changes(monkeypatch):
+    fake = PlanSequenceRecorder()
+    namespace = types.SimpleNamespace(plan_sequence=fake, SequenceOptions=SequenceOptions)
+    monkeypatch.setattr(motion, "sequence_module", namespace)
+    monkeypatch.setattr(motion, "plan_motion", PlanMotionRecorder())
+    alloc = AllocateRecorder(motion.allocate)
+    monkeypatch.setattr(motion, "allocate", alloc)
+    out = motion.main(["--fields", "2", "--targets", "30", "--methods", "semigreedy",
+                       "--max-configurations", "2", "--leg-budget", "4"])
+    seq = out["methods"]["semigreedy"]["whole_field"]["plan_sequence"]
+    assert seq["available"] is True and seq["fields"] == 2
+    assert seq["fields_executable"] == 1 and seq["fields_not_executable"] == [1]
+    assert seq["changes_by_kind"] == {"moved_target": 2, "via_park": 2}
+    assert seq["targets_moved"] == 4 and seq["legs_through_park"] == 2
+    assert seq["configurations_added"] == 2
+    for (configurations, options), call in zip(fake.calls, alloc.calls, strict=True):
+        assert configurations == call["result"].configurations[:2]
+        assert options.seed == 0 and options.leg_time_limit_s == 4.0
