@@ -364,7 +364,7 @@ def unallocated_out(u: Any) -> dict[str, Any]:
 
 
 def _check_motion() -> None:
-    _domain("motion planning", "planner", "plan_motion", "verify_trajectories")
+    _domain("motion planning", "planner", "plan_motion")
 
 
 def _full_configuration(states: Sequence[ArmState], inst: Instrument, field: str) -> np.ndarray:
@@ -394,24 +394,23 @@ def motion_plan(
 
 
 def motion_sequence(
-    inst: Instrument, configurations: Sequence[Any], *, seed: int | None,
+    inst: Instrument, configurations: Sequence[Any], *, targets: Any, seed: int | None,
     leg_time_limit_s: float, time_limit_s: float | None,
 ) -> dict[str, Any]:
     """``planner.sequence.plan_sequence`` on one pointing's configurations
-    (``models.types.Configuration``), as the motion part of a PlanPointing dict:
-    ``configurations`` (as changed by the planner), ``motions`` (legs park -> c1 -> ... ->
-    park), ``changes``, ``dropped`` (Unallocated dicts), ``executable``, ``reasons`` and
-    ``stats`` (change counts, the planner's own statistics).
+    (``models.types.Configuration``) and targets (``models.types.PlaneTargets``, as given to
+    the allocator), as the motion part of a PlanPointing dict: ``configurations`` (as changed
+    by the planner), ``motions`` (legs park -> c1 -> ... -> park), ``changes``, ``dropped``
+    (Unallocated dicts), ``executable``, ``reasons`` and ``stats`` (change counts, the
+    planner's own statistics).
 
     ``leg_time_limit_s`` is each leg's planning budget, ``time_limit_s`` the whole sequence's
     (None: no limit beyond the legs'). Never raises: should the planner itself break, every
     leg is reported failed with the reason rather than an unverified plan."""
-    if not configurations:
-        return sequence_out(SequencePlan((), (_stationary_plan(inst, inst.park_configuration),)))
     options = SequenceOptions(seed=int(seed or 0), leg_time_limit_s=float(leg_time_limit_s),
                               time_limit_s=_opt_float(time_limit_s))
     try:
-        sp = plan_sequence(inst, tuple(configurations), options)
+        sp = plan_sequence(inst, tuple(configurations), options, targets=targets)
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
         log.exception("motion sequence planning failed")
         reason = f"planner error: {type(exc).__name__}: {exc}"
@@ -454,25 +453,6 @@ def change_counts(changes: Sequence[dict[str, Any]], dropped: int) -> dict[str, 
         "configurations_added": sum(1 for c in changes if c["kind"] == "new_configuration"),
         "targets_dropped": int(dropped),
     }
-
-
-def _stationary_plan(inst: Instrument, q: np.ndarray) -> Any:
-    """The leg q -> q (no configuration to reach): every arm stays put for 0 s, as a
-    ``models.types.MotionPlan``. Checked by the planner's independent verifier like any
-    other plan (the planner's own search would spend ~1 s building roadmaps to find the
-    same answer)."""
-    (verify_trajectories,) = _domain("motion planning", "planner", "verify_trajectories")
-    from models.types import ArmTrajectory, MotionPlan
-
-    trajs = tuple(ArmTrajectory(k, np.array([0.0]), np.array([q[k, 0]]), np.array([q[k, 1]]))
-                  for k in range(inst.n_arms))
-    rep = verify_trajectories(inst, trajs, q, q)
-    if not rep.ok:
-        return MotionPlan("failed", math.nan, (), tuple(range(inst.n_arms)), {
-            "error": "the arms collide where they stand: "
-                     + "; ".join(v.detail for v in rep.violations[:3])})
-    return MotionPlan("ok", 0.0, trajs, (), {
-        "stationary": True, "min_clearance_mm": rep.min_clearance_mm, "compute_s": 0.0})
 
 
 def _failed_motion(inst: Instrument, reason: str) -> dict[str, Any]:
@@ -550,14 +530,13 @@ def plan(
         share = left() / (n - i)  # this pointing's part of what is left of the budget
         pstats: dict[str, Any] = {}
         configs: Sequence[Any] = ()
+        targets = plane_targets([t.id for t in members], x, y, [t.priority for t in members])
         if share < _MIN_STAGE_S:
             unalloc = [{"target_id": t.id, "reason": "no_time"} for t in members]
             pstats["allocation"] = {"skipped": "request time budget exhausted"}
         else:
             result = _allocate(
-                allocate, inst, plane_targets([t.id for t in members], x, y,
-                                              [t.priority for t in members]),
-                method=req.method, solver=req.solver, configurations="all",
+                allocate, inst, targets, method=req.method, solver=req.solver, configurations="all",
                 time_limit_s=min(time_limit_s, 0.5 * share), seed=seed,
                 progress=lambda f, lo=lo, hi=hi: progress(lo + 0.5 * (hi - lo) * f),
             )
@@ -569,7 +548,8 @@ def plan(
         remaining = deadline - time.monotonic() - (n - i - 1) * share if deadline else math.inf
         leg_budget = max(min(time_limit_s, remaining / legs), _MIN_STAGE_S)
         tm = time.monotonic()
-        seq = motion_sequence(inst, configs, seed=seed, leg_time_limit_s=leg_budget,
+        seq = motion_sequence(inst, configs, targets=targets, seed=seed,
+                              leg_time_limit_s=leg_budget,
                               time_limit_s=None if deadline is None
                               else max(remaining, _MIN_STAGE_S))
         motions = seq["motions"]

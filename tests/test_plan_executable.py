@@ -18,7 +18,7 @@ from fastapi.testclient import TestClient
 
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
-from models.types import ArmTrajectory, Configuration, MotionPlan
+from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets
 from planner.sequence import PlanChange, SequenceOptions, SequencePlan
 from service import jobs, pipeline
 from service.app import create_app
@@ -32,10 +32,12 @@ FAILED_ARMS = (3, 4)
 ARM_REASONS = {3: "blocked by arm 4", 4: "no path found within the leg budget"}
 
 
+TARGETS = [{"id": f"s{i}", "ra_deg": 34.75 + 0.002 * i, "dec_deg": 57.13 - 0.001 * i,
+            "priority": 1 + i} for i in range(3)]  # three stars in one pointing
+
+
 def targets() -> list[dict[str, Any]]:
-    """Three stars in one pointing (allocation is fast on them)."""
-    return [{"id": f"s{i}", "ra_deg": 34.75 + 0.002 * i, "dec_deg": 57.13 - 0.001 * i,
-             "priority": 1 + i} for i in range(3)]
+    return [dict(t) for t in TARGETS]
 
 
 def _leg(start: np.ndarray, goal: np.ndarray, ok: bool) -> MotionPlan:
@@ -51,8 +53,10 @@ def fake_plan_sequence(fail: bool):
     via-park and one moved-target change, and (``fail``) the last leg failed."""
     calls: list[SequenceOptions] = []
 
-    def plan_sequence(inst: Any, configurations: Any, options: SequenceOptions) -> SequencePlan:
+    def plan_sequence(inst: Any, configurations: Any, options: SequenceOptions, *,
+                      targets: PlaneTargets) -> SequencePlan:
         assert isinstance(options, SequenceOptions) and options.leg_time_limit_s > 0
+        assert isinstance(targets, PlaneTargets) and len(targets.ids) == len(TARGETS)
         configs = tuple(configurations)
         assert configs and all(isinstance(c, Configuration) for c in configs)
         calls.append(options)
