@@ -196,12 +196,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
               dependencies=[Auth], responses=ERRORS)
     def plans(req: PlanRequest, st: StateDep) -> dict[str, Any]:
         """The whole pipeline: segmentation, then per pointing allocation (all
-        configurations) and the motion chain park -> c1 -> ... -> park.
+        configurations) and the motion sequence park -> c1 -> ... -> park, whose planner may
+        change the configurations (a leg through park, targets moved to other or new
+        configurations) so that every leg can be executed; the changes are listed per pointing.
 
         The request is bounded as a whole by the server's plan budget (`MXS_PLAN_BUDGET_S`,
         default 120 s): pointings reached after it ran out report their targets `no_time`.
         Plan big fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`,
-        default 1 h). A motion leg that cannot be planned is returned with status "failed".
+        default 1 h). A motion leg that still cannot be planned is returned with status "failed",
+        and the plan says `executable: false` with the `reasons`.
         """
         limit = _check_limits(req, st.settings)
         return pipeline.plan(req, st.instrument, time_limit_s=limit,

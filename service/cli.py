@@ -23,6 +23,18 @@ FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml"
            ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
 
 
+EXIT_OK = 0
+EXIT_INVALID_INPUT = 2
+EXIT_STAGE_UNAVAILABLE = 3
+EXIT_NOT_EXECUTABLE = 4
+EXIT_CODES = """exit codes of `plan`:
+  0  the plan is executable (every motion leg planned); plan.json and pictures written
+  2  invalid input (target table, options)
+  3  a pipeline stage is unavailable
+  4  plan not executable: some motion leg could not be planned (the failed pointings, legs,
+     arms and reasons are printed on stderr); plan.json and pictures are still written"""
+
+
 class TargetFileError(ValueError):
     pass
 
@@ -122,12 +134,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
                           seed=args.seed, threshold_mm=args.threshold_mm)
     except TargetFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_INVALID_INPUT
     except ValidationError as exc:
         for e in exc.errors()[:20]:
             loc = ".".join(str(x) for x in e["loc"])
             print(f"error: {loc}: {e['msg']}", file=sys.stderr)
-        return 2
+        return EXIT_INVALID_INPUT
     from service.settings import Settings
 
     inst_file = args.instrument or Settings().instrument_file
@@ -142,26 +154,53 @@ def cmd_plan(args: argparse.Namespace) -> int:
             result = pipeline.plan(req, inst, progress, time_limit_s=args.time_limit or 30.0)
         except StageUnavailable as exc:
             print(f"error: {exc.message}", file=sys.stderr)
-            return 3
+            return EXIT_STAGE_UNAVAILABLE
         except (ServiceError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
-            return 2
+            return EXIT_INVALID_INPUT
     (out / "plan.json").write_text(json.dumps(result, indent=1))
     pictures = write_pictures(result, req, inst, out, quiet=args.quiet)
     s = result["stats"]
     print(f"{s['targets']} targets, {s['pointings']} pointings, {s['configurations']} "
           f"configurations, {s['allocated_targets']} targets allocated; wrote {out / 'plan.json'}"
           f" and {len(pictures)} pictures")
+    summary = changes_summary(s)
+    if summary:
+        print(f"changes so that every leg can be executed: {summary}")
     # never fail silently: name every target left out and every motion leg not planned
     for reason, n in sorted(s.get("unallocated_by_reason", {}).items()):
         print(f"warning: {n} targets not allocated ({reason}); see 'unallocated' in plan.json",
               file=sys.stderr)
+    if result["executable"]:
+        return EXIT_OK
     for p in result["pointings"]:
-        for i, m in enumerate(p.get("motions", [])):
-            if m.get("status") != "ok":
-                print(f"warning: pointing {p['id']} motion leg {i} not planned "
-                      f"(arms {m.get('failed_arms')}); do not execute it", file=sys.stderr)
-    return 0
+        if p["executable"]:
+            continue
+        failed = [i for i, m in enumerate(p.get("motions", [])) if m.get("status") != "ok"]
+        print(f"error: pointing {p['id']}: motion legs {failed} not planned", file=sys.stderr)
+        for reason in p.get("reasons") or [
+            f"leg {i}: arms {p['motions'][i].get('failed_arms')} not planned" for i in failed
+        ]:
+            print(f"error: pointing {p['id']}: {reason}", file=sys.stderr)
+    print("error: the plan is not executable; do not execute the failed legs (see 'reasons' "
+          "in plan.json)", file=sys.stderr)
+    return EXIT_NOT_EXECUTABLE
+
+
+def changes_summary(stats: dict[str, Any]) -> str:
+    """One line naming the changes counted in a plan's ``stats`` ('' when there were none)."""
+    parts = []
+    for key, one, many in (
+        ("targets_moved", "target moved to another configuration",
+         "targets moved to other configurations"),
+        ("legs_via_park", "leg through park", "legs through park"),
+        ("configurations_added", "configuration added", "configurations added"),
+        ("targets_dropped", "target dropped", "targets dropped"),
+    ):
+        n = int(stats.get(key) or 0)
+        if n:
+            parts.append(f"{n} {one if n == 1 else many}")
+    return ", ".join(parts)
 
 
 def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
@@ -192,14 +231,16 @@ def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mxs-planner", description=__doc__)
+    parser = argparse.ArgumentParser(prog="mxs-planner", description=__doc__, epilog=EXIT_CODES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     s = sub.add_parser("serve", help="run the HTTP API (settings from MXS_* variables)")
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--log-level", default="info")
     s.set_defaults(func=cmd_serve)
-    p = sub.add_parser("plan", help="plan a target list (CSV, ECSV, VOTable, FITS)")
+    p = sub.add_parser("plan", help="plan a target list (CSV, ECSV, VOTable, FITS)",
+                       epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("targets", help="target table: columns id, ra_deg, dec_deg, priority")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")

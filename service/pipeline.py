@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from models.instrument import Instrument, default_instrument, load_instrument
+from planner.sequence import SequenceOptions, SequencePlan, plan_sequence
 from service.errors import FieldError, StageUnavailable
 from service.schemas import (
     REQUEST_TYPES,
@@ -330,33 +331,40 @@ def allocation_out(result: Any) -> dict[str, Any]:
     """``models.types.AllocationResult`` -> AllocationResponse dict (one entry per arm).
 
     Priorities stay Python ints end to end (exact up to 2^32-1 and their sums)."""
-    configs = []
-    for c in result.configurations:
-        configs.append({
-            "index": int(c.index),
-            "status": c.status,
-            "total_priority": int(c.total_priority),
-            "arm_yield": int(c.arm_yield),
-            "assignments": [
-                {
-                    "arm": int(a.arm), "kind": a.kind,
-                    "target_id": None if a.target_id is None else str(a.target_id),
-                    "theta1_rad": float(a.theta1_rad), "theta2_rad": float(a.theta2_rad),
-                    "x_mm": float(a.x_mm), "y_mm": float(a.y_mm),
-                }
-                for a in sorted(c.assignments, key=lambda a: a.arm)
-            ],
-            "stats": plain(c.stats or {}),
-        })
-    unalloc = [{"target_id": str(u.target_id), "reason": str(u.reason)} for u in result.unallocated]
-    return {"configurations": configs, "unallocated": unalloc, "stats": plain(result.stats or {})}
+    return {"configurations": [configuration_out(c) for c in result.configurations],
+            "unallocated": [unallocated_out(u) for u in result.unallocated],
+            "stats": plain(result.stats or {})}
+
+
+def configuration_out(c: Any) -> dict[str, Any]:
+    """``models.types.Configuration`` -> ConfigurationOut dict."""
+    return {
+        "index": int(c.index),
+        "status": c.status,
+        "total_priority": int(c.total_priority),
+        "arm_yield": int(c.arm_yield),
+        "assignments": [
+            {
+                "arm": int(a.arm), "kind": a.kind,
+                "target_id": None if a.target_id is None else str(a.target_id),
+                "theta1_rad": float(a.theta1_rad), "theta2_rad": float(a.theta2_rad),
+                "x_mm": float(a.x_mm), "y_mm": float(a.y_mm),
+            }
+            for a in sorted(c.assignments, key=lambda a: a.arm)
+        ],
+        "stats": plain(c.stats or {}),
+    }
+
+
+def unallocated_out(u: Any) -> dict[str, Any]:
+    return {"target_id": str(u.target_id), "reason": str(u.reason)}
 
 
 # -------------------------------------------------------------------- motion plans
 
 
 def _check_motion() -> None:
-    _domain("motion planning", "planner", "plan_motion", "plan_chain")
+    _domain("motion planning", "planner", "plan_motion")
 
 
 def _full_configuration(states: Sequence[ArmState], inst: Instrument, field: str) -> np.ndarray:
@@ -385,44 +393,66 @@ def motion_plan(
     return _motion_out(result)
 
 
-def motion_chain(
-    inst: Instrument, configurations: Sequence[np.ndarray], *, seed: int | None,
-    time_limit_s: float,
-) -> list[dict[str, Any]]:
-    """Motion plans park -> c1 -> ... -> park (``planner.plan_chain``: each leg starts where
-    the previous one really ended). ``time_limit_s`` is each leg's planning budget.
+def motion_sequence(
+    inst: Instrument, configurations: Sequence[Any], *, targets: Any, seed: int | None,
+    leg_time_limit_s: float, time_limit_s: float | None,
+) -> dict[str, Any]:
+    """``planner.sequence.plan_sequence`` on one pointing's configurations
+    (``models.types.Configuration``) and targets (``models.types.PlaneTargets``, as given to
+    the allocator), as the motion part of a PlanPointing dict: ``configurations`` (as changed
+    by the planner), ``motions`` (legs park -> c1 -> ... -> park), ``changes``, ``dropped``
+    (Unallocated dicts), ``executable``, ``reasons`` and ``stats`` (change counts, the
+    planner's own statistics).
 
-    Never raises for a valid chain: a leg that cannot be planned comes back with status
-    "failed" (the planner's own answer); should the planner itself break, every leg is
-    reported failed with the reason in ``stats.error`` rather than an unverified plan."""
-    (plan_chain,) = _domain("motion planning", "planner", "plan_chain")
-    if not configurations:
-        return [_stationary_plan(inst, inst.park_configuration)]
+    ``leg_time_limit_s`` is each leg's planning budget, ``time_limit_s`` the whole sequence's
+    (None: no limit beyond the legs'). Never raises: should the planner itself break, every
+    leg is reported failed with the reason rather than an unverified plan."""
+    options = SequenceOptions(seed=int(seed or 0), leg_time_limit_s=float(leg_time_limit_s),
+                              time_limit_s=_opt_float(time_limit_s))
     try:
-        plans = plan_chain(inst, [np.asarray(c, float) for c in configurations],
-                           seed=int(seed or 0), time_budget_s=float(time_limit_s))
+        sp = plan_sequence(inst, tuple(configurations), options, targets=targets)
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
-        log.exception("motion chain planning failed")
+        log.exception("motion sequence planning failed")
         reason = f"planner error: {type(exc).__name__}: {exc}"
-        return [_failed_motion(inst, reason) for _ in range(len(configurations) + 1)]
-    return [_motion_out(p) for p in plans]
+        out = sequence_out(SequencePlan(tuple(configurations), ()))
+        out["motions"] = [_failed_motion(inst, reason) for _ in range(len(configurations) + 1)]
+        out["executable"], out["reasons"] = False, [reason]
+        return out
+    return sequence_out(sp)
 
 
-def _stationary_plan(inst: Instrument, q: np.ndarray) -> dict[str, Any]:
-    """The leg q -> q (no configuration to reach): every arm stays put for 0 s. Checked by
-    the planner's independent verifier like any other plan (the planner's own search would
-    spend ~1 s building roadmaps to find the same answer)."""
-    (verify_trajectories,) = _domain("motion planning", "planner", "verify_trajectories")
-    from models.types import ArmTrajectory, MotionPlan
+def sequence_out(sp: SequencePlan) -> dict[str, Any]:
+    """``planner.sequence.SequencePlan`` -> the motion part of a PlanPointing dict."""
+    changes = [
+        {"kind": str(c.kind), "leg": int(c.leg),
+         "configuration": None if c.configuration is None else int(c.configuration),
+         "arms": [int(a) for a in c.arms], "target_ids": [str(t) for t in c.target_ids],
+         "reason": str(c.reason)}
+        for c in sp.changes
+    ]
+    return {
+        "configurations": [configuration_out(c) for c in sp.configurations],
+        "motions": [_motion_out(m) for m in sp.legs],
+        "changes": changes,
+        "dropped": [unallocated_out(u) for u in sp.dropped],
+        "executable": bool(sp.executable),
+        "reasons": [str(r) for r in sp.reasons],
+        "stats": {**change_counts(changes, len(sp.dropped)), "sequence": plain(sp.stats or {})},
+    }
 
-    trajs = tuple(ArmTrajectory(k, np.array([0.0]), np.array([q[k, 0]]), np.array([q[k, 1]]))
-                  for k in range(inst.n_arms))
-    rep = verify_trajectories(inst, trajs, q, q)
-    if not rep.ok:
-        return _failed_motion(inst, "the arms collide where they stand: "
-                              + "; ".join(v.detail for v in rep.violations[:3]))
-    return _motion_out(MotionPlan("ok", 0.0, trajs, (), {
-        "stationary": True, "min_clearance_mm": rep.min_clearance_mm, "compute_s": 0.0}))
+
+CHANGE_COUNTS = ("targets_moved", "legs_via_park", "configurations_added", "targets_dropped")
+
+
+def change_counts(changes: Sequence[dict[str, Any]], dropped: int) -> dict[str, int]:
+    """How many targets were moved, legs sent through park, configurations added and
+    targets dropped by the ``changes`` (PlanChangeOut dicts) of one plan."""
+    return {
+        "targets_moved": sum(len(c["target_ids"]) for c in changes if c["kind"] == "moved_target"),
+        "legs_via_park": sum(1 for c in changes if c["kind"] == "via_park"),
+        "configurations_added": sum(1 for c in changes if c["kind"] == "new_configuration"),
+        "targets_dropped": int(dropped),
+    }
 
 
 def _failed_motion(inst: Instrument, reason: str) -> dict[str, Any]:
@@ -465,14 +495,16 @@ def plan(
     budget_s: float | None = None,
 ) -> dict[str, Any]:
     """Segmentation -> per pointing: projection onto the pointing's own tangent plane
-    (``position_angle_deg``) -> allocation (all configurations) -> motion chain
-    park -> c1 -> ... -> park.
+    (``position_angle_deg``) -> allocation (all configurations) -> executable motion
+    sequence park -> c1 -> ... -> park (``planner.sequence.plan_sequence``, which may change
+    the configurations so that every leg can be executed).
 
     ``time_limit_s`` bounds every solver call (each pointing's allocation, each motion
     leg). ``budget_s`` (synchronous HTTP requests) bounds the whole request: it is shared
     out over the pointings still to do, and a pointing reached after it ran out gets no
-    configurations (its targets ``no_time``). Motion legs that cannot be planned are
-    returned with status "failed", never as an exception."""
+    configurations (its targets ``no_time``). A motion leg that cannot be planned is
+    returned with status "failed", never as an exception; the pointing and the plan then
+    say ``executable: false`` with the reasons."""
     _check_plan()
     (allocate,) = _domain("allocation", "solvers.allocation", "allocate")
     t0 = time.monotonic()
@@ -497,34 +529,39 @@ def plan(
         x, y = sky_to_focal(members, ra, dec, inst, req.position_angle_deg)
         share = left() / (n - i)  # this pointing's part of what is left of the budget
         pstats: dict[str, Any] = {}
+        configs: Sequence[Any] = ()
+        targets = plane_targets([t.id for t in members], x, y, [t.priority for t in members])
         if share < _MIN_STAGE_S:
-            configs: list[dict[str, Any]] = []
             unalloc = [{"target_id": t.id, "reason": "no_time"} for t in members]
             pstats["allocation"] = {"skipped": "request time budget exhausted"}
         else:
             result = _allocate(
-                allocate, inst, plane_targets([t.id for t in members], x, y,
-                                              [t.priority for t in members]),
-                method=req.method, solver=req.solver, configurations="all",
+                allocate, inst, targets, method=req.method, solver=req.solver, configurations="all",
                 time_limit_s=min(time_limit_s, 0.5 * share), seed=seed,
                 progress=lambda f, lo=lo, hi=hi: progress(lo + 0.5 * (hi - lo) * f),
             )
-            alloc = allocation_out(result)
-            configs, unalloc, pstats["allocation"] = (
-                alloc["configurations"], alloc["unallocated"], alloc["stats"])
+            configs = result.configurations
+            unalloc = [unallocated_out(u) for u in result.unallocated]
+            pstats["allocation"] = plain(result.stats or {})
         progress(lo + 0.5 * (hi - lo))
-        qs = [np.array([[a["theta1_rad"], a["theta2_rad"]] for a in c["assignments"]], float)
-              for c in configs]
-        legs = len(qs) + 1
+        legs = len(configs) + 1
         remaining = deadline - time.monotonic() - (n - i - 1) * share if deadline else math.inf
         leg_budget = max(min(time_limit_s, remaining / legs), _MIN_STAGE_S)
         tm = time.monotonic()
-        motions = motion_chain(inst, qs, seed=seed, time_limit_s=leg_budget)
-        pstats["motion"] = {"legs": legs, "leg_budget_s": leg_budget,
+        seq = motion_sequence(inst, configs, targets=targets, seed=seed,
+                              leg_time_limit_s=leg_budget,
+                              time_limit_s=None if deadline is None
+                              else max(remaining, _MIN_STAGE_S))
+        motions = seq["motions"]
+        pstats["motion"] = {"legs": len(motions), "leg_budget_s": leg_budget,
                             "compute_s": time.monotonic() - tm,
-                            "failed_legs": sum(m["status"] != "ok" for m in motions)}
-        out.append({**p, "ra_deg": ra, "configurations": configs, "motions": motions,
-                    "unallocated": unalloc, "stats": pstats})
+                            "failed_legs": sum(m["status"] != "ok" for m in motions),
+                            **{k: seq["stats"][k] for k in CHANGE_COUNTS}}
+        pstats["sequence"] = seq["stats"]["sequence"]
+        out.append({**p, "ra_deg": ra, "configurations": seq["configurations"],
+                    "motions": motions, "unallocated": unalloc + seq["dropped"],
+                    "changes": seq["changes"], "executable": seq["executable"],
+                    "reasons": seq["reasons"], "stats": pstats})
         progress(hi)
     reasons: dict[str, int] = {}
     for p in out:
@@ -534,6 +571,8 @@ def plan(
     return {
         "tangent_point": seg["tangent_point"],
         "pointings": out,
+        "executable": all(p["executable"] for p in out),
+        "reasons": [f"pointing {p['id']}: {r}" for p in out for r in p["reasons"]],
         "stats": plain({
             "targets": len(req.targets), "pointings": len(out),
             "configurations": sum(len(p["configurations"]) for p in out),
@@ -546,6 +585,7 @@ def plan(
             "motion_plans_failed": sum(
                 1 for p in out for m in p["motions"] if m["status"] != "ok"
             ),
+            **{k: sum(p["stats"]["motion"][k] for p in out) for k in CHANGE_COUNTS},
             "time_limit_s": time_limit_s,
             "budget_s": budget_s,
             "elapsed_s": time.monotonic() - t0,

@@ -371,7 +371,9 @@ class ConfigurationOut(Response):
 
 class Unallocated(Response):
     target_id: str
-    reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', ...")
+    reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', ...; in a plan "
+                        "also the reason a target was dropped so that every motion leg can be "
+                        "executed.")
 
 
 class AllocationResponse(Response):
@@ -408,20 +410,57 @@ class MotionPlanResponse(Response):
     stats: Stats = Field(default_factory=dict)
 
 
+class PlanChangeOut(Response):
+    """One change the motion planner made to a pointing's allocation so that every motion
+    leg can be executed."""
+
+    kind: str = Field(description="'via_park' (the leg goes through the park configuration), "
+                      "'moved_target' (blocking targets moved to another configuration), "
+                      "'new_configuration' (a configuration added at the end of the sequence) "
+                      "or 'dropped_target' (targets no configuration could take).")
+    leg: int = Field(description="Index into the pointing's `motions` (leg i goes to "
+                     "configuration i + 1; leg 0 starts at park, the last leg ends there).")
+    configuration: int | None = Field(description="Index into the pointing's "
+                                      "`configurations`; null when no configuration is concerned.")
+    arms: list[int] = Field(description="Arms concerned by the change.")
+    target_ids: list[str] = Field(description="Targets concerned by the change.")
+    reason: str = Field(description="Why the change was made.")
+
+
 class PlanPointing(PointingOut):
-    configurations: list[ConfigurationOut]
+    configurations: list[ConfigurationOut] = Field(
+        description="Configurations c1 ... cn, as changed by the motion planner (`changes`)."
+    )
     motions: list[MotionPlanResponse] = Field(
         description="Motion plans park -> c1 -> ... -> park (len(configurations) + 1)."
     )
-    unallocated: list[Unallocated]
+    unallocated: list[Unallocated] = Field(
+        description="Targets in no configuration: left out by the allocation or dropped by the "
+                    "motion planner."
+    )
+    changes: list[PlanChangeOut] = Field(
+        description="Changes made to the allocation so that every motion leg can be executed."
+    )
+    executable: bool = Field(description="Every motion leg of this pointing was planned "
+                             "(status 'ok').")
+    reasons: list[str] = Field(description="One line per failed motion leg: which leg, which "
+                               "arms, why. Empty when `executable`.")
     stats: Stats = Field(default_factory=dict, description="Allocation and motion statistics "
-                         "of this pointing.")
+                         "of this pointing; `motion` holds legs, leg_budget_s, compute_s, "
+                         "failed_legs, targets_moved, legs_via_park, configurations_added, "
+                         "targets_dropped.")
 
 
 class PlanResponse(Response):
     tangent_point: TangentPoint | None = None
     pointings: list[PlanPointing]
-    stats: Stats = Field(default_factory=dict)
+    executable: bool = Field(description="Every motion leg of every pointing was planned; false "
+                             "when any pointing has a failed leg (do not execute those legs).")
+    reasons: list[str] = Field(description="Why the plan is not executable: the pointings' "
+                               "`reasons`, each prefixed with 'pointing <id>: '.")
+    stats: Stats = Field(default_factory=dict, description="Counts over the whole plan, "
+                         "including targets_moved, legs_via_park, configurations_added and "
+                         "targets_dropped.")
 
 
 class JobCreated(Response):

@@ -316,6 +316,8 @@ def test_plan_endpoint(live_server) -> None:
     assert s["motion_plans"] == sum(len(p["motions"]) for p in out["pointings"])
     assert s["motion_plans_failed"] == s["motion_plans"] - n_ok
     assert n_ok >= 1
+    assert out["executable"] == (s["motion_plans_failed"] == 0)
+    assert out["executable"] == (out["reasons"] == [])
 
 
 # --------------------------------------------------------------------- bad input

@@ -124,3 +124,5 @@ def test_allocation_and_plan_jobs_over_http(live_server) -> None:
         t["id"] for t in plan["targets"])
     for q in out["pointings"]:
         assert len(q["motions"]) == len(q["configurations"]) + 1
+        assert q["executable"] == all(m["status"] == "ok" for m in q["motions"])
+    assert out["executable"] == all(q["executable"] for q in out["pointings"])
