@@ -69,7 +69,30 @@ def segment_distance_xy(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y) -> np.ndarray:
     t = np.where(~e_ok, 0.0, np.where(~a_ok, np.clip(f / safe_e, 0.0, 1.0), t))
     dx = rx + d1x * s - d2x * t
     dy = ry + d1y * s - d2y * t
-    return np.hypot(dx, dy)
+    out = np.hypot(dx, dy)
+    par = ~general & a_ok & e_ok
+    if np.any(par):
+        # (nearly) parallel: the closest pair involves an end point, whichever end it is
+        out = np.array(out, float, copy=True)
+        full = np.broadcast_arrays(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y, par)
+        m = full[-1]
+        ax_, ay_, bx_, by_, cx_, cy_, ex_, ey_ = (np.asarray(v, float)[m] for v in full[:-1])
+        ends = np.minimum(np.minimum(_point_segment(ax_, ay_, cx_, cy_, ex_, ey_),
+                                     _point_segment(bx_, by_, cx_, cy_, ex_, ey_)),
+                          np.minimum(_point_segment(cx_, cy_, ax_, ay_, bx_, by_),
+                                     _point_segment(ex_, ey_, ax_, ay_, bx_, by_)))
+        if out.ndim == 0:
+            return np.asarray(min(float(out), float(ends[0])))
+        out[m] = np.minimum(out[m], ends)
+    return out
+
+
+def _point_segment(px, py, ax, ay, bx, by) -> np.ndarray:
+    """Distance from points (px, py) to segments a-b (b may equal a)."""
+    dx, dy = bx - ax, by - ay
+    ll = dx * dx + dy * dy
+    t = np.clip(((px - ax) * dx + (py - ay) * dy) / np.where(ll > _EPS, ll, 1.0), 0.0, 1.0)
+    return np.hypot(px - ax - t * dx, py - ay - t * dy)
 
 
 def body_segments_mm(instrument: Instrument, arm, theta1_rad, theta2_rad) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

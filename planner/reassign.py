@@ -33,6 +33,7 @@ class Placed:
     x_mm: float
     y_mm: float
     priority: int
+    from_arm: int  # the arm that observed it where it was taken out
 
 
 def park_assignment(instrument: Instrument, arm: int) -> ArmAssignment:
@@ -51,7 +52,7 @@ def take_out(instrument: Instrument, config: Configuration, arms: Sequence[int],
         if a.kind != "target":
             continue
         p = int(priority_of.get(a.target_id or "", 1))
-        out.append(Placed(a.target_id or "", a.target_index, a.x_mm, a.y_mm, p))
+        out.append(Placed(a.target_id or "", a.target_index, a.x_mm, a.y_mm, p, int(k)))
         asg[k] = park_assignment(instrument, k)
     return _with(config, asg, -sum(p.priority for p in out)), out
 
@@ -72,18 +73,18 @@ def _fits(instrument: Instrument, q: np.ndarray, arm: int, cand: np.ndarray, buf
 
 
 def try_place(instrument: Instrument, config: Configuration, target: Placed, buffer_mm: float,
-              avoid_arms: Sequence[int] = ()) -> Configuration | None:
+              exclude_arms: Sequence[int] = ()) -> Configuration | None:
     """``config`` with ``target`` on one of its idle arms (any IK branch that fits), or None.
 
     Arms are tried nearest first (the arm whose base is closest to the target moves least);
-    an arm in ``avoid_arms`` (the arm the target was taken from) comes last.
+    arms in ``exclude_arms`` (e.g. the arm the target was taken from) are not used.
     """
     q = config.q
-    enabled = set(instrument.enabled_arms)
+    enabled = set(instrument.enabled_arms) - set(exclude_arms)
     idle = [a.arm for a in config.assignments if a.kind in IDLE_KINDS and a.arm in enabled]
     bases = np.array([[instrument.arms[k].base_x_mm, instrument.arms[k].base_y_mm] for k in idle]).reshape(-1, 2)
     dist = np.hypot(bases[:, 0] - target.x_mm, bases[:, 1] - target.y_mm) if idle else np.zeros(0)
-    order = sorted(range(len(idle)), key=lambda i: (idle[i] in avoid_arms, dist[i]))
+    order = sorted(range(len(idle)), key=lambda i: dist[i])
     for i in order:
         k = idle[i]
         ik = inverse_fov(instrument, k, np.array([target.x_mm]), np.array([target.y_mm]))
@@ -102,6 +103,29 @@ def try_place(instrument: Instrument, config: Configuration, target: Placed, buf
                                target.target_index, target.target_id)
         return _with(config, asg, target.priority)
     return None
+
+
+def other_branches(instrument: Instrument, config: Configuration, arm: int,
+                   buffer_mm: float) -> list[Configuration]:
+    """``config`` with arm ``arm`` on the same target through each other IK branch that keeps
+    the buffer to every other arm (thesis eqs. 3.17-3.27: up to four per point)."""
+    a = config.assignments[arm]
+    if a.kind != "target":
+        return []
+    ik = inverse_fov(instrument, arm, np.array([a.x_mm]), np.array([a.y_mm]))
+    cand = np.column_stack([ik.theta1_rad[0][ik.valid[0]], ik.theta2_rad[0][ik.valid[0]]])
+    same = (np.abs(cand[:, 0] - a.theta1_rad) < 1e-6) & (
+        np.abs((cand[:, 1] - a.theta2_rad + np.pi) % (2 * np.pi) - np.pi) < 1e-6)
+    cand = cand[~same]
+    if len(cand) == 0:
+        return []
+    ok = _fits(instrument, config.q, arm, cand, buffer_mm)
+    out = []
+    for th1, th2 in cand[ok]:
+        asg = list(config.assignments)
+        asg[arm] = replace(a, theta1_rad=float(th1), theta2_rad=float(th2))
+        out.append(_with(config, asg, 0))
+    return out
 
 
 def new_configuration(instrument: Instrument, index: int, status: str = "feasible") -> Configuration:

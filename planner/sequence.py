@@ -8,10 +8,16 @@ new assignment plan computed):
 1. the leg goes through park: c_i -> park is the time reversal of a verified park -> c_i
    plan (collisions, the zone of avoidance and speed limits are symmetric in time), then
    park -> c_(i+1);
-2. the arms that block the leg are sent to their park in that configuration and their
-   targets move to another configuration that can take them (another arm or IK branch there),
-   or to a new configuration at the end of the sequence;
-3. then the changed legs are re-planned and re-verified.
+2. a blocking arm (the lowest-priority target among the arms the planner could not plan)
+   reaches its target through another IK branch, if one fits;
+3. otherwise it stays at park in that configuration and its target moves to a later
+   configuration that can take it on an idle arm (another arm first), or to a new
+   configuration at the end of the sequence; a configuration left empty is removed;
+4. the changed legs are re-planned (through park if need be) and verified.
+
+A leg back to park that cannot be planned is the reversal of park -> c_n; if that fails too,
+the last configuration loses a blocking target in the same way. At most
+``SequenceOptions.max_changes`` changes are tried.
 
 Only when every option is exhausted does a leg stay failed; the plan then says
 ``executable = False`` with the reasons. Every leg in the result is a
@@ -34,10 +40,10 @@ from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
 from planner.commands import arm_trajectory
 from planner.driver import plan_motion, verified_plan
-from planner.reassign import Placed, new_configuration, take_out, try_place
+from planner.reassign import Placed, new_configuration, other_branches, take_out, try_place
 from planner.strategies.reversed import reverse_trajectories
 
-ChangeKind = Literal["via_park", "moved_target", "new_configuration", "dropped_target"]
+ChangeKind = Literal["via_park", "other_branch", "moved_target", "new_configuration", "dropped_target"]
 
 
 @dataclass(frozen=True)
@@ -195,8 +201,9 @@ class _Sequencer:
 
     # ---------------------------------------------------------------- one transition
 
-    def transition(self, i: int, start_q: np.ndarray) -> MotionPlan:
-        """The leg into configuration i (i == len(configs): back to park), repaired if need be."""
+    def transition(self, i: int, start_q: np.ndarray) -> MotionPlan | None:
+        """The leg into configuration i (i == len(configs): back to park), repaired if need be;
+        None when configuration i lost its last target and was removed (leg i goes on)."""
         park = self.ins.park_configuration
         last = i == len(self.configs)
         goal = park if last else self.configs[i].q
@@ -234,7 +241,7 @@ class _Sequencer:
                                            "no direct motion found between the two configurations"))
         return leg
 
-    def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan:
+    def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan | None:
         """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
         leg = failed
         while leg.status != "ok" and self.edits < self.opt.max_changes and self.clock.left_s() > MIN_LEG_S:
@@ -244,17 +251,45 @@ class _Sequencer:
                 break
             k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
                                              blockers.index(a)))
+            branch = self._other_branch(i, k, start_q)
+            if branch is not None:
+                return branch
             changed, out = take_out(self.ins, config, [k], self.priority_of)
             self.edits += 1
-            self.configs[i] = changed
             self.pending.extend(out)
             self.changes.append(PlanChange("moved_target", i, i, (k,), tuple(p.target_id for p in out),
                                            f"arm {k} blocked the motion into configuration {i + 1}; "
                                            "its target moves to another configuration"))
+            if changed.arm_yield == 0:  # nothing left to observe there
+                last = self.changes[-1]
+                self.changes[-1] = replace(last, configuration=None,
+                                           reason=last.reason + "; the configuration, left empty, is removed")
+                del self.configs[i]
+                return None
+            self.configs[i] = changed
             leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
             if i == 0 and leg.status == "ok":
                 self.from_park[id(changed)] = leg
         return leg
+
+    def _other_branch(self, i: int, k: int, start_q: np.ndarray) -> MotionPlan | None:
+        """Arm k of configuration i on the same target through another IK branch, if that plans."""
+        for changed in other_branches(self.ins, self.configs[i], k, self.buffer_mm):
+            if self.edits >= self.opt.max_changes or self.clock.left_s() <= MIN_LEG_S:
+                break
+            self.edits += 1
+            old, self.configs[i] = self.configs[i], changed
+            leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
+            if leg.status == "ok":
+                if i == 0:
+                    self.from_park[id(changed)] = leg
+                tid = changed.assignments[k].target_id or ""
+                self.changes.append(PlanChange("other_branch", i, i, (k,), (tid,),
+                                               f"arm {k} reaches its target in configuration {i + 1} "
+                                               "through another IK branch"))
+                return leg
+            self.configs[i] = old
+        return None
 
     def _direct_or_via(self, i: int, start_q: np.ndarray) -> MotionPlan:
         leg = self.plan(start_q, self.configs[i].q)
@@ -265,42 +300,78 @@ class _Sequencer:
     # ---------------------------------------------------------------- moved targets
 
     def place_pending(self, after: int) -> None:
-        """Put the targets taken out into configurations after ``after`` or into new ones."""
+        """Put the targets taken out into configurations after ``after`` or into new ones: on
+        another arm than the one that could not reach it if any can, else on the same arm."""
         while self.pending:
             p = self.pending.pop(0)
-            placed = False
-            for j in range(after + 1, len(self.configs)):
-                c = try_place(self.ins, self.configs[j], p, self.buffer_mm)
-                if c is not None:
-                    self.configs[j] = c
-                    placed = True
-                    break
-            if not placed:
-                c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm)
-                if c is None:
-                    self.dropped.append(Unallocated(p.target_index if p.target_index is not None else -1,
-                                                    p.target_id, "conflict"))
-                    continue
-                self.configs.append(c)
-                self.changes.append(PlanChange("new_configuration", len(self.configs), len(self.configs) - 1,
-                                               (), (p.target_id,), "a configuration added for moved targets"))
+            if not any(self._place(p, after, exclude) for exclude in ((p.from_arm,), ())):
+                self.dropped.append(Unallocated(p.target_index if p.target_index is not None else -1,
+                                                p.target_id, "conflict"))
+
+    def _place(self, p: Placed, after: int, exclude: tuple[int, ...]) -> bool:
+        for j in range(after + 1, len(self.configs)):
+            c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude)
+            if c is not None:
+                self.configs[j] = c
+                return True
+        c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm,
+                      exclude_arms=exclude)
+        if c is None:
+            return False
+        self.configs.append(c)
+        self.changes.append(PlanChange("new_configuration", len(self.configs), len(self.configs) - 1,
+                                       (), (p.target_id,), "a configuration added for moved targets"))
+        return True
 
     def run(self) -> SequencePlan:
         self.pending: list[Placed] = []
-        cur = self.ins.park_configuration
+        starts = [self.ins.park_configuration]  # starts[i]: where leg i starts
         i = 0
         while i <= len(self.configs):
-            leg = self.transition(i, cur)
+            leg = self.transition(i, starts[i])
+            if leg is None:  # configuration i was emptied and removed: plan leg i again
+                if self.pending:
+                    self.place_pending(i - 1)
+                continue
+            if leg.status != "ok" and i == len(self.configs) and i > 0 and self._lighten_last():
+                # neither the return to park nor its reversal from park plans: the last
+                # configuration lost a blocking target; plan the leg into it again
+                self.legs.pop()
+                starts.pop()
+                i -= 1
+                self.changes = [c for c in self.changes if not (c.kind == "via_park" and c.leg == i)]
+                continue
             self.legs.append(leg)
             if self.pending:
                 self.place_pending(i)
-            cur = end_of(leg) if leg.status == "ok" else (self.configs[i].q if i < len(self.configs)
-                                                          else self.ins.park_configuration)
+            starts.append(end_of(leg) if leg.status == "ok" else (self.configs[i].q if i < len(self.configs)
+                                                                  else self.ins.park_configuration))
             i += 1
         configs = tuple(replace(c, index=n) for n, c in enumerate(self.configs))
         stats = {"legs": len(self.legs), "plans": self.plans, "edits": self.edits,
                  "compute_s": time.perf_counter() - self.clock.t0}
         return SequencePlan(configs, tuple(self.legs), tuple(self.changes), tuple(self.dropped), stats)
+
+    def _lighten_last(self) -> bool:
+        """Take one blocking target out of the last configuration (from its park -> c plan)."""
+        n = len(self.configs)
+        if self.edits >= self.opt.max_changes or self.clock.left_s() <= MIN_LEG_S:
+            return False
+        config = self.configs[-1]
+        back = self.park_to(config)
+        blockers = [k for k in back.failed_arms if config.assignments[k].kind == "target"]
+        if back.status == "ok" or not blockers:
+            return False
+        k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
+                                         blockers.index(a)))
+        changed, out = take_out(self.ins, config, [k], self.priority_of)
+        self.edits += 1
+        self.configs[-1] = changed
+        self.pending.extend(out)
+        self.changes.append(PlanChange("moved_target", n - 1, n - 1, (k,), tuple(p.target_id for p in out),
+                                       f"arm {k} blocked the return to park from configuration {n}; "
+                                       "its target moves to another configuration"))
+        return True
 
 
 def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration],
