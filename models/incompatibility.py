@@ -29,6 +29,7 @@ from models.collision import (
 from models.instrument import Instrument
 from models.kinematics import inverse_fov, tip_fov
 
+TIE_MM = 1e-6  # clearances within this of the buffer count as collisions in the structure
 FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV scale
 PARK = -1  # target index of a park assignment
 FIXED = -2  # target index of a current/fixed (out-of-service) location
@@ -234,7 +235,7 @@ def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) ->
     for other in range(instrument.n_arms):
         if other != arm and len(cand):
             c = arm_pair_clearance_mm(instrument, arm, np.column_stack([t1[cand], t2[cand]]), other, park[other])
-            cand = cand[c >= instrument.collision_buffer_mm]
+            cand = cand[c >= instrument.collision_buffer_mm + TIE_MM]
     ok = np.zeros_like(ok)
     ok[cand] = True
     front = ok & (t1 > a.park_theta1_rad - 0.6) & (np.abs(t2 - a.park_theta2_rad) < 0.8) & (r < r_fov)
@@ -333,18 +334,24 @@ def compute_incompatibility(
     asg = reachability.assignments
     seg_s, seg_e, seg_r = body_segments_mm(instrument, asg.arm, asg.theta1_rad, asg.theta2_rad)
     # per body, contiguous coordinate arrays (assignment axis last) for cheap slicing
+    # decided at buffer + TIE_MM: a pair exactly at the buffer (two tips 25 mm apart on a
+    # symmetric layout) is incompatible, so rounding can never let the structure accept what
+    # the verifiers (clearance < buffer) reject
+    thr_mm = buffer_mm + TIE_MM
     sx, sy = np.ascontiguousarray(seg_s[..., 0].T), np.ascontiguousarray(seg_s[..., 1].T)
     ex, ey = np.ascontiguousarray(seg_e[..., 0].T), np.ascontiguousarray(seg_e[..., 1].T)
     rad = np.ascontiguousarray(seg_r.T)
     # float32 for the bulk test (3x faster); pairs within FLOAT32_BAND_MM of the buffer
     # are re-decided in float64 so the answer equals the exact computation
     sx32, sy32, ex32, ey32, rad32 = (v.astype(np.float32) for v in (sx, sy, ex, ey, rad))
-    lox = (np.minimum(sx, ex) - rad).astype(np.float32)
-    hix = (np.maximum(sx, ex) + rad + buffer_mm).astype(np.float32)
-    loy = (np.minimum(sy, ey) - rad).astype(np.float32)
-    hiy = (np.maximum(sy, ey) + rad + buffer_mm).astype(np.float32)
+    # boxes padded by the float32 band: at an exact tie (boxes touching at the buffer) the
+    # rounded float32 bounds must not skip the pair
+    lox = (np.minimum(sx, ex) - rad - FLOAT32_BAND_MM).astype(np.float32)
+    hix = (np.maximum(sx, ex) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32)
+    loy = (np.minimum(sy, ey) - rad - FLOAT32_BAND_MM).astype(np.float32)
+    hiy = (np.maximum(sy, ey) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32)
     target = asg.target
-    keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, buffer_mm)
+    keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, thr_mm)
     t_geom = time.perf_counter()
     found_i, found_j, found_same = [], [], []
     n_arms = instrument.n_arms
@@ -357,7 +364,7 @@ def compute_incompatibility(
             b0, b1 = int(starts[kk]), int(starts[kk + 1])
             if b1 == b0:
                 continue
-            body_pairs = _body_pairs_that_can_meet(instrument, k, kk, buffer_mm)
+            body_pairs = _body_pairs_that_can_meet(instrument, k, kk, thr_mm)
             step = max(1, chunk_pairs // (b1 - b0))
             for r0 in range(a0, a1, step):
                 r1 = min(a1, r0 + step)
@@ -385,14 +392,14 @@ def compute_incompatibility(
                     ai, bk = ci + r0, cj + b0
                     gap = segment_distance_xy(sx32[bi, ai], sy32[bi, ai], ex32[bi, ai], ey32[bi, ai],
                                               sx32[bj, bk], sy32[bj, bk], ex32[bj, bk], ey32[bj, bk])
-                    gap -= rad32[bi, ai] + rad32[bj, bk] + np.float32(buffer_mm)
+                    gap -= rad32[bi, ai] + rad32[bj, bk] + np.float32(thr_mm)
                     close = gap < 0
                     unsure = np.flatnonzero(np.abs(gap) < FLOAT32_BAND_MM)
                     if len(unsure):
                         ua, ub = ai[unsure], bk[unsure]
                         d64 = segment_distance_xy(sx[bi, ua], sy[bi, ua], ex[bi, ua], ey[bi, ua],
                                                   sx[bj, ub], sy[bj, ub], ex[bj, ub], ey[bj, ub])
-                        close[unsure] = d64 - rad[bi, ua] - rad[bj, ub] < buffer_mm
+                        close[unsure] = d64 - rad[bi, ua] - rad[bj, ub] < thr_mm
                     hit[ci[close], cj[close]] = True
                 hi_, hj_ = np.nonzero(hit)
                 found_i.append(hi_ + r0)
