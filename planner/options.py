@@ -38,6 +38,12 @@ SHORTER_SEARCH_SHARE = (0.3, math.inf)
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0
 
+# Bounds on the sampling, so that no request can exhaust memory or time (defaults: 6 s, 0.1 s,
+# 220 s: 8.1e4 samples per pair table; the thesis' smallest step, 0.6 s at 0.1 s, 8.1e5)
+MIN_DT_S = 0.1
+MIN_DT_COL_S = 0.01
+MAX_DELAY_SAMPLES = 1e6
+
 DEFAULT_STRATEGIES = ("delays", "evasion", "cluster", "forward", "reverse")
 # names with a fixed place in the order (planner.driver.strategy_sequence); others are looked up
 # in the registry (planner.strategy.STRATEGIES)
@@ -77,6 +83,10 @@ class MotionOptions:
         dt, dtc = self.dt_s, self.dt_col_s
         if not (_real(dt) and _real(dtc) and dt > 0 and dtc > 0 and math.isfinite(dt) and math.isfinite(dtc)):
             raise InputError("dt_s", "dt_s and dt_col_s must be positive")
+        if dt < MIN_DT_S:
+            raise InputError("dt_s", f"must be >= {MIN_DT_S} s")
+        if dtc < MIN_DT_COL_S:
+            raise InputError("dt_col_s", f"must be >= {MIN_DT_COL_S} s")
         m = max(1, int(round(dt / dtc)))
         if abs(m * dtc - dt) > 1e-6 * dt:
             raise InputError("dt_col_s", "must divide dt_s into a whole number of collision steps")
@@ -87,6 +97,10 @@ class MotionOptions:
         self._int("seed", None, "must be an integer")
         if not (_real(self.horizon_s) and math.isfinite(self.horizon_s) and self.horizon_s > 0):
             raise InputError("horizon_s", "must be a positive number of seconds")
+        work = (self.horizon_s / dt) * (self.horizon_s / dtc)
+        if work > MAX_DELAY_SAMPLES:
+            raise InputError("dt_col_s", f"horizon_s / dt_s x horizon_s / dt_col_s = {work:.3g} is above "
+                             f"{MAX_DELAY_SAMPLES:.0e} (the samples of one pair table): use larger steps")
         self._int("max_attempts", 0, "must be an integer >= 0")
         grid = tuple(self.grid) if isinstance(self.grid, (tuple, list)) else ()
         if len(grid) != 2 or not all(_integer(g) and g >= 1 for g in grid):

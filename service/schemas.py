@@ -190,11 +190,12 @@ class AllocationRequest(Request):
 class MotionPlanRequest(Request):
     start: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
     goal: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
-    dt_s: Annotated[float, Field(gt=0.0, le=600.0, strict=True, allow_inf_nan=False)] | None = Field(
-        None, description="Planning time step, s (default 6)."
+    dt_s: Annotated[float, Field(ge=0.1, le=600.0, strict=True, allow_inf_nan=False)] | None = Field(
+        None, description="Planning time step, s (default 6; at least 0.1)."
     )
-    dt_col_s: Annotated[float, Field(gt=0.0, le=60.0, strict=True, allow_inf_nan=False)] | None = Field(
-        None, description="Collision-check time step, s (default 0.1)."
+    dt_col_s: Annotated[float, Field(ge=0.01, le=60.0, strict=True, allow_inf_nan=False)] | None = Field(
+        None, description="Collision-check time step, s (default 0.1; at least 0.01). The product "
+        "(220 s / dt_s) x (220 s / dt_col_s) may not exceed 1e6: smaller steps are refused with 422."
     )
     max_start_stop: Annotated[int, Field(strict=True, ge=0, le=20)] | None = Field(
         None, description="Most intermediate stops per arm (default 1)."

@@ -238,3 +238,12 @@ def test_planner_recheck_agrees_with_the_verifier(case):
     found = timed_collisions([ArmGeom.of(inst, k) for k in range(12)], timed, leg.buffer_mm)
     assert sorted(found) == expected
     assert bool(expected) == (case != "planned")
+
+
+@pytest.mark.parametrize("kw, field", [({"dt_col_s": 1e-4}, "dt_col_s"), ({"dt_s": 1e-3, "dt_col_s": 1e-3}, "dt_s"),
+                                       ({"dt_s": 0.6, "dt_col_s": 0.01}, "dt_col_s")])
+def test_sampling_is_bounded(kw, field):
+    """Steps small enough to exhaust memory (1e-4 s took a server past 6 GB) are refused."""
+    with pytest.raises(InputError) as e:
+        MotionOptions(**kw)
+    assert e.value.field == field
