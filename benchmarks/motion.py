@@ -487,6 +487,7 @@ def main(argv: list[str] | None = None) -> dict:
     load_start = list(os.getloadavg())
     t0 = time.perf_counter()
     instrument = default_instrument()
+    commit = git_commit()  # the code being measured: read before the run, not after it
     run = thesis_method if params.protocol == "thesis" else easy_method
     methods, records = {}, []
     for method in params.methods:
@@ -506,7 +507,7 @@ def main(argv: list[str] | None = None) -> dict:
                else {"field_shapes": ["uniform"], "priority_mix": {"1": 1.0}}),
             "plan_motion_defaults": planner_defaults(),
         },
-        "commit": git_commit(),
+        "commit": commit,
         "load_average_start": load_start,
         "methods": methods,
         "thesis_reference": THESIS_REFERENCE,
