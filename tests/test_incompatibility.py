@@ -187,8 +187,8 @@ def test_symmetric_ring_layouts_never_miss_a_collision() -> None:
 
 
 def test_symmetric_pair_allocates_with_every_engine() -> None:
-    """(0, 0) + (0, 25) mm: the structure used to accept arms 4 and 9 exactly at the buffer,
-    which the allocator's geometric check then rejected (a 503 at the service)."""
+    """(0, 0) + (0, 25) mm: two tips exactly at the buffer; a structure that accepted them would
+    hand the allocator's geometric check a configuration it rejects (a 503 at the service)."""
     from models.types import PlaneTargets
     from solvers.allocation import allocate
 

@@ -25,7 +25,7 @@ INST = default_instrument()
 PARK = INST.park_configuration
 
 # park -> configuration legs that the straight delays, the cluster and the prioritized strategies
-# all failed to plan in 10 s (configurations 1 and 7 of a uniform and a sigma-60 mm field of
+# do not plan in 10 s (configurations 1 and 7 of a uniform and a sigma-60 mm field of
 # 150 targets with the thesis priority mix, sequenced by allocate(configurations="all")): deep
 # targets need a half turn of J2 whose L3 swing sweeps a neighbour at both its start and goal
 DEEP_PAIRS = [[2.376101, 0.187627], [1.249194, 3.330396], [1.036665, 3.797867], [2.67291, 6.12583],
