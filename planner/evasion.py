@@ -121,8 +121,9 @@ def _options(geom: ArmGeom, qs: np.ndarray, v: np.ndarray, g: np.ndarray, T1: fl
 def clear_detours(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, obstacles: list[Pose], *,
                   buffer_mm: float, max_duration_s: float, max_paths: int = 2,
                   waits_s: tuple[float, ...] = (0.0,), horizon_s: float = math.inf,
-                  vertices: np.ndarray | None = None) -> list[Option]:
-    """The shortest one-stop paths of one arm whose every pose clears every obstacle pose."""
+                  vertices: np.ndarray | None = None, kind: str = "detour") -> list[Option]:
+    """The shortest one-stop paths of one arm (through ``vertices``, default the grid) whose
+    every pose clears every obstacle pose, as options of ``kind``."""
     V = vertex_grid(geom) if vertices is None else vertices
     v, g, T1, T2 = one_stop_paths(geom, qs, qg, V, max_duration_s)
     found: list[Option] = []
@@ -132,7 +133,7 @@ def clear_detours(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, obstacles: list
         ok = _clear_of(geom, _path_poses(qs, v[sl], g[sl]), obstacles, thr)
         for i in np.flatnonzero(ok):
             j = lo + int(i)
-            found += _options(geom, qs, v[j], g[j], float(T1[j]), float(T2[j]), waits_s, horizon_s, "detour")
+            found += _options(geom, qs, v[j], g[j], float(T1[j]), float(T2[j]), waits_s, horizon_s, kind)
             if len(found) >= max_paths * len(waits_s):
                 return found
     return found
@@ -158,21 +159,10 @@ def aside_detours(geom: ArmGeom, qs: np.ndarray, qg: np.ndarray, passing: ArmGeo
     sw = swept_poses(passing_option)
     ok = _clear_of(geom, V[:, None, :], [Pose(passing, q) for q in sw[:: max(1, len(sw) // 40)]],
                    buffer_mm + SAMPLING_MARGIN_MM)
-    V = V[ok]
-    if len(V) == 0:
+    if not ok.any():
         return []
-    v, g, T1, T2 = one_stop_paths(geom, qs, qg, V, max_duration_s)
-    found: list[Option] = []
-    thr = buffer_mm + SAMPLING_MARGIN_MM
-    for lo in range(0, len(v), BATCH):
-        sl = slice(lo, lo + BATCH)
-        okp = _clear_of(geom, _path_poses(qs, v[sl], g[sl]), obstacles, thr)
-        for i in np.flatnonzero(okp):
-            j = lo + int(i)
-            found += _options(geom, qs, v[j], g[j], float(T1[j]), float(T2[j]), waits_s, horizon_s, "aside")
-            if len(found) >= max_paths * len(waits_s):
-                return found
-    return found
+    return clear_detours(geom, qs, qg, obstacles, buffer_mm=buffer_mm, max_duration_s=max_duration_s,
+                         max_paths=max_paths, waits_s=waits_s, horizon_s=horizon_s, vertices=V[ok], kind="aside")
 
 
 def step_aside(ga: ArmGeom, a_start: np.ndarray, a_goal: np.ndarray, a_obstacles: list[Pose],

@@ -16,15 +16,13 @@ from models.types import ArmTrajectory
 from planner import MotionOptions, plan_motion, verify_trajectories
 from planner.strategies.reversed import reverse_trajectories
 from planner.strategy import STRATEGIES, Budget, Candidate, Leg, Refusal
+from tests.test_planner import _en_route
 
 INST = default_instrument()
 PARK = INST.park_configuration
 V = INST.max_joint_speed_rad_s
 TWO_PI = 2 * np.pi
 GOAL_CONFLICT = [[3.0136971541900013, 0.18301607390023514], [1.928770938121543, 2.7180407071074124]]
-ER_ARMS = (0, 3)
-ER_START = [[0.878773072458201, 2.867705337737001], [1.4550251279736608, 2.3495517334077203]]
-ER_GOAL = [[1.1008431294640253, 2.92703963520059], [1.3759905077268153, 2.70159732393187]]
 
 
 def _two_arm():
@@ -34,12 +32,6 @@ def _two_arm():
     return inst, goal
 
 
-def _en_route():
-    inst = INST.with_arms_disabled([k for k in range(12) if k not in ER_ARMS])
-    start, goal = PARK.copy(), PARK.copy()
-    start[list(ER_ARMS)] = ER_START
-    goal[list(ER_ARMS)] = ER_GOAL
-    return inst, start, goal
 
 
 class Unsafe:
