@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -168,8 +168,10 @@ class _Sequencer:
     """The state of one pointing's plan while its legs are planned and repaired."""
 
     def __init__(self, instrument: Instrument, configurations: Sequence[Configuration],
-                 options: SequenceOptions, priority_of: dict[str, int]) -> None:
+                 options: SequenceOptions, priority_of: dict[str, int],
+                 progress: Callable[[float], None] | None = None) -> None:
         self.ins = instrument
+        self.progress = progress
         self.opt = options
         self.priority_of = priority_of
         self.configs = list(configurations)
@@ -342,6 +344,8 @@ class _Sequencer:
                 self.changes = [c for c in self.changes if not (c.kind == "via_park" and c.leg == i)]
                 continue
             self.legs.append(leg)
+            if self.progress is not None:
+                self.progress(min(1.0, len(self.legs) / (len(self.configs) + 1)))
             if self.pending:
                 self.place_pending(i)
             starts.append(end_of(leg) if leg.status == "ok" else (self.configs[i].q if i < len(self.configs)
@@ -375,18 +379,20 @@ class _Sequencer:
 
 
 def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration],
-                  options: SequenceOptions | None = None, *, targets: PlaneTargets | None = None) -> SequencePlan:
+                  options: SequenceOptions | None = None, *, targets: PlaneTargets | None = None,
+                  progress: Callable[[float], None] | None = None) -> SequencePlan:
     """Plans park -> c1 -> ... -> park and repairs the plan where a leg cannot be planned.
 
     ``targets`` (the pointing's targets, as given to the allocator) supply the priorities that
     decide which blocking target moves first (the lowest); without them all count the same.
-    Returns a :class:`SequencePlan`; ``executable`` is False only when every change was tried.
+    ``progress(fraction)`` is called after each leg. Returns a :class:`SequencePlan`;
+    ``executable`` is False only when every change was tried.
     """
     options = options or SequenceOptions()
     priority_of = {} if targets is None else {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
     if not configurations:
         return SequencePlan((), (_stationary(instrument),), (), (), {"legs": 1})
-    return _Sequencer(instrument, configurations, options, priority_of).run()
+    return _Sequencer(instrument, configurations, options, priority_of, progress).run()
 
 
 def _stationary(instrument: Instrument) -> MotionPlan:

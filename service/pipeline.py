@@ -395,7 +395,7 @@ def motion_plan(
 
 def motion_sequence(
     inst: Instrument, configurations: Sequence[Any], *, targets: Any, seed: int | None,
-    leg_time_limit_s: float, time_limit_s: float | None,
+    leg_time_limit_s: float, time_limit_s: float | None, progress: Progress = _noop,
 ) -> dict[str, Any]:
     """``planner.sequence.plan_sequence`` on one pointing's configurations
     (``models.types.Configuration``) and targets (``models.types.PlaneTargets``, as given to
@@ -410,7 +410,7 @@ def motion_sequence(
     options = SequenceOptions(seed=int(seed or 0), leg_time_limit_s=float(leg_time_limit_s),
                               time_limit_s=_opt_float(time_limit_s))
     try:
-        sp = plan_sequence(inst, tuple(configurations), options, targets=targets)
+        sp = plan_sequence(inst, tuple(configurations), options, targets=targets, progress=progress)
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
         log.exception("motion sequence planning failed")
         reason = f"planner error: {type(exc).__name__}: {exc}"
@@ -551,7 +551,8 @@ def plan(
         seq = motion_sequence(inst, configs, targets=targets, seed=seed,
                               leg_time_limit_s=leg_budget,
                               time_limit_s=None if deadline is None
-                              else max(remaining, _MIN_STAGE_S))
+                              else max(remaining, _MIN_STAGE_S),
+                              progress=lambda f, lo=lo, hi=hi: progress(lo + (0.5 + 0.5 * f) * (hi - lo)))
         motions = seq["motions"]
         pstats["motion"] = {"legs": len(motions), "leg_budget_s": leg_budget,
                             "compute_s": time.monotonic() - tm,

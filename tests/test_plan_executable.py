@@ -54,8 +54,9 @@ def fake_plan_sequence(fail: bool):
     calls: list[SequenceOptions] = []
 
     def plan_sequence(inst: Any, configurations: Any, options: SequenceOptions, *,
-                      targets: PlaneTargets) -> SequencePlan:
+                      targets: PlaneTargets, progress: Any) -> SequencePlan:
         assert isinstance(options, SequenceOptions) and options.leg_time_limit_s > 0
+        progress(1.0)
         assert isinstance(targets, PlaneTargets) and len(targets.ids) == len(TARGETS)
         configs = tuple(configurations)
         assert configs and all(isinstance(c, Configuration) for c in configs)

@@ -158,3 +158,13 @@ def test_sequence_options_are_validated_naming_the_field():
         with pytest.raises(InputError) as e:
             SequenceOptions(**kw)
         assert e.value.field == field
+
+
+def test_sequence_reports_progress_per_leg():
+    q = PARK.copy()
+    q[[2, 4]] = [[2.5, 0.3], [2.45, 0.25]]
+    seen: list[float] = []
+    sp = plan_sequence(INST, [_configuration(0, q, {2, 4})], SequenceOptions(leg_time_limit_s=5.0),
+                       progress=seen.append)
+    assert sp.executable and len(sp.legs) == 2
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 2
