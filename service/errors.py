@@ -97,8 +97,20 @@ def error_body(code: str, message: str) -> dict[str, str]:
     return {"error": code, "detail": message}
 
 
+def _encodable(obj: Any) -> Any:
+    """``obj`` with every string made encodable as UTF-8: a lone surrogate (valid in JSON as
+    ``"\\ud800"``, not in UTF-8) is echoed as its escape instead of failing the answer."""
+    if isinstance(obj, str):
+        return obj.encode("utf-8", "backslashreplace").decode("utf-8")
+    if isinstance(obj, dict):
+        return {_encodable(k): _encodable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_encodable(v) for v in obj]
+    return obj
+
+
 def _validation_answer(errors: list[dict[str, Any]]) -> JSONResponse:
-    errs = json_safe(errors)
+    errs = _encodable(json_safe(errors))
     for e in errs:
         if isinstance(e.get("input"), (str, list, dict)) and len(json.dumps(e["input"])) > 500:
             e["input"] = "<omitted>"

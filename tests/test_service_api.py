@@ -469,3 +469,12 @@ def test_example_requests_are_valid() -> None:
              "allocation_sky": "allocation", "motion_plan": "motion-plan", "plan": "plan"}
     for name, kind in names.items():
         REQUEST_TYPES[kind].model_validate(example(name))
+
+
+def test_lone_surrogate_is_422_not_5xx(live_server) -> None:
+    """JSON may carry a lone surrogate ("\\ud800"); the 422 that echoes it must still encode."""
+    for path in ("/v1/segmentations", "/v1/allocations", "/v1/plans"):
+        r = httpx.post(live_server.url + path, content=b'{"targets":"\\ud800"}',
+                       headers={"Content-Type": "application/json"}, timeout=30)
+        assert r.status_code == 422, (path, r.status_code, r.text)
+        assert "targets" in r.json()["message"]
