@@ -226,20 +226,21 @@ def _neighbour_poses(geoms: list[ArmGeom], prob: DelayProblem, arm: int, start_q
 def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float,
                  dt_col_s: float, horizon_s: float, buffer_mm: float, movable: list[int],
                  stats: DelayStats, deadline: float, max_rounds: int = 8,
-                 waits_steps: tuple[int, ...] = (0, 2, 5), node_budget: int = 20000) -> EvasionResult:
+                 waits_steps: tuple[int, ...] = (0, 2, 5), node_budget: int = 20000,
+                 initial: DelayProblem | None = None) -> EvasionResult:
     """Straight moves with delays, then clear detours and step-aside moves for the arm pairs
-    that no delay separates, re-solving the delay CSP after each round of new options."""
+    that no delay separates, re-solving the delay CSP after each round of new options.
+
+    ``initial``: the straight-move problem the "delays" strategy already solved on the same
+    leg (same steps and horizon); its options and pair tables are reused, not recomputed."""
     n = len(geoms)
     mv = set(movable)
-    opts: list[list[Option]] = []
-    for k in range(n):
-        o = straight_options(geoms[k], start_q[k], goal_q[k]) if k in mv else []
-        opts.append(o or [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")])
+    opts = _straight_options(geoms, start_q, goal_q, mv, initial)
     lb = max(o[0].duration_s for o in opts)
     limit_s = min(horizon_s, lb + 60.0)
     waits = tuple(w * dt_s for w in waits_steps)
     log: list = []
-    prob = None
+    prob = initial if initial is not None and len(initial.options) == n else None
     tried: set[tuple[str, int, int]] = set()
     for rnd in range(max_rounds + 1):
         prob = build_problem(geoms, opts, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob, deadline=deadline)
@@ -268,6 +269,20 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         if not grown:
             break
     return EvasionResult(None, opts, max_rounds, log)
+
+
+def _straight_options(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, mv: set[int],
+                      initial: DelayProblem | None) -> list[list[Option]]:
+    """Both straight moves of every movable arm ("stay" for the others), the options of
+    ``initial`` first (in its order, so that its tables stay valid)."""
+    out: list[list[Option]] = []
+    for k in range(len(geoms)):
+        have = list(initial.options[k]) if initial is not None and len(initial.options) == len(geoms) else []
+        for o in straight_options(geoms[k], start_q[k], goal_q[k]) if k in mv else []:
+            if not any(len(h.waypoints) == len(o.waypoints) and np.allclose(h.waypoints, o.waypoints) for h in have):
+                have.append(o)
+        out.append(have or [Option(k, start_q[k][None].copy(), np.zeros(1), 0, "stay")])
+    return out
 
 
 def _blocked_options(prob: DelayProblem, opts: list[list[Option]], mv: set[int]) -> list[tuple[int, int, int]]:

@@ -30,9 +30,11 @@ class Evasion:
             return Refusal()
         t0 = time.perf_counter()
         dst = DelayStats()
+        search = leg.cache.delay_search  # the "delays" strategy's straight problem, if it ran
+        initial = getattr(search, "straight", None) if search is not None else None
         res = plan_evasion(list(leg.geoms), leg.start_q, leg.goal_q, dt_s=o.dt_s, dt_col_s=o.dt_col_s,
                            horizon_s=o.horizon_s, buffer_mm=leg.buffer_mm, movable=list(leg.enabled),
-                           stats=dst, deadline=budget.deadline)
+                           stats=dst, deadline=budget.deadline, initial=initial)
         stats = {"collision_checks": dst.pair_samples, "states_explored": dst.nodes,
                  "evasion": {"rounds": res.rounds, "log": res.log, "compute_s": time.perf_counter() - t0}}
         if res.assignment is None:
