@@ -155,6 +155,11 @@ def via_park_leg(instrument: Instrument, from_park_a: MotionPlan, from_park_b: M
     return verified_plan(instrument, trajs, start_q, goal_q, max_start_stop=None, stats=stats)
 
 
+def _key(config: Configuration) -> bytes:
+    """A configuration's joint angles, as the key of its park -> configuration plan."""
+    return np.ascontiguousarray(config.q, dtype=float).tobytes()
+
+
 class _Clock:
     def __init__(self, limit_s: float | None) -> None:
         self.t0 = time.perf_counter()
@@ -179,7 +184,7 @@ class _Sequencer:
         self.changes: list[PlanChange] = []
         self.dropped: list[Unallocated] = []
         self.legs: list[MotionPlan] = []
-        self.from_park: dict[int, MotionPlan] = {}  # id(config) -> park -> config plan
+        self.from_park: dict[bytes, MotionPlan] = {}  # the configuration's joint angles -> park -> it
         self.edits = 0
         self.plans = 0
         self.buffer_mm = instrument.collision_buffer_mm
@@ -196,7 +201,7 @@ class _Sequencer:
                            via=None)
 
     def park_to(self, config: Configuration) -> MotionPlan:
-        key = id(config)
+        key = _key(config)
         if key not in self.from_park:
             self.from_park[key] = self.plan(self.ins.park_configuration, config.q)
         return self.from_park[key]
@@ -209,11 +214,11 @@ class _Sequencer:
         park = self.ins.park_configuration
         last = i == len(self.configs)
         goal = park if last else self.configs[i].q
-        leg = self.from_park[id(self.configs[i])] if i == 0 and id(self.configs[0]) in self.from_park else None
+        leg = self.from_park.get(_key(self.configs[0])) if i == 0 else None
         if leg is None:
             leg = self.plan(start_q, goal)
         if i == 0 and leg.status == "ok":
-            self.from_park[id(self.configs[0])] = leg
+            self.from_park[_key(self.configs[0])] = leg
         if leg.status == "ok":
             return leg
         if last:
@@ -271,7 +276,7 @@ class _Sequencer:
             self.configs[i] = changed
             leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
             if i == 0 and leg.status == "ok":
-                self.from_park[id(changed)] = leg
+                self.from_park[_key(changed)] = leg
         return leg
 
     def _other_branch(self, i: int, k: int, start_q: np.ndarray) -> MotionPlan | None:
@@ -284,7 +289,7 @@ class _Sequencer:
             leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
             if leg.status == "ok":
                 if i == 0:
-                    self.from_park[id(changed)] = leg
+                    self.from_park[_key(changed)] = leg
                 tid = changed.assignments[k].target_id or ""
                 self.changes.append(PlanChange("other_branch", i, i, (k,), (tid,),
                                                f"arm {k} reaches its target in configuration {i + 1} "
