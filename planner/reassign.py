@@ -128,6 +128,23 @@ def other_branches(instrument: Instrument, config: Configuration, arm: int,
     return out
 
 
+def rest_at_park(instrument: Instrument, config: Configuration, arms: Sequence[int],
+                 buffer_mm: float) -> Configuration | None:
+    """``config`` with the idle arms among ``arms`` (resting on blank sky) moved to their park
+    where park keeps the buffer to every other arm; None if none of them can go there."""
+    asg = list(config.assignments)
+    moved = False
+    for k in arms:
+        if asg[k].kind != "blank":
+            continue
+        park = park_assignment(instrument, k)
+        q = np.array([[a.theta1_rad, a.theta2_rad] for a in asg])
+        if _fits(instrument, q, k, np.array([[park.theta1_rad, park.theta2_rad]]), buffer_mm)[0]:
+            asg[k] = park
+            moved = True
+    return _with(config, asg, 0) if moved else None
+
+
 def new_configuration(instrument: Instrument, index: int, status: str = "feasible") -> Configuration:
     """A configuration with every arm at park (to be filled by :func:`try_place`)."""
     asg = tuple(park_assignment(instrument, k) for k in range(instrument.n_arms))

@@ -8,8 +8,9 @@ new assignment plan computed):
 1. the leg goes through park: c_i -> park is the time reversal of a verified park -> c_i
    plan (collisions, the zone of avoidance and speed limits are symmetric in time), then
    park -> c_(i+1);
-2. a blocking arm (the lowest-priority target among the arms the planner could not plan)
-   reaches its target through another IK branch, if one fits;
+2. idle arms among those the planner could not plan rest at park instead of on blank sky,
+   where park fits; then a blocking arm (the lowest-priority target among them) reaches its
+   target through another IK branch, if one fits;
 3. otherwise it stays at park in that configuration and its target moves to a later
    configuration that can take it on an idle arm (another arm first), or to a new
    configuration at the end of the sequence; a configuration left empty is removed;
@@ -40,10 +41,18 @@ from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
 from planner.commands import arm_trajectory
 from planner.driver import plan_motion, verified_plan
-from planner.reassign import Placed, new_configuration, other_branches, take_out, try_place
+from planner.reassign import (
+    Placed,
+    new_configuration,
+    other_branches,
+    rest_at_park,
+    take_out,
+    try_place,
+)
 from planner.strategies.reversed import reverse_trajectories
 
-ChangeKind = Literal["via_park", "other_branch", "moved_target", "new_configuration", "dropped_target"]
+ChangeKind = Literal["via_park", "rest_to_park", "other_branch", "moved_target", "new_configuration",
+                     "dropped_target"]
 
 
 @dataclass(frozen=True)
@@ -252,6 +261,10 @@ class _Sequencer:
         """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
         leg = failed
         while leg.status != "ok" and self.edits < self.opt.max_changes and self.clock.left_s() > MIN_LEG_S:
+            rested = self._rest_at_park(i, leg.failed_arms, start_q)
+            if rested is not None:
+                leg = rested
+                continue
             config = self.configs[i]
             blockers = [k for k in leg.failed_arms if config.assignments[k].kind == "target"]
             if not blockers:
@@ -277,6 +290,23 @@ class _Sequencer:
             leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
             if i == 0 and leg.status == "ok":
                 self.from_park[_key(changed)] = leg
+        return leg
+
+    def _rest_at_park(self, i: int, arms: Sequence[int], start_q: np.ndarray) -> MotionPlan | None:
+        """Idle arms of configuration i among ``arms`` from their blank-sky rest to park (no
+        target changes); the re-planned leg, or None when no such arm can go to park."""
+        changed = rest_at_park(self.ins, self.configs[i], arms, self.buffer_mm)
+        if changed is None:
+            return None
+        self.edits += 1
+        moved = tuple(k for k in arms if changed.assignments[k].kind != self.configs[i].assignments[k].kind)
+        self.configs[i] = changed
+        self.changes.append(PlanChange("rest_to_park", i, i, moved, (),
+                                       f"idle arms {', '.join(map(str, moved))} rest at park instead of on "
+                                       f"blank sky in configuration {i + 1}"))
+        leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
+        if i == 0 and leg.status == "ok":
+            self.from_park[_key(changed)] = leg
         return leg
 
     def _other_branch(self, i: int, k: int, start_q: np.ndarray) -> MotionPlan | None:
@@ -368,8 +398,19 @@ class _Sequencer:
             return False
         config = self.configs[-1]
         back = self.park_to(config)
+        if back.status == "ok":
+            return False
+        rested = rest_at_park(self.ins, config, back.failed_arms, self.buffer_mm)
+        if rested is not None:  # idle arms to park first: no target changes
+            self.edits += 1
+            moved = tuple(k for k in back.failed_arms if rested.assignments[k].kind != config.assignments[k].kind)
+            self.configs[-1] = rested
+            self.changes.append(PlanChange("rest_to_park", n - 1, n - 1, moved, (),
+                                           f"idle arms {', '.join(map(str, moved))} rest at park instead of "
+                                           f"on blank sky in configuration {n}"))
+            return True
         blockers = [k for k in back.failed_arms if config.assignments[k].kind == "target"]
-        if back.status == "ok" or not blockers:
+        if not blockers:
             return False
         k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
                                          blockers.index(a)))

@@ -168,3 +168,24 @@ def test_sequence_reports_progress_per_leg():
                        progress=seen.append)
     assert sp.executable and len(sp.legs) == 2
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) == 2
+
+
+def test_idle_arm_on_blank_sky_goes_to_park():
+    """rest_at_park moves a blank-sky rest to park, collision-free, and leaves target arms alone."""
+    from dataclasses import replace as dc_replace
+
+    from models.collision import colliding_arm_pairs
+    from planner.reassign import rest_at_park
+
+    q = PARK.copy()
+    q[[2, 4]] = [[2.5, 0.3], [2.45, 0.25]]
+    config = _configuration(0, q, {2, 4})
+    blank = dc_replace(config.assignments[3], kind="blank", theta1_rad=2.9, theta2_rad=0.1)
+    asg = list(config.assignments)
+    asg[3] = blank
+    config = dc_replace(config, assignments=tuple(asg))
+    moved = rest_at_park(INST, config, [3, 2], INST.collision_buffer_mm)
+    assert moved is not None
+    assert moved.assignments[3].kind == "park" and moved.assignments[2] == config.assignments[2]
+    assert not colliding_arm_pairs(INST, moved.q)
+    assert rest_at_park(INST, config, [2, 4], INST.collision_buffer_mm) is None  # no idle arm named
