@@ -416,6 +416,8 @@ class PlanChangeOut(Response):
     leg can be executed."""
 
     kind: str = Field(description="'via_park' (the leg goes through the park configuration), "
+                      "'rest_to_park' (idle arms rest at park instead of on blank sky), "
+                      "'other_branch' (an arm reaches its target through another IK branch), "
                       "'moved_target' (blocking targets moved to another configuration), "
                       "'new_configuration' (a configuration added at the end of the sequence) "
                       "or 'dropped_target' (targets no configuration could take).")
