@@ -151,14 +151,16 @@ def via_park_leg(instrument: Instrument, from_park_a: MotionPlan, from_park_b: M
     T1 = float(from_park_a.makespan_s)
     trajs = []
     for a, b in zip(back, from_park_b.trajectories, strict=True):
-        turns = a.theta2_rad[-1] - b.theta2_rad[0]
+        # the reversal rests at park until T1 (its last way-point); b starts there, whole turns apart
+        end = np.array([[a.theta1_rad[-1], a.theta2_rad[-1]]])
+        a_q = np.column_stack([a.theta1_rad, a.theta2_rad])
+        if a.t_s[-1] < T1 - 1e-12:
+            a_t, a_q = np.concatenate([a.t_s, [T1]]), np.vstack([a_q, end])
+        else:
+            a_t = a.t_s
         keep = b.t_s > 1e-12
-        t = np.concatenate([a.t_s, [T1] if a.t_s[-1] < T1 - 1e-12 else [], b.t_s[keep] + T1])
-        q = np.column_stack([
-            np.concatenate([a.theta1_rad, a.theta1_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [], b.theta1_rad[keep]]),
-            np.concatenate([a.theta2_rad, a.theta2_rad[-1:] if a.t_s[-1] < T1 - 1e-12 else [],
-                            b.theta2_rad[keep] + turns])])
-        trajs.append(arm_trajectory(a.arm, t, q))
+        b_q = np.column_stack([b.theta1_rad[keep], b.theta2_rad[keep] + (end[0, 1] - b.theta2_rad[0])])
+        trajs.append(arm_trajectory(a.arm, np.concatenate([a_t, b.t_s[keep] + T1]), np.vstack([a_q, b_q])))
     stats = {"strategy": "via_park", "lower_bound_s": lower_bound_s, "compute_s": 0.0, "attempts": 0,
              "via_makespans_s": [T1, float(from_park_b.makespan_s)]}
     return verified_plan(instrument, trajs, start_q, goal_q, max_start_stop=None, stats=stats)
@@ -261,16 +263,13 @@ class _Sequencer:
         """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
         leg = failed
         while leg.status != "ok" and self.edits < self.opt.max_changes and self.clock.left_s() > MIN_LEG_S:
-            rested = self._rest_at_park(i, leg.failed_arms, start_q)
-            if rested is not None:
-                leg = rested
+            if self._rested(i, leg.failed_arms):
+                leg = self._replan(i, start_q)
                 continue
             config = self.configs[i]
-            blockers = [k for k in leg.failed_arms if config.assignments[k].kind == "target"]
-            if not blockers:
+            k = self._lowest_priority(config, leg.failed_arms)
+            if k is None:
                 break
-            k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
-                                             blockers.index(a)))
             branch = self._other_branch(i, k, start_q)
             if branch is not None:
                 return branch
@@ -287,23 +286,35 @@ class _Sequencer:
                 del self.configs[i]
                 return None
             self.configs[i] = changed
-            leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
-            if i == 0 and leg.status == "ok":
-                self.from_park[_key(changed)] = leg
+            leg = self._replan(i, start_q)
         return leg
 
-    def _rest_at_park(self, i: int, arms: Sequence[int], start_q: np.ndarray) -> MotionPlan | None:
+    def _rested(self, i: int, arms: Sequence[int]) -> bool:
         """Idle arms of configuration i among ``arms`` from their blank-sky rest to park (no
-        target changes); the re-planned leg, or None when no such arm can go to park."""
-        changed = rest_at_park(self.ins, self.configs[i], arms, self.buffer_mm)
+        target changes), recorded; False when none of them can go to park."""
+        config = self.configs[i]
+        changed = rest_at_park(self.ins, config, arms, self.buffer_mm)
         if changed is None:
-            return None
+            return False
         self.edits += 1
-        moved = tuple(k for k in arms if changed.assignments[k].kind != self.configs[i].assignments[k].kind)
+        moved = tuple(k for k in arms if changed.assignments[k].kind != config.assignments[k].kind)
         self.configs[i] = changed
         self.changes.append(PlanChange("rest_to_park", i, i, moved, (),
                                        f"idle arms {', '.join(map(str, moved))} rest at park instead of on "
                                        f"blank sky in configuration {i + 1}"))
+        return True
+
+    def _lowest_priority(self, config: Configuration, arms: Sequence[int]) -> int | None:
+        """The arm among ``arms`` observing the lowest-priority target (the first on ties)."""
+        blockers = [k for k in arms if config.assignments[k].kind == "target"]
+        if not blockers:
+            return None
+        return min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
+                                            blockers.index(a)))
+
+    def _replan(self, i: int, start_q: np.ndarray) -> MotionPlan:
+        """The leg into the (changed) configuration i: directly, or through park."""
+        changed = self.configs[i]
         leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
         if i == 0 and leg.status == "ok":
             self.from_park[_key(changed)] = leg
@@ -316,10 +327,8 @@ class _Sequencer:
                 break
             self.edits += 1
             old, self.configs[i] = self.configs[i], changed
-            leg = self.plan(start_q, changed.q) if i == 0 else self._direct_or_via(i, start_q)
+            leg = self._replan(i, start_q)
             if leg.status == "ok":
-                if i == 0:
-                    self.from_park[_key(changed)] = leg
                 tid = changed.assignments[k].target_id or ""
                 self.changes.append(PlanChange("other_branch", i, i, (k,), (tid,),
                                                f"arm {k} reaches its target in configuration {i + 1} "
@@ -400,20 +409,11 @@ class _Sequencer:
         back = self.park_to(config)
         if back.status == "ok":
             return False
-        rested = rest_at_park(self.ins, config, back.failed_arms, self.buffer_mm)
-        if rested is not None:  # idle arms to park first: no target changes
-            self.edits += 1
-            moved = tuple(k for k in back.failed_arms if rested.assignments[k].kind != config.assignments[k].kind)
-            self.configs[-1] = rested
-            self.changes.append(PlanChange("rest_to_park", n - 1, n - 1, moved, (),
-                                           f"idle arms {', '.join(map(str, moved))} rest at park instead of "
-                                           f"on blank sky in configuration {n}"))
+        if self._rested(n - 1, back.failed_arms):  # idle arms to park first: no target changes
             return True
-        blockers = [k for k in back.failed_arms if config.assignments[k].kind == "target"]
-        if not blockers:
+        k = self._lowest_priority(config, back.failed_arms)
+        if k is None:
             return False
-        k = min(blockers, key=lambda a: (self.priority_of.get(config.assignments[a].target_id or "", 1),
-                                         blockers.index(a)))
         changed, out = take_out(self.ins, config, [k], self.priority_of)
         self.edits += 1
         self.configs[-1] = changed
