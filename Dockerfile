@@ -15,6 +15,7 @@ COPY solvers ./solvers
 COPY planner ./planner
 COPY service ./service
 RUN pip install . \
+    && (cd / && python -c "from planner.clearance import compile_kernels; compile_kernels()") \
     && useradd --create-home --uid 10001 mxs \
     && mkdir -p /data \
     && chown mxs:mxs /data

@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.collision import segment_distance_xy
 from models.instrument import Instrument
 from models.kinematics import THETA1_TOL_RAD
+from planner.clearance import clearance_rows
 
 _JOINT_INDEX = {"J1": 0, "J2": 1, "J3": 2, "J4": 3, "tip": 4}
 
@@ -181,13 +181,9 @@ def body_speed_bound_mm_s(geom: ArmGeom, w1_rad_s: float, w2_rad_s: float) -> fl
 
 def clearance_between(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
                       sb: np.ndarray, eb: np.ndarray, rb: np.ndarray) -> np.ndarray:
-    """Min clearance over body pairs: ``s*``/``e*`` (..., nb, 2) broadcast against each other."""
-    d = segment_distance_xy(
-        sa[..., :, None, 0], sa[..., :, None, 1], ea[..., :, None, 0], ea[..., :, None, 1],
-        sb[..., None, :, 0], sb[..., None, :, 1], eb[..., None, :, 0], eb[..., None, :, 1],
-    )
-    d = d - ra[:, None] - rb[None, :]
-    return d.min(axis=(-2, -1))
+    """Min clearance over body pairs: ``s*``/``e*`` (..., nb, 2) broadcast against each other
+    (the compiled kernel :func:`planner.clearance.clearance_rows`)."""
+    return clearance_rows(sa, ea, ra, sb, eb, rb)
 
 
 def timed_collisions(geoms: Sequence[ArmGeom], timed: Sequence[tuple[np.ndarray, np.ndarray]], buffer_mm: float,

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.collision import segment_distance_xy
+from planner.clearance import clearance_to_arms
 from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapPath
 
@@ -176,11 +176,7 @@ class _Checker:
         sl = slice(sample0, sample0 + n)
         os_, oe = self.S[act, sl], self.E[act, sl]  # (A, n, nb, 2)
         self.stats.collision_checks += len(act) * n
-        d = segment_distance_xy(
-            cs[None, :, :, None, 0], cs[None, :, :, None, 1], ce[None, :, :, None, 0], ce[None, :, :, None, 1],
-            os_[:, :, None, :, 0], os_[:, :, None, :, 1], oe[:, :, None, :, 0], oe[:, :, None, :, 1],
-        )
-        d = d - self.r[None, None, :, None] - self.R[act][:, None, None, :]
+        d = clearance_to_arms(cs, ce, self.r, os_, oe, self.R[act])
         return bool(d.min() >= self.obst.buffer_mm)
 
     def static_unsafe_samples(self, q: np.ndarray, first_sample: int, last_sample: int) -> np.ndarray:
@@ -198,12 +194,8 @@ class _Checker:
         sl = slice(first_sample, last_sample + 1)
         os_, oe = self.S[act, sl], self.E[act, sl]
         self.stats.collision_checks += len(act) * (last_sample + 1 - first_sample)
-        d = segment_distance_xy(
-            cs[None, :, :, None, 0], cs[None, :, :, None, 1], ce[None, :, :, None, 0], ce[None, :, :, None, 1],
-            os_[:, :, None, :, 0], os_[:, :, None, :, 1], oe[:, :, None, :, 0], oe[:, :, None, :, 1],
-        )
-        d = d - self.r[None, None, :, None] - self.R[act][:, None, None, :]
-        bad = (d.min(axis=(2, 3)) < self.obst.buffer_mm).any(0)
+        d = clearance_to_arms(cs, ce, self.r, os_, oe, self.R[act])
+        bad = (d < self.obst.buffer_mm).any(0)
         return first_sample + np.flatnonzero(bad)
 
 
@@ -291,10 +283,7 @@ def _path_order(geom: ArmGeom, paths: list[RoadmapPath], obst: ObstacleTime, chk
         f = np.tile(s, len(wp) - 1)
         q = wp[seg] + f[:, None] * (wp[seg + 1] - wp[seg])
         cs, ce = geom.segments(q[:, 0], q[:, 1])  # (n, nb, 2)
-        d = segment_distance_xy(
-            cs[None, :, :, None, 0], cs[None, :, :, None, 1], ce[None, :, :, None, 0], ce[None, :, :, None, 1],
-            fs[:, None, None, :, 0], fs[:, None, None, :, 1], fe[:, None, None, :, 0], fe[:, None, None, :, 1],
-        ) - chk.r[None, None, :, None] - R[:, None, None, :]
+        d = clearance_to_arms(cs, ce, chk.r, fs[:, None], fe[:, None], R)
         if d.min() >= obst.buffer_mm:
             clear.append(i)
     return (head + clear)[: params.max_paths]

@@ -1,0 +1,125 @@
+"""Compiled capsule clearance between two arms' bodies, the planner's hot kernel.
+
+The delay tables (:mod:`planner.delay_tables`), the evasion search and the planner's own
+re-check ask for the clearance of millions of body-pair samples per leg. The numpy form
+(:func:`models.collision.segment_distance_xy` broadcast over body pairs) materialises a dozen
+temporaries per body pair; this kernel loops over samples and body pairs in compiled code
+(numba), with the same closest-point algorithm (Ericson, *Real-Time Collision Detection*,
+5.1.9) and the same treatment of degenerate and (nearly) parallel segments, so the two agree
+to rounding (tested against the numpy form, which stays the reference and the verifier's).
+
+Compiled functions are cached on disk (``cache=True``); the first call in a fresh
+environment compiles them once (about a second).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_EPS = 1e-12  # as models.collision
+
+
+@numba.njit(cache=True, inline="always")
+def _point_segment(px, py, ax, ay, bx, by):
+    dx = bx - ax
+    dy = by - ay
+    ll = dx * dx + dy * dy
+    t = ((px - ax) * dx + (py - ay) * dy) / ll if ll > _EPS else 0.0
+    t = min(max(t, 0.0), 1.0)
+    return np.hypot(px - ax - t * dx, py - ay - t * dy)
+
+
+@numba.njit(cache=True, inline="always")
+def _clamp01(x):
+    return min(max(x, 0.0), 1.0)
+
+
+@numba.njit(cache=True)
+def segment_distance(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y):
+    """Distance between segments p0-p1 and q0-q1 (scalars); zero-length segments are points."""
+    d1x = p1x - p0x
+    d1y = p1y - p0y
+    d2x = q1x - q0x
+    d2y = q1y - q0y
+    rx = p0x - q0x
+    ry = p0y - q0y
+    a = d1x * d1x + d1y * d1y
+    e = d2x * d2x + d2y * d2y
+    f = d2x * rx + d2y * ry
+    c = d1x * rx + d1y * ry
+    b = d1x * d2x + d1y * d2y
+    a_ok = a > _EPS
+    e_ok = e > _EPS
+    if not a_ok and not e_ok:
+        return np.hypot(rx, ry)
+    if not a_ok:
+        t = _clamp01(f / e)
+        return np.hypot(rx - d2x * t, ry - d2y * t)
+    if not e_ok:
+        s = _clamp01(-c / a)
+        return np.hypot(rx + d1x * s, ry + d1y * s)
+    denom = a * e - b * b
+    general = denom > _EPS * max(a * e, _EPS)
+    s = _clamp01((b * f - c * e) / denom) if general else 0.0
+    t = (b * s + f) / e
+    if t < 0.0:
+        s = _clamp01(-c / a)
+    elif t > 1.0:
+        s = _clamp01((b - c) / a)
+    t = _clamp01(t)
+    d = np.hypot(rx + d1x * s - d2x * t, ry + d1y * s - d2y * t)
+    if not general:  # (nearly) parallel: the closest pair involves an end point
+        d = min(d, _point_segment(p0x, p0y, q0x, q0y, q1x, q1y), _point_segment(p1x, p1y, q0x, q0y, q1x, q1y),
+                _point_segment(q0x, q0y, p0x, p0y, p1x, p1y), _point_segment(q1x, q1y, p0x, p0y, p1x, p1y))
+    return d
+
+
+@numba.njit(cache=True)
+def _clearance_rows(sa, ea, ra, sb, eb, rb):
+    n = sa.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        m = np.inf
+        for p in range(sa.shape[1]):
+            for q in range(sb.shape[1]):
+                d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
+                                     sb[i, q, 0], sb[i, q, 1], eb[i, q, 0], eb[i, q, 1]) - ra[p] - rb[q]
+                if d < m:
+                    m = d
+        out[i] = m
+    return out
+
+
+def clearance_rows(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
+                   sb: np.ndarray, eb: np.ndarray, rb: np.ndarray) -> np.ndarray:
+    """Min clearance over body pairs: ``s*``/``e*`` (..., nb, 2) broadcast against each other,
+    ``ra`` / ``rb`` the body radii (nb,); returns the broadcast leading shape."""
+    sa, ea, sb, eb = (np.asarray(x, float) for x in (sa, ea, sb, eb))
+    lead = np.broadcast_shapes(sa.shape[:-2], ea.shape[:-2], sb.shape[:-2], eb.shape[:-2])
+    n = int(np.prod(lead, dtype=np.int64))
+    if n == 0:
+        return np.empty(lead)
+
+    def rows(x: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, *x.shape[-2:]))
+
+    out = _clearance_rows(rows(sa), rows(ea), np.ascontiguousarray(ra, dtype=float),
+                          rows(sb), rows(eb), np.ascontiguousarray(rb, dtype=float))
+    return out.reshape(lead)
+
+
+def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
+                      S: np.ndarray, E: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(A, n) clearances of one arm's capsules ``cs``/``ce`` ((n, nb, 2), or (1, nb, 2) for a
+    fixed pose) to A other arms ``S``/``E`` ((A, n, nb', 2), radii ``R`` (A, nb'))."""
+    return np.stack([clearance_rows(cs, ce, r, S[a], E[a], R[a]) for a in range(len(S))]) if len(S) else \
+        np.empty((0, max(len(cs), S.shape[1])))
+
+
+def compile_kernels() -> None:
+    """Compile (or load from the on-disk cache) every kernel of this module; the Docker image
+    calls it at build time so that no request pays for the compilation."""
+    z = np.zeros((1, 1, 2))
+    r = np.zeros(1)
+    clearance_rows(z, z, r, z, z, r)
