@@ -101,12 +101,55 @@ def clearance_rows(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
     if n == 0:
         return np.empty(lead)
 
-    def rows(x: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, *x.shape[-2:]))
+    def rows(x: np.ndarray) -> np.ndarray:  # C-contiguous and writable: one compiled signature
+        return np.require(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, *x.shape[-2:]), float, ("C", "W"))
 
-    out = _clearance_rows(rows(sa), rows(ea), np.ascontiguousarray(ra, dtype=float),
-                          rows(sb), rows(eb), np.ascontiguousarray(rb, dtype=float))
+    out = _clearance_rows(rows(sa), rows(ea), np.require(ra, float, ("C", "W")),
+                          rows(sb), rows(eb), np.require(rb, float, ("C", "W")))
     return out.reshape(lead)
+
+
+@numba.njit(cache=True)
+def _indexed_clearance(sa, ea, ra, box_a, ia, sb, eb, rb, box_b, ib, exact_below):
+    n = ia.shape[0]
+    out = np.empty(n)
+    n_exact = 0
+    for r in range(n):
+        i = ia[r]
+        j = ib[r]
+        gx = max(box_a[i, 0] - box_b[j, 2], box_b[j, 0] - box_a[i, 2])
+        gy = max(box_a[i, 1] - box_b[j, 3], box_b[j, 1] - box_a[i, 3])
+        gap = max(gx, gy)
+        if gap >= exact_below:
+            out[r] = gap
+            continue
+        n_exact += 1
+        m = np.inf
+        for p in range(sa.shape[1]):
+            for q in range(sb.shape[1]):
+                d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
+                                     sb[j, q, 0], sb[j, q, 1], eb[j, q, 0], eb[j, q, 1]) - ra[p] - rb[q]
+                if d < m:
+                    m = d
+        out[r] = m
+    return out, n_exact
+
+
+def indexed_clearance(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, ia: np.ndarray,
+                      sb: np.ndarray, eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, ib: np.ndarray,
+                      exact_below: float) -> tuple[np.ndarray, int]:
+    """Clearance of sample ``ia[r]`` of arm a (capsules ``sa``/``ea`` (N, nb, 2), radius-padded
+    bounding boxes ``box_a`` (N, 4) as lo x, lo y, hi x, hi y) and sample ``ib[r]`` of arm b, for
+    every r: the exact clearance where the boxes' gap (a lower bound of it) is below
+    ``exact_below``, the gap elsewhere. Returns (values, number of exact clearances)."""
+    def c(x):
+        return np.require(x, float, ("C", "W"))
+
+    def i(x):
+        return np.require(x, np.int64, ("C", "W"))
+
+    return _indexed_clearance(c(sa), c(ea), c(ra), c(box_a), i(ia), c(sb), c(eb), c(rb), c(box_b), i(ib),
+                              float(exact_below))
 
 
 def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
@@ -123,3 +166,4 @@ def compile_kernels() -> None:
     z = np.zeros((1, 1, 2))
     r = np.zeros(1)
     clearance_rows(z, z, r, z, z, r)
+    indexed_clearance(z, z, r, np.zeros((1, 4)), np.zeros(1, int), z, z, r, np.zeros((1, 4)), np.zeros(1, int), 0.0)

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.geometry import ArmGeom, body_speed_bound_mm_s, clearance_between
+from planner.clearance import indexed_clearance
+from planner.geometry import ArmGeom, body_speed_bound_mm_s
 
 
 @dataclass
@@ -73,13 +74,6 @@ def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
             & (ba[..., 1] - pad <= bb[..., 3]) & (bb[..., 1] - pad <= ba[..., 3]))
 
 
-def _box_gap(ba: np.ndarray, bb: np.ndarray) -> np.ndarray:
-    """Lower bound of the clearance of two arms from their (radius-padded) bounding boxes."""
-    gx = np.maximum(ba[..., 0] - bb[..., 2], bb[..., 0] - ba[..., 2])
-    gy = np.maximum(ba[..., 1] - bb[..., 3], bb[..., 1] - ba[..., 3])
-    return np.maximum(gx, gy)
-
-
 def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib: np.ndarray,
            pos: np.ndarray, last: np.ndarray, lip_mm: float, thr: float, stats: DelayStats,
            stride: int = 10) -> np.ndarray:
@@ -99,12 +93,9 @@ def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib:
     sb, eb = ob.seg
 
     def exact(idx: np.ndarray) -> np.ndarray:
-        c = _box_gap(oa.box[ia[idx]], ob.box[ib[idx]])
-        need = np.flatnonzero(c < thr + lip_mm * stride)
-        if len(need):
-            j = idx[need]
-            c[need] = clearance_between(sa[ia[j]], ea[ia[j]], ga.radius, sb[ib[j]], eb[ib[j]], gb.radius)
-            stats.pair_samples += len(need)
+        c, n_exact = indexed_clearance(sa, ea, ga.radius, oa.box, ia[idx], sb, eb, gb.radius, ob.box, ib[idx],
+                                       thr + lip_mm * stride)
+        stats.pair_samples += n_exact
         return c
 
     r = pos % stride
@@ -142,37 +133,35 @@ def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int,
     cs = lambda ok: np.concatenate([[0], np.cumsum(~ok)])  # noqa: E731 - prefix counts of bad samples
     c_a_bs, c_a_be, c_b_as, c_b_ae = cs(a_bs), cs(a_be), cs(b_as), cs(b_ae)
 
-    def bad(c: np.ndarray, lo: int, hi: int) -> bool:  # any bad sample in [lo, hi]
-        lo, hi = max(lo, 0), min(hi, len(c) - 2)
-        return hi >= lo and c[hi + 1] - c[lo] > 0
+    def bad(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:  # any bad sample in [lo, hi], per k
+        lo, hi = np.maximum(lo, 0), np.minimum(hi, len(c) - 2)
+        some = hi >= lo
+        return some & (c[np.where(some, hi + 1, 0)] - c[np.where(some, lo, 0)] > 0)
 
     ks = np.arange(-K, K + 1)
     ok = np.ones(2 * K + 1, bool)
     # moving-moving diagonals a - b = M k
     kmin, kmax = max(-K, -(Nb // M) - 1), min(K, Na // M + 1)
-    ia_l, ib_l, kk_l, pos_l, last_l = [], [], [], [], []
-    for k in range(kmin, kmax + 1):
-        a0, a1 = max(0, M * k), min(Na, Nb + M * k)
-        if a1 < a0:
-            continue
-        a = np.arange(a0, a1 + 1)
-        ia_l.append(a)
-        ib_l.append(a - M * k)
-        kk_l.append(np.full(len(a), k + K))
-        pos_l.append(a - a0)
-        last_l.append(np.full(len(a), a1 - a0))
-    if ia_l:
-        ia, ib, kk = np.concatenate(ia_l), np.concatenate(ib_l), np.concatenate(kk_l)
-        mm = _clear(oa, ga, ia, ob, gb, ib, np.concatenate(pos_l), np.concatenate(last_l), la + lb, thr, stats)
-        badk = np.bincount(kk[~mm], minlength=2 * K + 1) > 0
+    kd = np.arange(kmin, kmax + 1)
+    a0, a1 = np.maximum(0, M * kd), np.minimum(Na, Nb + M * kd)
+    keep = a1 >= a0
+    kd, a0, a1 = kd[keep], a0[keep], a1[keep]
+    if len(kd):
+        length = a1 - a0 + 1
+        start = np.repeat(np.cumsum(length) - length, length)
+        pos = np.arange(int(length.sum())) - start  # position along its diagonal
+        ia = np.repeat(a0, length) + pos
+        kk = np.repeat(kd, length)
+        ib = ia - M * kk
+        mm = _clear(oa, ga, ia, ob, gb, ib, pos, np.repeat(length - 1, length), la + lb, thr, stats)
+        badk = np.bincount(kk[~mm] + K, minlength=2 * K + 1) > 0
         ok &= ~badk
-    for idx, k in enumerate(ks):
-        if not ok[idx]:
-            continue
-        Mk = M * int(k)
-        if (bad(c_a_bs, 0, Mk - 1) or bad(c_a_be, Nb + Mk + 1, Na)
-                or bad(c_b_as, 0, -Mk - 1) or bad(c_b_ae, Na - Mk + 1, Nb)):
-            ok[idx] = False
+    # a moving while b rests at its start (before b departs) or at its end (after b arrived), and
+    # b moving while a rests
+    Mk = M * ks
+    zero, na, nb = np.zeros_like(ks), np.full_like(ks, Na), np.full_like(ks, Nb)
+    ok &= ~(bad(c_a_bs, zero, Mk - 1) | bad(c_a_be, Nb + Mk + 1, na)
+            | bad(c_b_as, zero, -Mk - 1) | bad(c_b_ae, Na - Mk + 1, nb))
     stats.tables += 1
     return ok
 

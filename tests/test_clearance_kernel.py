@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from models.collision import segment_distance_xy
 from models.instrument import default_instrument
-from planner.clearance import clearance_rows, clearance_to_arms, segment_distance
+from planner.clearance import clearance_rows, clearance_to_arms, indexed_clearance, segment_distance
 from planner.geometry import ArmGeom
 
 INS = default_instrument()
@@ -88,3 +88,24 @@ def test_clearance_to_arms_matches_numpy_per_obstacle_radii():
     fixed = clearance_to_arms(cs[:1], ce[:1], g.radius, S, E, R)  # one pose against every sample
     np.testing.assert_allclose(fixed, np.stack([numpy_clearance(cs[:1], ce[:1], g.radius, S[a], E[a], R[a])
                                                 for a in range(3)]), atol=1e-9)
+
+
+def test_indexed_clearance_is_exact_below_the_threshold_and_a_lower_bound_above():
+    rng = np.random.default_rng(3)
+    ga, gb = ArmGeom.of(INS, 0), ArmGeom.of(INS, 4)  # box gaps both below and above the threshold
+    sa, ea = ga.segments(rng.uniform(0, np.pi, 300), rng.uniform(0, 2 * np.pi, 300))
+    sb, eb = gb.segments(rng.uniform(0, np.pi, 200), rng.uniform(0, 2 * np.pi, 200))
+
+    def boxes(s, e, r):
+        lo, hi = np.minimum(s, e) - r[None, :, None], np.maximum(s, e) + r[None, :, None]
+        return np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
+
+    ia, ib = rng.integers(0, 300, 5000), rng.integers(0, 200, 5000)
+    below = 30.0
+    got, n_exact = indexed_clearance(sa, ea, ga.radius, boxes(sa, ea, ga.radius), ia,
+                                     sb, eb, gb.radius, boxes(sb, eb, gb.radius), ib, below)
+    ref = numpy_clearance(sa[ia], ea[ia], ga.radius, sb[ib], eb[ib], gb.radius)
+    exact = np.isclose(got, ref, atol=1e-9)
+    assert (got <= ref + 1e-9).all()  # never above the true clearance
+    assert exact[ref < below].all()  # exact wherever the clearance is below the threshold
+    assert 0 < n_exact < len(ia) and n_exact >= (ref < below).sum()
