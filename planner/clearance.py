@@ -109,47 +109,71 @@ def clearance_rows(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
     return out.reshape(lead)
 
 
+@numba.njit(cache=True, inline="always")
+def _sample_clearance(sa, ea, ra, box_a, i, sb, eb, rb, box_b, j, exact_below):
+    """(clearance or its box-gap lower bound when that is >= exact_below, 1 if exact else 0)."""
+    gx = max(box_a[i, 0] - box_b[j, 2], box_b[j, 0] - box_a[i, 2])
+    gy = max(box_a[i, 1] - box_b[j, 3], box_b[j, 1] - box_a[i, 3])
+    gap = max(gx, gy)
+    if gap >= exact_below:
+        return gap, 0
+    m = np.inf
+    for p in range(sa.shape[1]):
+        for q in range(sb.shape[1]):
+            d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
+                                 sb[j, q, 0], sb[j, q, 1], eb[j, q, 0], eb[j, q, 1]) - ra[p] - rb[q]
+            if d < m:
+                m = d
+    return m, 1
+
+
 @numba.njit(cache=True)
-def _indexed_clearance(sa, ea, ra, box_a, ia, sb, eb, rb, box_b, ib, exact_below):
+def _lipschitz_clear(sa, ea, ra, box_a, ia, sb, eb, rb, box_b, ib, pos, last, lip, thr, stride):
     n = ia.shape[0]
-    out = np.empty(n)
+    c = np.empty(n)
+    ok = np.ones(n, np.bool_)
     n_exact = 0
-    for r in range(n):
-        i = ia[r]
-        j = ib[r]
-        gx = max(box_a[i, 0] - box_b[j, 2], box_b[j, 0] - box_a[i, 2])
-        gy = max(box_a[i, 1] - box_b[j, 3], box_b[j, 1] - box_a[i, 3])
-        gap = max(gx, gy)
-        if gap >= exact_below:
-            out[r] = gap
+    below = thr + lip * stride
+    for r in range(n):  # coarse samples: every stride-th of each sequence, and its last
+        if pos[r] % stride == 0 or pos[r] == last[r]:
+            c[r], e = _sample_clearance(sa, ea, ra, box_a, ia[r], sb, eb, rb, box_b, ib[r], below)
+            n_exact += e
+            ok[r] = c[r] >= thr
+    for r in range(n):  # the others: certified from both coarse neighbours, else exact
+        k = pos[r] % stride
+        if k == 0 or pos[r] == last[r]:
             continue
-        n_exact += 1
-        m = np.inf
-        for p in range(sa.shape[1]):
-            for q in range(sb.shape[1]):
-                d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
-                                     sb[j, q, 0], sb[j, q, 1], eb[j, q, 0], eb[j, q, 1]) - ra[p] - rb[q]
-                if d < m:
-                    m = d
-        out[r] = m
-    return out, n_exact
+        prev = r - k
+        nxt = r + min(stride - k, last[r] - pos[r])
+        lb = max(c[prev] - lip * k, c[nxt] - lip * (nxt - r))
+        if lb >= thr:
+            continue
+        v, e = _sample_clearance(sa, ea, ra, box_a, ia[r], sb, eb, rb, box_b, ib[r], below)
+        n_exact += e
+        ok[r] = v >= thr
+    return ok, n_exact
 
 
-def indexed_clearance(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, ia: np.ndarray,
-                      sb: np.ndarray, eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, ib: np.ndarray,
-                      exact_below: float) -> tuple[np.ndarray, int]:
-    """Clearance of sample ``ia[r]`` of arm a (capsules ``sa``/``ea`` (N, nb, 2), radius-padded
-    bounding boxes ``box_a`` (N, 4) as lo x, lo y, hi x, hi y) and sample ``ib[r]`` of arm b, for
-    every r: the exact clearance where the boxes' gap (a lower bound of it) is below
-    ``exact_below``, the gap elsewhere. Returns (values, number of exact clearances)."""
-    def c(x):
+def lipschitz_clear(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, ia: np.ndarray,
+                    sb: np.ndarray, eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, ib: np.ndarray,
+                    pos: np.ndarray, last: np.ndarray, lip_mm: float, thr_mm: float,
+                    stride: int) -> tuple[np.ndarray, int]:
+    """True where sample ``ia[r]`` of arm a and ``ib[r]`` of arm b keep clearance >= ``thr_mm``.
+
+    The rows form sequences consecutive in time (``pos`` the position in its sequence, ``last``
+    the sequence's last position); the clearance changes by at most ``lip_mm`` per sample.
+    Every ``stride``-th sample of a sequence (and its last) is evaluated; a sample in between
+    within Lipschitz reach of both evaluated neighbours is certified, the rest are evaluated.
+    An evaluation is the box-gap lower bound where that reaches ``thr_mm + lip_mm * stride``,
+    the exact clearance otherwise. Returns (ok, number of exact clearances)."""
+    def f(x):
         return np.require(x, float, ("C", "W"))
 
     def i(x):
         return np.require(x, np.int64, ("C", "W"))
 
-    return _indexed_clearance(c(sa), c(ea), c(ra), c(box_a), i(ia), c(sb), c(eb), c(rb), c(box_b), i(ib),
-                              float(exact_below))
+    return _lipschitz_clear(f(sa), f(ea), f(ra), f(box_a), i(ia), f(sb), f(eb), f(rb), f(box_b), i(ib),
+                            i(pos), i(last), float(lip_mm), float(thr_mm), int(stride))
 
 
 def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
@@ -166,4 +190,5 @@ def compile_kernels() -> None:
     z = np.zeros((1, 1, 2))
     r = np.zeros(1)
     clearance_rows(z, z, r, z, z, r)
-    indexed_clearance(z, z, r, np.zeros((1, 4)), np.zeros(1, int), z, z, r, np.zeros((1, 4)), np.zeros(1, int), 0.0)
+    b, i = np.zeros((1, 4)), np.zeros(1, int)
+    lipschitz_clear(z, z, r, b, i, z, z, r, b, i, i, i, 1.0, 0.0, 10)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.clearance import indexed_clearance
+from planner.clearance import lipschitz_clear
 from planner.geometry import ArmGeom, body_speed_bound_mm_s
 
 
@@ -85,35 +85,11 @@ def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib:
     lower bound where that is far enough); a sample within Lipschitz reach of a certified
     coarse neighbour is certified, the rest are computed exactly.
     """
-    n = len(ia)
-    ok = np.ones(n, bool)
-    if n == 0:
-        return ok
-    sa, ea = oa.seg
-    sb, eb = ob.seg
-
-    def exact(idx: np.ndarray) -> np.ndarray:
-        c, n_exact = indexed_clearance(sa, ea, ga.radius, oa.box, ia[idx], sb, eb, gb.radius, ob.box, ib[idx],
-                                       thr + lip_mm * stride)
-        stats.pair_samples += n_exact
-        return c
-
-    r = pos % stride
-    coarse = (r == 0) | (pos == last)
-    c = np.full(n, np.nan)
-    ci = np.flatnonzero(coarse)
-    c[ci] = exact(ci)
-    fine = np.flatnonzero(~coarse)
-    if len(fine):
-        e_prev = fine - r[fine]
-        e_next = fine + np.minimum(stride - r[fine], last[fine] - pos[fine])
-        lb = np.maximum(c[e_prev] - lip_mm * r[fine], c[e_next] - lip_mm * (e_next - fine))
-        unsure = fine[lb < thr]
-        if len(unsure):
-            c[unsure] = exact(unsure)
-        ok[fine] = (lb >= thr)
-        ok[unsure] = c[unsure] >= thr
-    ok[ci] = c[ci] >= thr
+    if len(ia) == 0:
+        return np.ones(0, bool)
+    ok, n_exact = lipschitz_clear(oa.seg[0], oa.seg[1], ga.radius, oa.box, ia, ob.seg[0], ob.seg[1], gb.radius,
+                                  ob.box, ib, pos, last, lip_mm, thr, stride)
+    stats.pair_samples += n_exact
     return ok
 
 

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from models.collision import segment_distance_xy
 from models.instrument import default_instrument
-from planner.clearance import clearance_rows, clearance_to_arms, indexed_clearance, segment_distance
+from planner.clearance import clearance_rows, clearance_to_arms, lipschitz_clear, segment_distance
 from planner.geometry import ArmGeom
 
 INS = default_instrument()
@@ -90,22 +90,33 @@ def test_clearance_to_arms_matches_numpy_per_obstacle_radii():
                                                 for a in range(3)]), atol=1e-9)
 
 
-def test_indexed_clearance_is_exact_below_the_threshold_and_a_lower_bound_above():
-    rng = np.random.default_rng(3)
-    ga, gb = ArmGeom.of(INS, 0), ArmGeom.of(INS, 4)  # box gaps both below and above the threshold
-    sa, ea = ga.segments(rng.uniform(0, np.pi, 300), rng.uniform(0, 2 * np.pi, 300))
-    sb, eb = gb.segments(rng.uniform(0, np.pi, 200), rng.uniform(0, 2 * np.pi, 200))
+def test_lipschitz_certification_agrees_with_every_sample_of_real_moves():
+    """Delay-table rows of two neighbours' straight moves (every relative delay of a park ->
+    deep configuration leg): certified or evaluated, ok is exactly clearance >= threshold."""
+    from planner.delay_tables import prepare
+    from planner.delays import straight_options
+    from planner.geometry import body_speed_bound_mm_s
 
-    def boxes(s, e, r):
-        lo, hi = np.minimum(s, e) - r[None, :, None], np.maximum(s, e) + r[None, :, None]
-        return np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
-
-    ia, ib = rng.integers(0, 300, 5000), rng.integers(0, 200, 5000)
-    below = 30.0
-    got, n_exact = indexed_clearance(sa, ea, ga.radius, boxes(sa, ea, ga.radius), ia,
-                                     sb, eb, gb.radius, boxes(sb, eb, gb.radius), ib, below)
-    ref = numpy_clearance(sa[ia], ea[ia], ga.radius, sb[ib], eb[ib], gb.radius)
-    exact = np.isclose(got, ref, atol=1e-9)
-    assert (got <= ref + 1e-9).all()  # never above the true clearance
-    assert exact[ref < below].all()  # exact wherever the clearance is below the threshold
-    assert 0 < n_exact < len(ia) and n_exact >= (ref < below).sum()
+    ga, gb = ArmGeom.of(INS, 4), ArmGeom.of(INS, 5)
+    park = INS.park_configuration
+    oa = straight_options(ga, park[4], np.array([0.9191, 2.6945]))[0]  # tip at (-5, 3) mm
+    ob = straight_options(gb, park[5], np.array([1.2422, 3.032]))[0]  # tip at (-40, 0) mm
+    for o, g in ((oa, ga), (ob, gb)):
+        prepare(o, g, 0.1)
+    M, lip = 20, (body_speed_bound_mm_s(ga, ga.v1_max, ga.v2_max) + body_speed_bound_mm_s(gb, gb.v1_max, gb.v2_max)) * 0.1
+    rows_a, rows_b, pos, last = [], [], [], []
+    for k in range(-oa.n // M, ob.n // M + 1):  # b departs k M samples after a
+        a = np.arange(max(0, M * k), min(oa.n, ob.n + M * k) + 1)
+        if len(a):
+            rows_a.append(a)
+            rows_b.append(a - M * k)
+            pos.append(a - a[0])
+            last.append(np.full(len(a), len(a) - 1))
+    ia, ib, pos, last = (np.concatenate(x) for x in (rows_a, rows_b, pos, last))
+    thr = 5.0
+    ok, n_exact = lipschitz_clear(oa.seg[0], oa.seg[1], ga.radius, oa.box, ia, ob.seg[0], ob.seg[1], gb.radius,
+                                  ob.box, ib, pos, last, lip, thr, 10)
+    ref = numpy_clearance(oa.seg[0][ia], oa.seg[1][ia], ga.radius, ob.seg[0][ib], ob.seg[1][ib], gb.radius)
+    np.testing.assert_array_equal(ok, ref >= thr)
+    assert (~ok).any() and ok.any()  # the moves do meet at some delays
+    assert n_exact < len(ia) // 2  # and most samples were certified, not computed
