@@ -176,12 +176,37 @@ def lipschitz_clear(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.nd
                             i(pos), i(last), float(lip_mm), float(thr_mm), int(stride))
 
 
+@numba.njit(cache=True)
+def _to_arms(cs, ce, r, S, E, R):
+    A = S.shape[0]
+    n = max(cs.shape[0], S.shape[1])
+    out = np.empty((A, n))
+    for a in range(A):
+        for t in range(n):
+            ci = t if cs.shape[0] > 1 else 0
+            si = t if S.shape[1] > 1 else 0
+            m = np.inf
+            for p in range(cs.shape[1]):
+                for q in range(S.shape[2]):
+                    d = segment_distance(cs[ci, p, 0], cs[ci, p, 1], ce[ci, p, 0], ce[ci, p, 1],
+                                         S[a, si, q, 0], S[a, si, q, 1], E[a, si, q, 0], E[a, si, q, 1]) - r[p] - R[a, q]
+                    if d < m:
+                        m = d
+            out[a, t] = m
+    return out
+
+
 def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
                       S: np.ndarray, E: np.ndarray, R: np.ndarray) -> np.ndarray:
     """(A, n) clearances of one arm's capsules ``cs``/``ce`` ((n, nb, 2), or (1, nb, 2) for a
-    fixed pose) to A other arms ``S``/``E`` ((A, n, nb', 2), radii ``R`` (A, nb'))."""
-    return np.stack([clearance_rows(cs, ce, r, S[a], E[a], R[a]) for a in range(len(S))]) if len(S) else \
-        np.empty((0, max(len(cs), S.shape[1])))
+    fixed pose) to A other arms ``S``/``E`` ((A, n, nb', 2), or (A, 1, nb', 2) for fixed
+    poses; radii ``R`` (A, nb'))."""
+    def f(x):
+        return np.require(x, float, ("C", "W"))
+
+    if cs.shape[0] != 1 and S.shape[1] != 1 and cs.shape[0] != S.shape[1]:
+        raise ValueError(f"sample counts differ: {cs.shape[0]} and {S.shape[1]}")
+    return _to_arms(f(cs), f(ce), f(r), f(S), f(E), f(R))
 
 
 def compile_kernels() -> None:
@@ -192,3 +217,4 @@ def compile_kernels() -> None:
     clearance_rows(z, z, r, z, z, r)
     b, i = np.zeros((1, 4)), np.zeros(1, int)
     lipschitz_clear(z, z, r, b, i, z, z, r, b, i, i, i, 1.0, 0.0, 10)
+    clearance_to_arms(z, z, r, z[None], z[None], r[None])

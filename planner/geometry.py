@@ -91,7 +91,7 @@ class ArmGeom:
     def segments(self, theta1: np.ndarray, theta2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Capsule axes (start (..., nb, 2), end (..., nb, 2)); radii are ``self.radius``."""
         j = self.joints(theta1, theta2)
-        return j[..., self.body_from, :], j[..., self.body_to, :]
+        return np.take(j, self.body_from, axis=-2), np.take(j, self.body_to, axis=-2)  # C-contiguous
 
     def d34(self, theta1: np.ndarray, theta2: np.ndarray) -> np.ndarray:
         dx = self.d12 - self.d24 * np.cos(theta2) - self.d13 * np.cos(theta1)

@@ -88,6 +88,9 @@ def test_clearance_to_arms_matches_numpy_per_obstacle_radii():
     fixed = clearance_to_arms(cs[:1], ce[:1], g.radius, S, E, R)  # one pose against every sample
     np.testing.assert_allclose(fixed, np.stack([numpy_clearance(cs[:1], ce[:1], g.radius, S[a], E[a], R[a])
                                                 for a in range(3)]), atol=1e-9)
+    still = clearance_to_arms(cs, ce, g.radius, S[:, :1], E[:, :1], R)  # every sample against fixed poses
+    np.testing.assert_allclose(still, np.stack([numpy_clearance(cs, ce, g.radius, S[a, :1], E[a, :1], R[a])
+                                                for a in range(3)]), atol=1e-9)
 
 
 def test_lipschitz_certification_agrees_with_every_sample_of_real_moves():
