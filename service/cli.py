@@ -10,18 +10,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from service.tables import TargetFileError, read_target_table, read_targets
 
-ALIASES: dict[str, tuple[str, ...]] = {
-    "id": ("id", "target_id", "name", "target", "source_id", "objid", "obj_id", "designation"),
-    "ra_deg": ("ra_deg", "ra", "raj2000", "ra_j2000", "ra_icrs", "radeg", "alpha"),
-    "dec_deg": ("dec_deg", "dec", "dej2000", "decj2000", "dec_j2000", "de_icrs", "dec_icrs",
-                "decdeg", "delta"),
-    "priority": ("priority", "prio", "pri", "weight", "rank_priority"),
-}
-FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml": "votable",
-           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
-
+__all__ = ["TargetFileError", "main", "read_targets"]
 
 EXIT_OK = 0
 EXIT_INVALID_INPUT = 2
@@ -29,84 +20,11 @@ EXIT_STAGE_UNAVAILABLE = 3
 EXIT_NOT_EXECUTABLE = 4
 EXIT_CODES = """exit codes of `plan`:
   0  the plan is executable (every motion leg planned); plan.json and pictures written
-  2  invalid input (target table, options)
+  2  invalid input: a bad target table (the message names the file, row and column) or
+     option
   3  a pipeline stage is unavailable
   4  plan not executable: some motion leg could not be planned (the failed pointings, legs,
      arms and reasons are printed on stderr); plan.json and pictures are still written"""
-
-
-class TargetFileError(ValueError):
-    pass
-
-
-def _find(names: Sequence[str], wanted: str) -> str | None:
-    lower = {n.lower(): n for n in names}
-    for alias in ALIASES[wanted]:
-        if alias in lower:
-            return lower[alias]
-    return None
-
-
-def read_targets(path: str | Path) -> list[dict[str, Any]]:
-    """Rows ``{id, ra_deg, dec_deg, priority}`` of a CSV / ECSV / VOTable / FITS table.
-
-    Column names are matched case-insensitively with common aliases (``ra``, ``RAJ2000``,
-    ``name``, ...). Sexagesimal RA (hours) / Dec strings are understood. Without an id column
-    the row number is the id; without a priority column every target has priority 1.
-    """
-    from astropy import units as u
-    from astropy.coordinates import SkyCoord
-    from astropy.table import Table
-
-    p = Path(path)
-    if not p.is_file():
-        raise TargetFileError(f"{p}: no such file")
-    suffix = "".join(p.suffixes[-2:]) if p.name.endswith(".fits.gz") else p.suffix.lower()
-    try:
-        table = Table.read(p, format=FORMATS[suffix]) if suffix in FORMATS else Table.read(p)
-    except Exception as exc:  # noqa: BLE001 - astropy raises many kinds
-        raise TargetFileError(f"{p}: cannot read as a table ({exc})") from exc
-    cols = {k: _find(table.colnames, k) for k in ALIASES}
-    for k in ("ra_deg", "dec_deg"):
-        if cols[k] is None:
-            raise TargetFileError(f"{p}: no {k} column (looked for {', '.join(ALIASES[k])})")
-    n = len(table)
-    if n == 0:
-        raise TargetFileError(f"{p}: the table has no rows")
-    ra_col, dec_col = table[cols["ra_deg"]], table[cols["dec_deg"]]
-    if ra_col.dtype.kind in "US":
-        c = SkyCoord(list(ra_col), list(dec_col), unit=(u.hourangle, u.deg))
-        ra, dec = c.ra.deg, c.dec.deg
-    else:
-        ra = _degrees(ra_col, "ra_deg", p)
-        dec = _degrees(dec_col, "dec_deg", p)
-    ids = [str(v) for v in table[cols["id"]]] if cols["id"] else [str(i) for i in range(n)]
-    if cols["priority"]:
-        pcol = table[cols["priority"]]
-        if getattr(pcol, "mask", None) is not None and np.any(pcol.mask):
-            raise TargetFileError(f"{p}: column {cols['priority']} has empty values")
-        prio = [_priority(v, i, p) for i, v in enumerate(pcol)]
-    else:
-        prio = [1] * n
-    return [
-        {"id": ids[i], "ra_deg": float(ra[i]), "dec_deg": float(dec[i]), "priority": prio[i]}
-        for i in range(n)
-    ]
-
-
-def _degrees(col: Any, name: str, p: Path) -> np.ndarray:
-    if getattr(col, "mask", None) is not None and np.any(col.mask):
-        raise TargetFileError(f"{p}: column {col.name} ({name}) has empty values")
-    if col.unit is not None and col.unit.physical_type == "angle":
-        return np.asarray(col.quantity.to_value("deg"), float)
-    return np.asarray(col, float)
-
-
-def _priority(v: Any, i: int, p: Path) -> int:
-    f = float(v)
-    if not f.is_integer():
-        raise TargetFileError(f"{p}: row {i}: priority {v!r} is not an integer")
-    return int(f)
 
 
 # ------------------------------------------------------------------------- commands
@@ -128,7 +46,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from service.schemas import PlanRequest
 
     try:
-        rows = read_targets(args.targets)
+        table = read_target_table(args.targets)
+        for notice in table.notices:
+            print(f"notice: {notice}", file=sys.stderr)
+        rows = table.rows()
         req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm)

@@ -62,7 +62,7 @@ def test_read_targets_sexagesimal_and_defaults(tmp_path: Path) -> None:
     p = tmp_path / "s.csv"
     p.write_text("ra,dec\n02:19:00.0,+57:08:00\n02:19:01.0,+57:08:30\n")
     rows = read_targets(p)
-    assert rows[0] == {"id": "0", "ra_deg": pytest.approx(34.75), "dec_deg": pytest.approx(57 + 8 / 60),
+    assert rows[0] == {"id": "1", "ra_deg": pytest.approx(34.75), "dec_deg": pytest.approx(57 + 8 / 60),
                        "priority": 1}
 
 
@@ -82,7 +82,7 @@ def test_cli_rejects_bad_rows(tmp_path: Path, capsys) -> None:
     p = tmp_path / "bad.csv"
     p.write_text("id,ra,dec,priority\na,1,95,1\n")
     assert main(["plan", str(p), "--out", str(tmp_path / "o"), "--quiet"]) == 2
-    assert "targets.0.dec_deg" in capsys.readouterr().err
+    assert "bad.csv: row 1, line 2, column 'dec'" in capsys.readouterr().err
 
 
 def test_plot_configuration(tmp_path: Path) -> None:

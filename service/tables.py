@@ -1,0 +1,326 @@
+"""Target tables (CSV, ECSV, VOTable, FITS) -> validated targets ``{id, ra_deg, dec_deg, priority}``.
+
+One reader for every entry point (the CLI's ``plan`` and the web page's upload,
+``POST /v1/target-lists``), so a file means the same thing wherever it is handed in.
+
+Columns are recognised the way the Virtual Observatory names them:
+
+1. by UCD (VOTable ``ucd`` attribute): ``pos.eq.ra;meta.main``, ``pos.eq.dec;meta.main``,
+   ``meta.id;meta.main`` (then the same UCDs without ``;meta.main`` when only one column has it);
+2. by name, case-insensitively, with common aliases (:data:`ALIASES`: ``ra``, ``RAJ2000``,
+   VizieR's ``_RAJ2000`` / ``_DEJ2000``, the Gaia archive's ``source_id`` / ``ra`` / ``dec``, ...).
+
+Values are read by their own form, cell by cell, and never by guessing for a whole column:
+
+* a number (a numeric column, or a string cell such as ``250.4235``) is in degrees, or in the
+  column's angular unit when the file gives one (``deg``, ``hourangle``, ``rad``, ...);
+* a sexagesimal string (``16:41:41.7``, ``16 41 41.7``, ``16h41m41.7s``, ``+36d27m41s``) is in
+  hours for RA and degrees for Dec, unless the string names its unit (``h`` / ``d``) or the
+  column's unit is an angle unit other than hours;
+* a column whose cells mix the two forms is accepted, and a notice says which rows had which.
+
+Every bad cell raises :class:`TargetFileError` naming the file, the row (1 = first data row;
+for CSV also the file's line) and the column. A table without an id column gets row-number ids,
+a table without a priority column priority 1; both are reported in ``notices``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.types import MAX_PRIORITY
+
+ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "target_id", "name", "target", "source_id", "objid", "obj_id", "designation",
+           "main_id", "source"),
+    "ra_deg": ("ra_deg", "ra", "raj2000", "_raj2000", "ra_j2000", "ra_icrs", "_ra_icrs", "radeg",
+               "alpha", "_ra", "ra_icrs_deg"),
+    "dec_deg": ("dec_deg", "dec", "dej2000", "_dej2000", "decj2000", "dec_j2000", "de_icrs",
+                "_de_icrs", "dec_icrs", "decdeg", "delta", "_de", "de", "dec_icrs_deg"),
+    "priority": ("priority", "prio", "pri", "weight", "rank_priority"),
+}
+UCDS: dict[str, tuple[str, ...]] = {
+    "id": ("meta.id;meta.main", "meta.id"),
+    "ra_deg": ("pos.eq.ra;meta.main", "pos.eq.ra"),
+    "dec_deg": ("pos.eq.dec;meta.main", "pos.eq.dec"),
+}
+FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml": "votable",
+           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
+MAX_ID_CHARS = 128
+
+_DECIMAL = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+_SEXAGESIMAL = re.compile(
+    r"^[+-]?\d{1,3}(\s*[:hd°\s]\s*\d{1,2}(\.\d*)?){1,2}\s*[ms\"']?\s*(\d+(\.\d*)?\s*s?)?$"
+)
+
+
+class TargetFileError(ValueError):
+    """A target table that cannot be read; the message names file, row and column."""
+
+
+@dataclass(frozen=True)
+class TargetRow:
+    """One target and where it came from (``row`` 1 = first data row; ``line`` of a CSV)."""
+
+    id: str
+    ra_deg: float
+    dec_deg: float
+    priority: int
+    row: int
+    line: int | None = None
+
+    def request(self) -> dict[str, Any]:
+        return {"id": self.id, "ra_deg": self.ra_deg, "dec_deg": self.dec_deg,
+                "priority": self.priority}
+
+
+@dataclass(frozen=True)
+class TargetTable:
+    """A read table: its targets, the source column of each field and notices for the user."""
+
+    source: str
+    targets: tuple[TargetRow, ...]
+    columns: dict[str, str | None]
+    notices: tuple[str, ...]
+
+    def rows(self) -> list[dict[str, Any]]:
+        return [t.request() for t in self.targets]
+
+
+def read_targets(path: str | Path) -> list[dict[str, Any]]:
+    """Rows ``{id, ra_deg, dec_deg, priority}`` of a target table (see the module doc)."""
+    return read_target_table(path).rows()
+
+
+def read_target_table(path: str | Path, name: str | None = None) -> TargetTable:
+    """Read and validate the table at ``path``; ``name`` is the file name used in messages
+    and for the format (default: ``path`` itself)."""
+    p = Path(path)
+    label = name or str(p)
+    if not p.is_file():
+        raise TargetFileError(f"{label}: no such file")
+    table = _read_table(p, label)
+    if len(table) == 0:
+        raise TargetFileError(f"{label}: the table has no rows")
+    cols = {k: _find_column(table, k) for k in ALIASES}
+    for k in ("ra_deg", "dec_deg"):
+        if cols[k] is None:
+            raise TargetFileError(
+                f"{label}: no {k} column (looked for UCD {UCDS[k][0]} and the names "
+                f"{', '.join(ALIASES[k])})")
+    lines = _csv_lines(p, len(table)) if _format(label) == "ascii.csv" else None
+    where = _Where(label, lines)
+    notices: list[str] = []
+    ra = _angles(table[cols["ra_deg"]], "ra_deg", where, notices)
+    dec = _angles(table[cols["dec_deg"]], "dec_deg", where, notices)
+    _check_ranges(ra, dec, cols, where)
+    n = len(table)
+    if cols["id"]:
+        ids = _ids(table[cols["id"]], where)
+    else:
+        ids = [str(i + 1) for i in range(n)]
+        notices.append(f"{label}: no id column; targets are named by their row number 1..{n}")
+    if cols["priority"]:
+        prio = _priorities(table[cols["priority"]], where)
+    else:
+        prio = [1] * n
+        notices.append(f"{label}: no priority column; every target has priority 1")
+    targets = tuple(
+        TargetRow(ids[i], float(ra[i]), float(dec[i]), prio[i], i + 1,
+                  lines[i] if lines else None)
+        for i in range(n)
+    )
+    return TargetTable(label, targets, cols, tuple(notices))
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def _format(label: str) -> str | None:
+    low = label.lower()
+    if low.endswith(".fits.gz"):
+        return "fits"
+    return FORMATS.get(Path(low).suffix)
+
+
+def _read_table(p: Path, label: str) -> Any:
+    import warnings
+
+    from astropy.table import Table
+
+    fmt = _format(label)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # VOTable unit / schema chatter
+            table = Table.read(p, format=fmt) if fmt else Table.read(p)
+    except Exception as exc:  # noqa: BLE001 - astropy raises many kinds
+        raise TargetFileError(f"{label}: cannot read as a table ({exc})") from exc
+    return table
+
+
+def _csv_lines(p: Path, n: int) -> list[int] | None:
+    """File line (1-based) of each data row of a plain CSV, or None when it cannot be told
+    (quoted line breaks)."""
+    try:
+        text = p.read_text(errors="replace")
+    except OSError:
+        return None
+    if '"' in text and re.search(r'"[^"]*\n', text):
+        return None
+    numbers = [i + 1 for i, ln in enumerate(text.splitlines()) if ln.strip()]
+    return numbers[1:n + 1] if len(numbers) == n + 1 else None
+
+
+def _find_column(table: Any, wanted: str) -> str | None:
+    for ucd in UCDS.get(wanted, ()):
+        hits = [c for c in table.colnames
+                if str(table[c].meta.get("ucd", "")).strip().lower() == ucd.lower()]
+        if len(hits) == 1:
+            return hits[0]
+    lower = {n.lower(): n for n in table.colnames}
+    for alias in ALIASES[wanted]:
+        if alias in lower:
+            return lower[alias]
+    return None
+
+
+@dataclass(frozen=True)
+class _Where:
+    label: str
+    lines: list[int] | None
+
+    def cell(self, i: int, column: str) -> str:
+        line = f", line {self.lines[i]}" if self.lines else ""
+        return f"{self.label}: row {i + 1}{line}, column {column!r}"
+
+
+def _masked(col: Any) -> np.ndarray:
+    mask = getattr(col, "mask", None)
+    if mask is None:
+        return np.zeros(len(col), bool)
+    return np.asarray(mask, bool).reshape(len(col), -1).any(axis=1)
+
+
+def _angle_unit(col: Any, field: str) -> Any:
+    """The column's angular unit, or None when it has none (or a non-angle one)."""
+    from astropy import units as u
+
+    unit = getattr(col, "unit", None)
+    try:
+        if unit is not None and u.Unit(unit).physical_type == "angle":
+            return u.Unit(unit)
+    except (ValueError, TypeError):
+        pass
+    if unit is not None and str(unit).lower().replace(" ", "") in ("h:m:s", "hms"):
+        return u.hourangle
+    return None
+
+
+def _angles(col: Any, field: str, where: _Where, notices: list[str]) -> np.ndarray:
+    """Degrees of every cell of an RA or Dec column, each read by its own form."""
+    from astropy import units as u
+
+    masked = _masked(col)
+    if masked.any():
+        i = int(np.flatnonzero(masked)[0])
+        raise TargetFileError(f"{where.cell(i, col.name)}: empty {field} value")
+    unit = _angle_unit(col, field)
+    if col.dtype.kind in "iuf":
+        values = np.asarray(col, float).reshape(len(col))
+        return values * (unit.to(u.deg) if unit is not None else 1.0)
+    sexa_unit = unit if unit is not None else (u.hourangle if field == "ra_deg" else u.deg)
+    out = np.empty(len(col))
+    forms: dict[str, list[int]] = {"decimal": [], "sexagesimal": []}
+    for i, raw in enumerate(col):
+        text = raw.decode() if isinstance(raw, bytes) else str(raw)
+        out[i], form = _angle_cell(text.strip(), field, sexa_unit, unit, where.cell(i, col.name))
+        forms[form].append(i + 1)
+    if forms["decimal"] and forms["sexagesimal"]:
+        hours = field == "ra_deg" and sexa_unit == u.hourangle
+        notices.append(
+            f"{where.label}: column {col.name!r} mixes decimal degrees (rows "
+            f"{_row_list(forms['decimal'])}) and sexagesimal {'hours' if hours else 'degrees'} "
+            f"(rows {_row_list(forms['sexagesimal'])}); each value was read by its own form")
+    return out
+
+
+def _angle_cell(text: str, field: str, sexa_unit: Any, unit: Any, cell: str) -> tuple[float, str]:
+    from astropy import units as u
+    from astropy.coordinates import Angle
+
+    if not text:
+        raise TargetFileError(f"{cell}: empty {field} value")
+    if _DECIMAL.match(text):
+        return float(text) * (unit.to(u.deg) if unit is not None else 1.0), "decimal"
+    if not _SEXAGESIMAL.match(text):
+        raise TargetFileError(f"{cell}: {text!r} is not an angle (decimal degrees, or "
+                              f"sexagesimal such as {'16:41:41.7' if field == 'ra_deg' else '+36:27:41'})")
+    try:
+        named = re.search(r"[hd°]", text) is not None
+        angle = Angle(text) if named else Angle(text, unit=sexa_unit)
+        value = float(angle.to_value(u.deg))
+    except (ValueError, u.UnitsError) as exc:
+        raise TargetFileError(f"{cell}: {text!r} is not an angle ({exc})") from exc
+    return value, "sexagesimal"
+
+
+def _row_list(rows: Sequence[int], most: int = 8) -> str:
+    shown = ", ".join(str(r) for r in rows[:most])
+    return shown + (f" and {len(rows) - most} more" if len(rows) > most else "")
+
+
+def _check_ranges(ra: np.ndarray, dec: np.ndarray, cols: dict[str, str | None],
+                  where: _Where) -> None:
+    for i in range(len(ra)):
+        if not math.isfinite(ra[i]) or not 0.0 <= ra[i] < 360.0:
+            raise TargetFileError(f"{where.cell(i, str(cols['ra_deg']))}: RA {ra[i]:g} deg is "
+                                  "not in [0, 360)")
+        if not math.isfinite(dec[i]) or not -90.0 <= dec[i] <= 90.0:
+            raise TargetFileError(f"{where.cell(i, str(cols['dec_deg']))}: Dec {dec[i]:g} deg is "
+                                  "not in [-90, 90]")
+
+
+def _ids(col: Any, where: _Where) -> list[str]:
+    masked = _masked(col)
+    ids: list[str] = []
+    seen: dict[str, int] = {}
+    for i, raw in enumerate(col):
+        text = (raw.decode() if isinstance(raw, bytes) else str(raw)).strip()
+        if masked[i] or not text:
+            raise TargetFileError(f"{where.cell(i, col.name)}: empty id")
+        if len(text) > MAX_ID_CHARS:
+            raise TargetFileError(f"{where.cell(i, col.name)}: id longer than {MAX_ID_CHARS} "
+                                  "characters")
+        if text in seen:
+            raise TargetFileError(f"{where.cell(i, col.name)}: duplicate id {text!r} (also row "
+                                  f"{seen[text] + 1})")
+        seen[text] = i
+        ids.append(text)
+    return ids
+
+
+def _priorities(col: Any, where: _Where) -> list[int]:
+    masked = _masked(col)
+    out: list[int] = []
+    for i, raw in enumerate(col):
+        cell = where.cell(i, col.name)
+        if masked[i]:
+            raise TargetFileError(f"{cell}: empty priority")
+        text = (raw.decode() if isinstance(raw, bytes) else str(raw)).strip()
+        try:
+            f = float(text)
+        except ValueError:
+            raise TargetFileError(f"{cell}: priority {text!r} is not a number (integers "
+                                  f"1..{MAX_PRIORITY})") from None
+        if not math.isfinite(f) or not f.is_integer() or not 1 <= f <= MAX_PRIORITY:
+            raise TargetFileError(f"{cell}: priority {text!r} is not an integer in "
+                                  f"1..{MAX_PRIORITY}")
+        out.append(int(f))
+    return out

@@ -1,0 +1,157 @@
+"""Target tables: VO column recognition, per-cell angle forms, errors naming row and column."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from astropy import units as u
+from astropy.coordinates import Angle
+from astropy.io.votable import from_table
+from astropy.table import Table
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from service.cli import main
+from service.tables import TargetFileError, read_target_table, read_targets
+
+
+def _vizier_votable(path: Path, with_sexagesimal: bool = True) -> None:
+    """A VOTable laid out as VizieR serves it: computed _RAJ2000/_DEJ2000 in deg carrying the
+    meta.main UCDs, the catalogue's own sexagesimal RAJ2000/DEJ2000, no id column."""
+    t = Table()
+    t["_RAJ2000"] = [250.4235, 250.4301, 250.41]
+    t["_DEJ2000"] = [36.4613, 36.47, 36.45]
+    t["_RAJ2000"].unit = t["_DEJ2000"].unit = u.deg
+    if with_sexagesimal:
+        t["RAJ2000"] = ["00 00 00.0"] * 3  # deliberately different: must not be used
+        t["DEJ2000"] = ["+00 00 00"] * 3
+    t["Jmag"] = [12.1, 13.4, 11.0]
+    vt = from_table(t)
+    fields = vt.get_first_table()
+    fields.get_field_by_id("_RAJ2000").ucd = "pos.eq.ra;meta.main"
+    fields.get_field_by_id("_DEJ2000").ucd = "pos.eq.dec;meta.main"
+    if with_sexagesimal:
+        fields.get_field_by_id("RAJ2000").ucd = "pos.eq.ra"
+        fields.get_field_by_id("DEJ2000").ucd = "pos.eq.dec"
+    vt.to_xml(str(path))
+
+
+def test_vizier_votable_by_ucd_with_row_ids(tmp_path: Path) -> None:
+    p = tmp_path / "vizier.vot"
+    _vizier_votable(p)
+    table = read_target_table(p)
+    assert table.columns["ra_deg"] == "_RAJ2000" and table.columns["dec_deg"] == "_DEJ2000"
+    assert [t.id for t in table.targets] == ["1", "2", "3"]
+    assert [t.priority for t in table.targets] == [1, 1, 1]
+    assert [t.ra_deg for t in table.targets] == pytest.approx([250.4235, 250.4301, 250.41])
+    assert any("no id column" in n for n in table.notices)
+    assert any("no priority column" in n for n in table.notices)
+
+
+def test_ucd_wins_over_a_misleading_name(tmp_path: Path) -> None:
+    t = Table({"ra": [1.0, 2.0], "x1": [10.0, 20.0], "x2": [5.0, 6.0], "label": ["a", "b"]})
+    vt = from_table(t)
+    f = vt.get_first_table()
+    f.get_field_by_id("x1").ucd = "pos.eq.ra;meta.main"
+    f.get_field_by_id("x2").ucd = "pos.eq.dec;meta.main"
+    f.get_field_by_id("label").ucd = "meta.id;meta.main"
+    vt.to_xml(str(tmp_path / "t.xml"))
+    rows = read_targets(tmp_path / "t.xml")
+    assert [(r["id"], r["ra_deg"], r["dec_deg"]) for r in rows] == [("a", 10.0, 5.0),
+                                                                   ("b", 20.0, 6.0)]
+
+
+def test_gaia_archive_ecsv(tmp_path: Path) -> None:
+    t = Table()
+    t["source_id"] = np.array([4295806720, 38655544960], dtype=np.int64)
+    t["ra"] = [45.0045, 45.0051] * u.deg
+    t["dec"] = [0.0218, 0.0236] * u.deg
+    t["phot_g_mean_mag"] = [17.6, 18.1]
+    t.write(tmp_path / "gaia.ecsv", format="ascii.ecsv")
+    rows = read_targets(tmp_path / "gaia.ecsv")
+    assert [r["id"] for r in rows] == ["4295806720", "38655544960"]
+    assert rows[1]["dec_deg"] == pytest.approx(0.0236)
+
+
+def test_column_units_are_used(tmp_path: Path) -> None:
+    t = Table({"id": ["a"], "ra": [16.694917] * u.hourangle, "dec": [0.636] * u.rad})
+    t.write(tmp_path / "h.ecsv", format="ascii.ecsv")
+    (row,) = read_targets(tmp_path / "h.ecsv")
+    assert row["ra_deg"] == pytest.approx(16.694917 * 15)
+    assert row["dec_deg"] == pytest.approx(np.degrees(0.636))
+
+
+def test_mixed_ra_column_reads_each_cell_by_its_form(tmp_path: Path) -> None:
+    p = tmp_path / "mixed.csv"
+    p.write_text("id,ra,dec,priority\na,250.4235,36.4613,1\nb,16:41:41.7,+36:27:41,2\n"
+                 "c,16h41m41.7s,36.4613,3\n")
+    table = read_target_table(p)
+    expected = Angle("16:41:41.7", unit=u.hourangle).deg
+    assert [t.ra_deg for t in table.targets] == pytest.approx([250.4235, expected, expected])
+    assert expected == pytest.approx(250.42375)
+    assert table.targets[1].dec_deg == pytest.approx(36 + 27 / 60 + 41 / 3600)
+    (notice,) = [n for n in table.notices if "column 'ra' mixes" in n]
+    assert "'ra'" in notice and "rows 1)" in notice and "rows 2, 3" in notice and "hours" in notice
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 359.999), st.floats(-89.99, 89.99), st.booleans()),
+                min_size=1, max_size=8))
+def test_sexagesimal_round_trip(tmp_path_factory, cells) -> None:
+    """Angles written by astropy's own formatter (either form per row) read back to 1e-6 deg."""
+    lines = ["id,ra,dec"]
+    for i, (ra, dec, sexa) in enumerate(cells):
+        if sexa:
+            r = Angle(ra, u.deg).to_string(unit=u.hourangle, sep=":", precision=6)
+            d = Angle(dec, u.deg).to_string(unit=u.deg, sep=":", precision=5, alwayssign=True)
+        else:
+            r, d = repr(ra), repr(dec)
+        lines.append(f"t{i},{r},{d}")
+    p = tmp_path_factory.mktemp("rt") / "t.csv"
+    p.write_text("\n".join(lines) + "\n")
+    rows = read_targets(p)
+    got = np.array([[r["ra_deg"], r["dec_deg"]] for r in rows])
+    want = np.array([[ra, dec] for ra, dec, _ in cells])
+    dra = (got[:, 0] - want[:, 0] + 180.0) % 360.0 - 180.0
+    assert np.abs(dra).max() < 1e-6 and np.abs(got[:, 1] - want[:, 1]).max() < 1e-6
+
+
+@pytest.mark.parametrize("body,where,what", [
+    ("id,ra,dec,priority\na,10,20,1\nb,abc,20,1\n", "row 2, line 3, column 'ra'", "'abc' is not an angle"),
+    ("id,ra,dec,priority\na,10,20,1\nb,11,20,high\n", "row 2, line 3, column 'priority'",
+     "'high' is not a number"),
+    ("id,ra,dec,priority\na,10,95,1\n", "row 1, line 2, column 'dec'", "not in [-90, 90]"),
+    ("id,ra,dec,priority\na,360.5,5,1\n", "row 1, line 2, column 'ra'", "not in [0, 360)"),
+    ("id,ra,dec,priority\na,10,5,0\n", "row 1, line 2, column 'priority'", "not an integer in"),
+    ("id,ra,dec,priority\na,10,5,1\na,11,5,1\n", "row 2, line 3, column 'id'", "duplicate id 'a'"),
+    ("id,ra,dec,priority\na,,5,1\n", "row 1, line 2, column 'ra'", "empty ra_deg"),
+    ("\nid,ra,dec\na,10,5\n\nb,10,x5\n", "row 2, line 5, column 'dec'", "not an angle"),
+])
+def test_bad_cells_name_row_line_and_column(tmp_path: Path, body: str, where: str,
+                                            what: str) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text(body)
+    with pytest.raises(TargetFileError) as exc:
+        read_targets(p)
+    assert f"bad.csv: {where}" in str(exc.value) and what in str(exc.value)
+
+
+@pytest.mark.parametrize("body", ["id,ra,dec,priority\nb,abc,20,1\n",
+                                  "id,ra,dec,priority\nb,11,20,high\n"])
+def test_cli_bad_cell_exit_2_without_traceback(tmp_path: Path, capsys, body: str) -> None:
+    p = tmp_path / "bad.csv"
+    p.write_text(body)
+    assert main(["plan", str(p), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "row 1, line 2, column" in err and "Traceback" not in err
+    assert not (tmp_path / "o" / "plan.json").exists()
+
+
+def test_fits_table_with_bytes_ids(tmp_path: Path) -> None:
+    t = Table({"NAME": np.array([b"s1", b"s2"]), "RA": [10.0, 10.1], "DEC": [-5.0, -5.1],
+               "PRIORITY": np.array([3, 7], dtype=np.int32)})
+    t.write(tmp_path / "t.fits")
+    assert [(r["id"], r["priority"]) for r in read_targets(tmp_path / "t.fits")] == [
+        ("s1", 3), ("s2", 7)]
