@@ -11,13 +11,12 @@ import secrets
 import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from importlib import resources
 from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import HTMLResponse, JSONResponse
+from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from models.instrument import Instrument
@@ -48,6 +47,7 @@ from service.schemas import (
     SegmentationResponse,
 )
 from service.settings import Settings
+from service.web import install_web
 
 log = logging.getLogger("service")
 
@@ -146,6 +146,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=VERSION,
         summary="Pointings, probe-arm allocations and collision-free motion plans for MIRADAS.",
         lifespan=lifespan,
+        docs_url=None,  # served offline by install_web
+        redoc_url=None,
         responses={422: {"description": "Invalid input; `detail[].loc` names the field."}},
     )
     app.state.mxs = state
@@ -158,10 +160,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     app.add_middleware(CatchAllMiddleware)
 
-    @app.get("/", include_in_schema=False, response_class=HTMLResponse)
-    def web_form() -> str:
-        """A minimal observation-preparation form (the observatory's own form lives elsewhere)."""
-        return resources.files("service").joinpath("static/index.html").read_text()
+    install_web(app, max_targets=settings.max_targets, auth=Auth, responses=ERRORS)
 
     @app.get("/v1/health", operation_id="health", response_model=Health, tags=["service"], responses=ERRORS)
     def health() -> dict[str, Any]:

@@ -1,0 +1,529 @@
+// MXS planner observation-preparation page: an ordinary client of the public API.
+// POST v1/target-lists reads the table (the CLI's reader), POST v1/jobs runs the plan, and
+// the result is drawn here from the response and GET v1/instrument (arms to scale).
+"use strict";
+
+const $ = (id) => document.getElementById(id);
+const SVG_NS = "http://www.w3.org/2000/svg";
+const TIER_COLOURS = ["#d62728", "#ff7f0e", "#b8a000", "#2ca02c", "#17becf", "#1f77b4", "#9467bd"];
+const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation method",
+  solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
+  targets: "targets", threshold_mm: "segmentation threshold" };
+
+const state = { instrument: null, list: null, result: null, request: null, running: false };
+
+// ------------------------------------------------------------------------ HTTP helpers
+
+function authHeaders() {
+  const token = $("token").value.trim();
+  return token ? { Authorization: "Bearer " + token } : {};
+}
+
+async function fetchJson(url, options) {
+  const r = await fetch(url, options);
+  let body = null;
+  try { body = await r.json(); } catch (e) { body = null; }
+  return { status: r.status, body };
+}
+
+function errorText(status, body) {
+  if (body && typeof body.message === "string") return body.message;
+  if (body && typeof body.detail === "string") return body.detail;
+  return "HTTP " + status;
+}
+
+// A 422 `loc` such as ["body", "plan", "request", "targets", 3, "dec_deg"] names the file's
+// row, line and column when the targets came from an uploaded table.
+function describeLoc(loc, list) {
+  const parts = (loc || []).filter((p) => p !== "body");
+  const k = parts.indexOf("targets");
+  if (k >= 0 && typeof parts[k + 1] === "number" && list && list.targets[parts[k + 1]]) {
+    const t = list.targets[parts[k + 1]];
+    const field = parts[k + 2];
+    const column = field && list.columns[field] ? list.columns[field] : field;
+    const line = t.line ? `, line ${t.line}` : "";
+    return `${list.filename}: row ${t.row}${line}` + (column ? `, column '${column}'` : "") +
+      ` (target ${t.id})`;
+  }
+  const last = parts.filter((p) => typeof p === "string").pop();
+  return FIELD_LABELS[last] || parts.join(".") || "request";
+}
+
+function validationMessages(body, list) {
+  if (!body || !Array.isArray(body.detail)) return null;
+  return body.detail.map((e) => `${describeLoc(e.loc, list)}: ${e.msg}`);
+}
+
+function showError(lines) {
+  const box = $("error");
+  box.textContent = Array.isArray(lines) ? lines.join("\n") : String(lines);
+  box.hidden = false;
+}
+
+function clearError() { $("error").hidden = true; $("error").textContent = ""; }
+
+// ------------------------------------------------------------------------ targets
+
+async function readTargetList() {
+  const form = new FormData();
+  const file = $("file").files[0];
+  if (file) form.append("file", file, file.name);
+  else form.append("file", new Blob([$("targets").value], { type: "text/csv" }), "pasted.csv");
+  const r = await fetchJson("v1/target-lists", { method: "POST", headers: authHeaders(), body: form });
+  if (r.status !== 200) {
+    const msgs = validationMessages(r.body, null);
+    throw new Error(msgs ? msgs.map((m) => m.replace(/^file: /, "")).join("\n") : errorText(r.status, r.body));
+  }
+  showTableInfo(r.body);
+  return r.body;
+}
+
+function showTableInfo(list) {
+  const box = $("table-info");
+  box.replaceChildren();
+  const cols = Object.entries(list.columns).map(([k, v]) => `${k} <- ${v === null ? "(none)" : v}`);
+  box.append(el("p", {}, `${list.targets.length} targets read from ${list.filename} (${cols.join(", ")}).`));
+  if (list.notices.length) box.append(el("ul", {}, ...list.notices.map((n) => el("li", {}, n))));
+  box.hidden = false;
+}
+
+function planRequest(list) {
+  const req = {
+    targets: list.targets.map((t) => ({ id: t.id, ra_deg: t.ra_deg, dec_deg: t.dec_deg, priority: t.priority })),
+    method: $("method").value, solver: $("solver").value,
+    position_angle_deg: Number($("pa").value || 0), segmentation_mode: $("segmentation").value,
+  };
+  const limit = $("time-limit").value.trim();
+  if (limit) req.time_limit_s = Number(limit);
+  return req;
+}
+
+// ------------------------------------------------------------------------ the job
+
+async function runPlan() {
+  if (state.running) return;
+  state.running = true;
+  $("go").disabled = true;
+  clearError();
+  try {
+    setStatus("reading the target table ...", 0);
+    const list = await readTargetList();
+    const request = planRequest(list);
+    const r = await fetchJson("v1/jobs", { method: "POST",
+      headers: { "Content-Type": "application/json", ...authHeaders() },
+      body: JSON.stringify({ kind: "plan", request }) });
+    if (r.status !== 202) {
+      throw new Error((validationMessages(r.body, list) || [errorText(r.status, r.body)]).join("\n"));
+    }
+    state.list = list;
+    state.request = request;
+    sessionStorage.setItem("mxs-job", JSON.stringify({ id: r.body.job_id, list, request }));
+    await followJob(r.body.job_id);
+  } catch (e) {
+    showError(e.message);
+    setStatus("", null);
+  } finally {
+    state.running = false;
+    $("go").disabled = false;
+  }
+}
+
+function setStatus(text, progress) {
+  $("status").textContent = text;
+  const bar = $("progress");
+  bar.hidden = progress === null;
+  if (progress !== null) bar.value = progress;
+}
+
+async function followJob(jobId) {
+  for (;;) {
+    const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId));
+    if (r.status !== 200) throw new Error(`job ${jobId}: ${errorText(r.status, r.body)}`);
+    const job = r.body;
+    setStatus(`job ${job.job_id}: ${job.status} ${(100 * job.progress).toFixed(0)} %`, job.progress);
+    if (job.status === "done") { showResult(job.result, state.request, state.list); return; }
+    if (job.status === "failed") throw new Error(`job ${job.job_id} failed: ${job.error}`);
+    await new Promise((res) => setTimeout(res, 500));
+  }
+}
+
+// ------------------------------------------------------------------------ DOM helpers
+
+function el(tag, attrs, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (k === "class") node.className = v; else if (k.startsWith("on")) node[k] = v; else node.setAttribute(k, v);
+  }
+  for (const c of children) if (c !== null && c !== undefined) node.append(c);
+  return node;
+}
+
+function svg(tag, attrs, ...children) {
+  const node = document.createElementNS(SVG_NS, tag);
+  for (const [k, v] of Object.entries(attrs || {})) node.setAttribute(k, v);
+  for (const c of children) if (c !== null && c !== undefined) node.append(c);
+  return node;
+}
+
+function table(head, rows, leftCols) {
+  const left = new Set(leftCols || [0]);
+  const th = head.map((h, i) => el("th", { class: left.has(i) ? "l" : "" }, h));
+  const trs = rows.map((r) => el("tr", {}, ...r.map((v, i) => el("td", { class: left.has(i) ? "l" : "" }, String(v)))));
+  return el("table", {}, el("thead", {}, el("tr", {}, ...th)), el("tbody", {}, ...trs));
+}
+
+function pct(x) { return (100 * x).toFixed(1) + " %"; }
+
+// ------------------------------------------------------------------------ the plan
+
+// Where every target ended: {pointing, configuration (0-based), arm} or {pointing, reason}.
+function targetFates(result) {
+  const fate = new Map();
+  for (const p of result.pointings) {
+    p.configurations.forEach((c, k) => {
+      for (const a of c.assignments) if (a.target_id) fate.set(a.target_id, { pointing: p.id, configuration: k, arm: a.arm });
+    });
+    for (const u of p.unallocated) if (!fate.has(u.target_id)) fate.set(u.target_id, { pointing: p.id, reason: u.reason });
+  }
+  return fate;
+}
+
+// Priority tiers: the distinct priorities, highest first (at most TIER_COLOURS.length; beyond
+// that, equal-width bins in log10 priority).
+function priorityTiers(priorities) {
+  const distinct = [...new Set(priorities)].sort((a, b) => b - a);
+  if (distinct.length <= TIER_COLOURS.length) {
+    return { label: (p) => String(p), index: (p) => distinct.indexOf(p), names: distinct.map(String) };
+  }
+  const lo = Math.log10(distinct[distinct.length - 1]), hi = Math.log10(distinct[0]);
+  const n = TIER_COLOURS.length, w = (hi - lo) / n || 1;
+  const index = (p) => Math.min(n - 1, Math.floor((hi - Math.log10(p)) / w));
+  const names = [...Array(n).keys()].map((i) =>
+    `${Math.round(10 ** (hi - (i + 1) * w))}-${Math.round(10 ** (hi - i * w))}`);
+  return { label: (p) => names[index(p)], index, names };
+}
+
+function showResult(result, request, list) {
+  state.result = result;
+  $("result").hidden = false;
+  const fate = targetFates(result);
+  showBanner(result);
+  showSummary(result, request, fate);
+  const box = $("pointings");
+  box.replaceChildren();
+  const tiers = priorityTiers(request.targets.map((t) => t.priority));
+  const byId = new Map(request.targets.map((t) => [t.id, t]));
+  for (const p of result.pointings) box.append(pointingSection(p, request, byId, tiers, list));
+  $("raw-json").textContent = JSON.stringify(result, null, 1);
+}
+
+function showBanner(result) {
+  const b = $("banner");
+  b.replaceChildren();
+  if (result.executable) {
+    b.className = "good";
+    b.append("Every motion leg of every pointing was planned: the plan is executable.");
+  } else {
+    b.className = "bad";
+    b.append("This plan is NOT executable: some motion legs could not be planned. Do not execute the failed legs.",
+      el("ul", {}, ...result.reasons.map((r) => el("li", {}, r))));
+  }
+  b.hidden = false;
+}
+
+function showSummary(result, request, fate) {
+  const s = result.stats || {};
+  const n = request.targets.length;
+  const allocated = request.targets.filter((t) => fate.get(t.id) && fate.get(t.id).configuration !== undefined);
+  const rows = [
+    ["targets", n], ["pointings", result.pointings.length],
+    ["configurations", result.pointings.reduce((a, p) => a + p.configurations.length, 0)],
+    ["targets observed", `${allocated.length} (${pct(allocated.length / n)})`],
+    ["priority observed", pct(sumPrio(allocated) / sumPrio(request.targets))],
+    ["motion legs not planned", `${s.motion_plans_failed ?? "?"} of ${s.motion_plans ?? "?"}`],
+  ];
+  for (const [k, label] of [["targets_moved", "targets moved to another configuration"],
+    ["legs_via_park", "legs through park"], ["configurations_added", "configurations added"],
+    ["targets_dropped", "targets dropped"]]) if (s[k]) rows.push([label, s[k]]);
+  const byPrio = new Map();
+  for (const t of request.targets) {
+    const e = byPrio.get(t.priority) || { n: 0, done: 0 };
+    e.n += 1; if (fate.get(t.id) && fate.get(t.id).configuration !== undefined) e.done += 1;
+    byPrio.set(t.priority, e);
+  }
+  const tierRows = [...byPrio.entries()].sort((a, b) => b[0] - a[0])
+    .map(([p, e]) => [p, e.n, e.done, pct(e.done / e.n)]);
+  $("summary").replaceChildren(
+    table(["", "value"], rows),
+    el("h3", {}, "Targets observed per priority"),
+    table(["priority", "targets", "observed", "completeness"], tierRows, []));
+}
+
+function sumPrio(ts) { return ts.reduce((a, t) => a + t.priority, 0) || 1; }
+
+// ------------------------------------------------------------------------ one pointing
+
+function pointingSection(p, request, byId, tiers, list) {
+  const sec = el("div", { class: "pointing" + (p.executable ? "" : " not-executable"), "data-pointing": p.id });
+  const nAlloc = p.configurations.reduce((a, c) => a + c.assignments.filter((x) => x.target_id).length, 0);
+  sec.append(el("h3", {}, `Pointing ${p.id}: RA ${p.ra_deg.toFixed(5)}°, Dec ${p.dec_deg.toFixed(5)}° `,
+    el("span", { class: "badge " + (p.executable ? "ok" : "failed") }, p.executable ? "executable" : "NOT executable")),
+  el("p", {}, `${p.target_ids.length} targets, ${p.configurations.length} configurations, ${nAlloc} observed, ` +
+    `${p.unallocated.length} not observed.`));
+  if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, r))));
+  if (p.changes.length) {
+    sec.append(el("p", {}, el("span", { class: "badge changed" }, "changed"),
+      " The motion planner changed the allocation so that the legs can be executed:"),
+    el("ul", { class: "changes" }, ...p.changes.map((c) => el("li", {}, `leg ${c.leg}: ${c.kind} - ${c.reason}` +
+      (c.target_ids.length ? ` (targets ${c.target_ids.join(", ")})` : "")))));
+  }
+  const members = p.target_ids.map((id) => byId.get(id)).filter(Boolean);
+  const pos = projectTargets(members, p, request.position_angle_deg);
+  if (p.configurations.length) sec.append(configurationViewer(p, members, pos, tiers));
+  sec.append(targetTable(p, members));
+  return sec;
+}
+
+// Gnomonic (TAN) projection about the pointing, as models/sky.py: +xi East, +eta North,
+// the focal-plane +y axis at position angle PA East of North.
+function projectTargets(members, p, paDeg) {
+  const d2r = Math.PI / 180, scaleDegPerMm = state.instrument.plate_scale_arcsec_per_mm / 3600;
+  const ra0 = p.ra_deg * d2r, de0 = p.dec_deg * d2r, pa = paDeg * d2r;
+  const out = new Map();
+  for (const t of members) {
+    const ra = t.ra_deg * d2r, de = t.dec_deg * d2r;
+    const cosc = Math.sin(de0) * Math.sin(de) + Math.cos(de0) * Math.cos(de) * Math.cos(ra - ra0);
+    const xi = Math.cos(de) * Math.sin(ra - ra0) / cosc / d2r;
+    const eta = (Math.cos(de0) * Math.sin(de) - Math.sin(de0) * Math.cos(de) * Math.cos(ra - ra0)) / cosc / d2r;
+    out.set(t.id, { x: (xi * Math.cos(pa) - eta * Math.sin(pa)) / scaleDegPerMm,
+                    y: (xi * Math.sin(pa) + eta * Math.cos(pa)) / scaleDegPerMm });
+  }
+  return out;
+}
+
+function targetTable(p, members) {
+  const where = new Map();
+  p.configurations.forEach((c, k) => c.assignments.forEach((a) => { if (a.target_id) where.set(a.target_id, [k + 1, a.arm, ""]); }));
+  for (const u of p.unallocated) if (!where.has(u.target_id)) where.set(u.target_id, ["", "", u.reason]);
+  const rows = members.map((t) => [t.id, t.priority, ...(where.get(t.id) || ["", "", "?"])]);
+  return el("details", { class: "targets" }, el("summary", {}, `Targets of pointing ${p.id}`),
+    table(["target", "priority", "configuration", "arm", "not observed because"], rows, [0, 4]));
+}
+
+// ------------------------------------------------------------------------ configuration viewer
+
+function configurationViewer(p, members, pos, tiers) {
+  const box = el("div", { class: "viewer-box" });
+  const stepper = el("div", { class: "stepper" }, "Configuration: ");
+  const view = el("div", { class: "viewer" });
+  const legInfo = el("p", { class: "leg" });
+  const show = (k) => {
+    for (const b of stepper.querySelectorAll("button")) b.setAttribute("aria-pressed", String(Number(b.dataset.k) === k));
+    view.replaceChildren(drawConfiguration(p, k, members, pos, tiers), legend(tiers));
+    legInfo.replaceChildren(...legText(p, k));
+  };
+  p.configurations.forEach((c, k) => stepper.append(el("button", { type: "button", "data-k": k,
+    title: `${c.arm_yield} arms, priority ${c.total_priority}`, onclick: () => show(k) }, `c${k + 1}`)));
+  box.append(stepper, legInfo, view);
+  show(0);
+  return box;
+}
+
+function legText(p, k) {
+  const out = [];
+  const legs = [[k, k === 0 ? "park" : `c${k}`, `c${k + 1}`]];
+  if (k === p.configurations.length - 1) legs.push([k + 1, `c${k + 1}`, "park"]);
+  for (const [i, from, to] of legs) {
+    const m = p.motions[i];
+    if (!m) continue;
+    const ok = m.status === "ok";
+    out.push(el("span", { class: "badge " + (ok ? "ok" : "failed") },
+      `leg ${i} (${from} -> ${to}): ` + (ok ? `planned, ${m.makespan_s.toFixed(1)} s` : `NOT planned (arms ${m.failed_arms.join(", ")})`)), " ");
+  }
+  const c = p.configurations[k];
+  out.push(`${c.arm_yield} arms on targets, total priority ${c.total_priority}.`);
+  return out;
+}
+
+// FK of one arm in the FOV frame (models/kinematics.py, thesis eqs. 3.4, 3.9-3.16).
+function armJoints(arm, t1, t2) {
+  const j3 = [arm.d13_mm * Math.cos(t1), arm.d13_mm * Math.sin(t1)];
+  const j4 = [arm.d12_mm - arm.d24_mm * Math.cos(t2), arm.d24_mm * Math.sin(t2)];
+  const w = [j4[0] - j3[0], j4[1] - j3[1]], d = Math.hypot(w[0], w[1]);
+  const local = { J1: [0, 0], J2: [arm.d12_mm, 0], J3: j3, J4: j4,
+                  tip: [j3[0] + arm.d3tip_mm * w[0] / d, j3[1] + arm.d3tip_mm * w[1] / d] };
+  const ex = [Math.cos(arm.orientation_rad), Math.sin(arm.orientation_rad)], ey = [-ex[1], ex[0]];
+  const out = {};
+  for (const [k, [a, b]] of Object.entries(local)) {
+    out[k] = [arm.base_x_mm + a * ex[0] + b * ey[0], arm.base_y_mm + a * ex[1] + b * ey[1]];
+  }
+  return out;
+}
+
+function targetStatus(id, k, p) {
+  for (let j = 0; j < p.configurations.length; j++) {
+    if (p.configurations[j].assignments.some((a) => a.target_id === id)) {
+      return j === k ? "this" : j < k ? "earlier" : "pending";
+    }
+  }
+  return "unallocated";
+}
+
+function drawConfiguration(p, k, members, pos, tiers) {
+  const inst = state.instrument, r = inst.fov_diameter_mm / 2, half = 1.3 * r;
+  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, role: "img",
+    "aria-label": `pointing ${p.id}, configuration ${k + 1}`, "data-configuration": k + 1 });
+  const g = svg("g", { transform: "scale(1,-1)" });  // focal plane: +x right, +y up
+  g.append(svg("circle", { cx: 0, cy: 0, r, fill: "#fafafa", stroke: "#555", "stroke-width": 0.8, "stroke-dasharray": "4 3", class: "fov" }));
+  const c = p.configurations[k];
+  const arms = svg("g", { class: "arms" });
+  for (const a of c.assignments) {
+    const arm = inst.arms.find((x) => x.arm === a.arm);
+    if (arm) arms.append(drawArm(arm, a));
+  }
+  g.append(arms, drawTargets(p, k, members, pos, tiers));
+  root.append(g, compass(half, p), scaleBar(half));
+  return root;
+}
+
+function drawArm(arm, a) {
+  const j = armJoints(arm, a.theta1_rad, a.theta2_rad);
+  const colour = !arm.enabled ? "#999" : a.target_id ? "#1f4e99" : "#7a8db3";
+  const g = svg("g", { class: "arm", "data-arm": a.arm, "data-tip-x": j.tip[0], "data-tip-y": j.tip[1] });
+  for (const b of arm.bodies) {
+    const p0 = j[b.joint_from], p1 = j[b.joint_to];
+    if (!p0 || !p1) continue;
+    const width = b.shape === "capsule" ? 2 * b.radius_mm : (b.width_mm || 2 * b.radius_mm || 10);
+    g.append(svg("line", { x1: p0[0], y1: p0[1], x2: p1[0], y2: p1[1], stroke: colour, "stroke-opacity": 0.4,
+      "stroke-width": width, "stroke-linecap": b.shape === "capsule" ? "round" : "butt" }));
+  }
+  g.append(svg("circle", { cx: j.tip[0], cy: j.tip[1], r: 1.5, fill: colour }));
+  const label = svg("text", { x: j.tip[0] + 3, y: -(j.tip[1] + 3), "font-size": 7, fill: colour, transform: "scale(1,-1)" }, `arm ${a.arm}`);
+  g.append(svg("title", {}, `arm ${a.arm}: ${a.kind || ""} ${a.target_id || ""}`), label);
+  return g;
+}
+
+function drawTargets(p, k, members, pos, tiers) {
+  const g = svg("g", { class: "targets" });
+  for (const t of members) {
+    const q = pos.get(t.id), st = targetStatus(t.id, k, p);
+    const colour = TIER_COLOURS[tiers.index(t.priority)];
+    const attrs = { class: `target ${st}`, "data-id": t.id, "data-status": st, "data-x": q.x, "data-y": q.y };
+    g.append(targetMark(q, st, colour, attrs, `${t.id} (priority ${t.priority}): ${statusText(st, k)}`));
+    if (st === "this" || st === "pending") {
+      g.append(svg("text", { x: q.x + 3.5, y: -q.y + 1.5, "font-size": 6, fill: "#333", transform: "scale(1,-1)" }, t.id));
+    }
+  }
+  return g;
+}
+
+function statusText(st, k) {
+  return { this: `observed in configuration ${k + 1}`, earlier: "observed in an earlier configuration",
+    pending: "observed in a later configuration", unallocated: "not observed" }[st];
+}
+
+function targetMark(q, st, colour, attrs, title) {
+  let node;
+  if (st === "this") node = svg("circle", { ...attrs, cx: q.x, cy: q.y, r: 3, fill: colour, stroke: "#000", "stroke-width": 0.6 });
+  else if (st === "pending") node = svg("circle", { ...attrs, cx: q.x, cy: q.y, r: 2.6, fill: "#fff", stroke: colour, "stroke-width": 1.2 });
+  else if (st === "earlier") node = svg("circle", { ...attrs, cx: q.x, cy: q.y, r: 1.6, fill: "#bbb", stroke: "none" });
+  else node = svg("path", { ...attrs, d: `M${q.x - 2.5},${q.y - 2.5}L${q.x + 2.5},${q.y + 2.5}M${q.x - 2.5},${q.y + 2.5}L${q.x + 2.5},${q.y - 2.5}`, stroke: colour, "stroke-width": 1 });
+  node.append(svg("title", {}, title));
+  return node;
+}
+
+// N and E arrows: +eta (North) is (-sin PA, cos PA) and +xi (East) (cos PA, sin PA) on the
+// focal plane (models/sky.py).
+function compass(half, p) {
+  const pa = (state.request.position_angle_deg || 0) * Math.PI / 180, L = 0.12 * half;
+  const cx = -0.8 * half, cy = 0.75 * half;  // the compass centre, top left
+  const g = svg("g", { class: "compass" });
+  for (const [name, v] of [["N", [-Math.sin(pa), Math.cos(pa)]], ["E", [Math.cos(pa), Math.sin(pa)]]]) {
+    const x2 = cx + L * v[0], y2 = -cy - L * v[1];
+    g.append(svg("line", { x1: cx, y1: -cy, x2, y2, stroke: "#000", "stroke-width": 1 }),
+      svg("text", { x: cx + 1.35 * L * v[0] - 2.5, y: -cy - 1.35 * L * v[1] + 2.5, "font-size": 8 }, name));
+  }
+  g.append(svg("text", { x: -half + 4, y: half - 4, "font-size": 7 }, `PA ${(state.request.position_angle_deg || 0).toFixed(1)}°`));
+  return g;
+}
+
+function scaleBar(half) {
+  const arcsec = 60, mm = arcsec / state.instrument.plate_scale_arcsec_per_mm;
+  const x0 = half - 8 - mm, y = half - 10;
+  return svg("g", { class: "scale-bar" },
+    svg("line", { x1: x0, y1: y, x2: x0 + mm, y2: y, stroke: "#000", "stroke-width": 1.2 }),
+    svg("text", { x: x0, y: y - 3, "font-size": 7 }, `${arcsec}″ (${mm.toFixed(0)} mm)`));
+}
+
+function legend(tiers) {
+  const mark = (st, colour) => {
+    const s = svg("svg", { viewBox: "-5 -5 10 10" });
+    s.append(targetMark({ x: 0, y: 0 }, st, colour, {}, ""));
+    return s;
+  };
+  return el("ul", { class: "legend" },
+    el("li", {}, mark("this", "#888"), " observed in this configuration (colour: priority)"),
+    el("li", {}, mark("pending", "#888"), " pending: observed in a later configuration"),
+    el("li", {}, mark("earlier", "#888"), " observed in an earlier configuration"),
+    el("li", {}, mark("unallocated", "#888"), " not observed"),
+    ...tiers.names.map((n, i) => el("li", {}, mark("this", TIER_COLOURS[i]), ` priority ${n}`)));
+}
+
+// ------------------------------------------------------------------------ downloads
+
+function download(name, text, type) {
+  const a = el("a", { href: URL.createObjectURL(new Blob([text], { type })), download: name });
+  document.body.append(a);
+  a.click();
+  a.remove();
+}
+
+function csvCell(v) {
+  const s = v === null || v === undefined ? "" : String(v);
+  return /[",\n]/.test(s) ? `"${s.replace(/"/g, '""')}"` : s;
+}
+
+function assignmentsCsv(result, request) {
+  const prio = new Map(request.targets.map((t) => [t.id, t.priority]));
+  const head = ["pointing", "pointing_ra_deg", "pointing_dec_deg", "configuration", "arm", "kind",
+    "target_id", "priority", "theta1_rad", "theta2_rad", "x_mm", "y_mm", "reason"];
+  const rows = [head];
+  for (const p of result.pointings) {
+    p.configurations.forEach((c, k) => c.assignments.forEach((a) => rows.push([p.id, p.ra_deg, p.dec_deg, k + 1,
+      a.arm, a.kind, a.target_id, a.target_id ? prio.get(a.target_id) : "", a.theta1_rad, a.theta2_rad, a.x_mm, a.y_mm, ""])));
+    for (const u of p.unallocated) rows.push([p.id, p.ra_deg, p.dec_deg, "", "", "unallocated", u.target_id,
+      prio.get(u.target_id), "", "", "", "", u.reason]);
+  }
+  return rows.map((r) => r.map(csvCell).join(",")).join("\n") + "\n";
+}
+
+// ------------------------------------------------------------------------ start
+
+async function start() {
+  $("go").onclick = runPlan;
+  $("clear-file").onclick = () => { $("file").value = ""; };
+  $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
+  $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
+  const r = await fetchJson("v1/instrument");
+  if (r.status !== 200) { showError("cannot read the instrument: " + errorText(r.status, r.body)); return; }
+  state.instrument = r.body;
+  const saved = sessionStorage.getItem("mxs-job");
+  if (saved) resumeJob(JSON.parse(saved));
+}
+
+async function resumeJob(saved) {
+  state.list = saved.list;
+  state.request = saved.request;
+  state.running = true;
+  $("go").disabled = true;
+  try { await followJob(saved.id); } catch (e) {
+    sessionStorage.removeItem("mxs-job");
+    showError(e.message);
+  } finally {
+    state.running = false;
+    $("go").disabled = false;
+  }
+}
+
+window.mxs = { describeLoc, projectTargets, armJoints, assignmentsCsv, state };
+start();

@@ -1,0 +1,189 @@
+"""The observation-preparation page and /docs in a real browser (Debian's chromium, driven by
+playwright), against a uvicorn server on a free localhost port. Every request the page makes
+outside that server fails the test."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from urllib.parse import urlsplit
+
+import httpx
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARTEFACTS = Path(os.environ.get("MXS_TEST_ARTEFACTS", ROOT / "out" / "browser"))
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update"]
+N_EXAMPLE = 8  # targets of the M13 example: two configurations, a job of a few seconds
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory) -> Iterator[str]:
+    port = _free_port()
+    env = {**os.environ, "MXS_JOB_DB": str(tmp_path_factory.mktemp("db") / "jobs.sqlite3"),
+           "MXS_WORKERS": "1", "MXS_API_TOKEN": ""}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "uvicorn", "service.app:app", "--host", "127.0.0.1", "--port",
+         str(port), "--log-level", "warning"], cwd=ROOT, env=env, start_new_session=True)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            try:
+                if httpx.get(url + "/v1/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            assert proc.poll() is None, "the server exited"
+            time.sleep(0.1)
+        yield url
+    finally:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture
+def page(browser, server) -> Iterator[object]:
+    """A page whose every request outside the server is refused and recorded."""
+    context = browser.new_context(accept_downloads=True, viewport={"width": 1300, "height": 1000})
+    outside: list[str] = []
+    here = urlsplit(server).netloc
+
+    def route(r) -> None:
+        u = urlsplit(r.request.url)
+        if u.scheme in ("data", "blob") or u.netloc == here:
+            r.continue_()
+        else:
+            outside.append(r.request.url)
+            r.abort()
+
+    context.route("**/*", route)
+    pg = context.new_page()
+    errors: list[str] = []
+    pg.on("pageerror", lambda e: errors.append(str(e)))
+    yield pg
+    context.close()
+    assert outside == [], f"the page fetched outside the service: {outside}"
+    assert errors == [], f"JavaScript errors: {errors}"
+
+
+def _example_csv(path: Path) -> Path:
+    """The first targets of the M13 example, with CLI aliases and one sexagesimal row."""
+    rows = list(csv.DictReader((ROOT / "examples" / "m13_targets.csv").open()))[:N_EXAMPLE]
+    lines = ["Name,RAJ2000,DEJ2000,prio"]
+    for i, r in enumerate(rows):
+        ra = float(r["ra_deg"])
+        if i == 1:
+            h = ra / 15
+            ra_text = f"{int(h):02d}:{int(h * 60 % 60):02d}:{h * 3600 % 60:09.6f}"
+        else:
+            ra_text = f"{ra:.7f}"
+        lines.append(f"{r['id']},{ra_text},{r['dec_deg']},{r['priority']}")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
+    page.goto(server + "/")
+    page.set_input_files("#file", str(_example_csv(tmp_path / "m13.csv")))
+    page.click("#go")
+    assert page.is_disabled("#go")  # no second job while this one runs
+    page.wait_for_selector("#result:not([hidden])", timeout=90_000)
+    assert not page.is_disabled("#go")
+    assert f"{N_EXAMPLE} targets read from m13.csv" in page.inner_text("#table-info")
+    assert "column 'RAJ2000' mixes" in page.inner_text("#table-info")
+    assert "done 100 %" in page.inner_text("#status")
+    result = page.evaluate("mxs.state.result")
+    banner = page.inner_text("#banner")
+    assert ("NOT executable" in banner) == (not result["executable"])
+    summary = page.inner_text("#summary")
+    assert "Targets observed per priority" in summary
+    n_conf = sum(len(p["configurations"]) for p in result["pointings"])
+    # one picture per pointing; the first configuration shows all 12 arms to scale
+    svg = page.locator(".pointing svg[data-configuration]").first
+    assert svg.locator("g.arm").count() == 12
+    # the page's own projection of the targets lands on the arm tips the server computed
+    marks = page.evaluate("""() => [...document.querySelectorAll('.pointing')].flatMap((sec) => {
+        const svg = sec.querySelector('svg[data-configuration]');
+        const tips = [...svg.querySelectorAll('g.arm')].map((g) => [+g.dataset.tipX, +g.dataset.tipY]);
+        return [...svg.querySelectorAll('.target.this')].map((t) => ({
+          x: +t.dataset.x, y: +t.dataset.y,
+          d: Math.min(...tips.map(([x, y]) => Math.hypot(x - +t.dataset.x, y - +t.dataset.y)))}));
+    })""")
+    assert marks and max(m["d"] for m in marks) < 0.05
+    first = result["pointings"][0]
+    if len(first["configurations"]) > 1:
+        page.locator(".pointing").first.locator(".stepper button").nth(1).click()
+        shown = page.locator(".pointing").first.locator("svg[data-configuration]")
+        assert shown.get_attribute("data-configuration") == "2"
+        assert shown.locator(".target.earlier").count() == sum(
+            a["target_id"] is not None for a in first["configurations"][0]["assignments"])
+    with page.expect_download() as dl:
+        page.click("#dl-csv")
+    rows = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
+    assert sum(r["kind"] != "unallocated" for r in rows) == 12 * n_conf
+    observed = {r["target_id"] for r in rows if r["kind"] == "target"}
+    assert len(observed) == result["stats"]["allocated_targets"]
+    ARTEFACTS.mkdir(parents=True, exist_ok=True)
+    page.screenshot(path=str(ARTEFACTS / "plan.png"), full_page=True)
+
+
+def test_bad_rows_are_named_by_file_row_and_column(page, server, tmp_path: Path) -> None:
+    page.goto(server + "/")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,ra,dec,priority\na,250.42,36.46,1\nb,250.43,36.47,2\nc,250.44,95,3\n")
+    page.set_input_files("#file", str(bad))
+    page.click("#go")
+    page.wait_for_selector("#error:not([hidden])")
+    assert "bad.csv: row 3, line 4, column 'dec'" in page.inner_text("#error")
+    assert not page.is_disabled("#go")
+    # a 422 of the job request names the form's field ...
+    page.set_input_files("#file", [])
+    page.fill("#pa", "400")
+    page.click("#go")
+    page.wait_for_function("document.querySelector('#error').textContent.includes('position angle')")
+    # ... and a target's loc maps back to the uploaded file's row, line and column
+    listed = {"filename": "t.csv", "columns": {"dec_deg": "DEJ2000"},
+              "targets": [{"id": "a", "row": 1, "line": 2}, {"id": "b", "row": 2, "line": 4}]}
+    text = page.evaluate("([loc, list]) => mxs.describeLoc(loc, list)",
+                         [["body", "plan", "request", "targets", 1, "dec_deg"], listed])
+    assert text == "t.csv: row 2, line 4, column 'DEJ2000' (target b)"
+
+
+def test_docs_render_offline(page, server) -> None:
+    page.goto(server + "/docs")
+    page.wait_for_selector(".swagger-ui .info .title", timeout=20_000)
+    assert "MXS planner" in page.inner_text(".swagger-ui .info .title")
+    assert page.locator(".opblock").count() >= 5
