@@ -129,7 +129,7 @@ def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
     from tqdm import tqdm
 
     from service import pipeline
-    from service.plots import plot_configuration
+    from service.plots import plot_configuration, sequence_states
 
     by_id = {t.id: t for t in req.targets}
     jobs = [(p, c) for p in result["pointings"] for c in p["configurations"]]
@@ -138,12 +138,12 @@ def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
         members = [by_id[t] for t in p["target_ids"]]
         x, y = pipeline.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst,
                                      req.position_angle_deg)
-        here = {a["target_id"] for a in c["assignments"] if a["target_id"]}
         paths.append(plot_configuration(
             inst, {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in c["assignments"]},
             out / f"pointing{p['id']}_config{c['index']}.png",
             target_x_mm=x, target_y_mm=y, target_priority=[t.priority for t in members],
-            allocated=[t.id in here for t in members],
+            target_status=sequence_states(p["configurations"], c, [t.id for t in members]),
+            target_ids=[t.id for t in members], position_angle_deg=req.position_angle_deg,
             title=f"pointing {p['id']} (RA {p['ra_deg']:.5f}, Dec {p['dec_deg']:.5f}) - "
                   f"configuration {c['index']}: {c['arm_yield']} arms, "
                   f"priority {c['total_priority']}",
