@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import os
 import shutil
 import signal
@@ -118,6 +119,8 @@ def _example_csv(path: Path) -> Path:
 def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     page.goto(server + "/")
     page.set_input_files("#file", str(_example_csv(tmp_path / "m13.csv")))
+    page.fill("#time-limit", "2")
+    page.select_option("#segmentation", "balanced")
     page.click("#go")
     assert page.is_disabled("#go")  # no second job while this one runs
     page.wait_for_selector("#result:not([hidden])", timeout=90_000)
@@ -150,6 +153,15 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
         assert shown.get_attribute("data-configuration") == "2"
         assert shown.locator(".target.earlier").count() == sum(
             a["target_id"] is not None for a in first["configurations"][0]["assignments"])
+    # the field on the sky: one FOV circle per pointing
+    assert page.locator("svg.sky circle.pointing-fov").count() == len(result["pointings"])
+    assert page.locator("svg.sky .sky-target").count() == N_EXAMPLE
+    _play_first_leg(page, result)
+    with page.expect_download() as dl:
+        page.click("#dl-commands")
+    commands = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
+    assert len(commands) == sum(len(t["commands"]) for p in result["pointings"]
+                                for m in p["motions"] for t in m["trajectories"])
     with page.expect_download() as dl:
         page.click("#dl-csv")
     rows = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
@@ -158,6 +170,44 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert len(observed) == result["stats"]["allocated_targets"]
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(ARTEFACTS / "plan.png"), full_page=True)
+    _not_executable_is_flagged(page, result)
+
+
+def _not_executable_is_flagged(page, result) -> None:
+    """The same answer with a failed leg: a banner with the reasons, the pointing flagged."""
+    reason = "leg 0 (park -> c1): arms 5 not planned"
+    page.evaluate("""([reason]) => {
+        const r = structuredClone(mxs.state.result);
+        r.executable = false; r.pointings[0].executable = false;
+        r.pointings[0].reasons = [reason]; r.reasons = ["pointing " + r.pointings[0].id + ": " + reason];
+        r.pointings[0].motions[0].status = "failed"; r.pointings[0].motions[0].failed_arms = [5];
+        mxs.showResult(r, mxs.state.request, mxs.state.list); }""", [reason])
+    banner = page.inner_text("#banner")
+    assert "NOT executable" in banner and reason in banner
+    sec = page.locator(".pointing.not-executable")
+    assert sec.count() == 1 and "NOT planned (arms 5)" in sec.inner_text()
+    assert page.locator("svg.sky circle.pointing-fov[stroke='#c62828']").count() == 1
+
+
+def _play_first_leg(page, result) -> None:
+    """The leg park -> c1 plays as an animation and ends on the configuration's arm tips."""
+    sec = page.locator(".pointing").first
+    sec.locator(".stepper button").first.click()
+    page.evaluate("""() => { const svg = document.querySelector('.pointing svg[data-configuration]');
+        window.frames_seen = 0;
+        new MutationObserver(() => { window.frames_seen += 1; }).observe(svg, {childList: true, subtree: true}); }""")
+    sec.locator("button.play").click()
+    page.wait_for_function("window.frames_seen > 3")
+    page.wait_for_function("!document.querySelector('.pointing svg[data-configuration]')"
+                           "?.dataset.playing", timeout=15_000)
+    first = result["pointings"][0]
+    # the motion's last waypoints are the configuration's joint angles
+    end = page.evaluate("""(p) => [...mxs.anglesAt(p.motions[0], 1e9).entries()]""", first)
+    goal = {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in first["configurations"][0]["assignments"]}
+    assert {arm for arm, _ in end} == set(goal)
+    for arm, (t1, t2) in end:
+        assert abs(t1 - goal[arm][0]) < 1e-6
+        assert abs(math.remainder(t2 - goal[arm][1], 2 * math.pi)) < 1e-6
 
 
 def test_bad_rows_are_named_by_file_row_and_column(page, server, tmp_path: Path) -> None:

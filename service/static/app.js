@@ -213,6 +213,7 @@ function showResult(result, request, list) {
   box.replaceChildren();
   const tiers = priorityTiers(request.targets.map((t) => t.priority));
   const byId = new Map(request.targets.map((t) => [t.id, t]));
+  if (result.pointings.length) box.append(skyView(result, request, tiers, fate));
   for (const p of result.pointings) box.append(pointingSection(p, request, byId, tiers, list));
   $("raw-json").textContent = JSON.stringify(result, null, 1);
 }
@@ -287,18 +288,22 @@ function pointingSection(p, request, byId, tiers, list) {
 // Gnomonic (TAN) projection about the pointing, as models/sky.py: +xi East, +eta North,
 // the focal-plane +y axis at position angle PA East of North.
 function projectTargets(members, p, paDeg) {
-  const d2r = Math.PI / 180, scaleDegPerMm = state.instrument.plate_scale_arcsec_per_mm / 3600;
-  const ra0 = p.ra_deg * d2r, de0 = p.dec_deg * d2r, pa = paDeg * d2r;
+  const scaleDegPerMm = state.instrument.plate_scale_arcsec_per_mm / 3600, pa = paDeg * Math.PI / 180;
   const out = new Map();
   for (const t of members) {
-    const ra = t.ra_deg * d2r, de = t.dec_deg * d2r;
-    const cosc = Math.sin(de0) * Math.sin(de) + Math.cos(de0) * Math.cos(de) * Math.cos(ra - ra0);
-    const xi = Math.cos(de) * Math.sin(ra - ra0) / cosc / d2r;
-    const eta = (Math.cos(de0) * Math.sin(de) - Math.sin(de0) * Math.cos(de) * Math.cos(ra - ra0)) / cosc / d2r;
+    const [xi, eta] = standardCoords(t.ra_deg, t.dec_deg, p.ra_deg, p.dec_deg);
     out.set(t.id, { x: (xi * Math.cos(pa) - eta * Math.sin(pa)) / scaleDegPerMm,
                     y: (xi * Math.sin(pa) + eta * Math.cos(pa)) / scaleDegPerMm });
   }
   return out;
+}
+
+// Standard coordinates (xi East, eta North; deg) of a sky position about a tangent point.
+function standardCoords(raDeg, decDeg, ra0Deg, dec0Deg) {
+  const d2r = Math.PI / 180, ra = raDeg * d2r, de = decDeg * d2r, ra0 = ra0Deg * d2r, de0 = dec0Deg * d2r;
+  const cosc = Math.sin(de0) * Math.sin(de) + Math.cos(de0) * Math.cos(de) * Math.cos(ra - ra0);
+  return [Math.cos(de) * Math.sin(ra - ra0) / cosc / d2r,
+          (Math.cos(de0) * Math.sin(de) - Math.sin(de0) * Math.cos(de) * Math.cos(ra - ra0)) / cosc / d2r];
 }
 
 function targetTable(p, members) {
@@ -322,11 +327,90 @@ function configurationViewer(p, members, pos, tiers) {
     view.replaceChildren(drawConfiguration(p, k, members, pos, tiers), legend(tiers));
     legInfo.replaceChildren(...legText(p, k));
   };
+  let current = 0;
   p.configurations.forEach((c, k) => stepper.append(el("button", { type: "button", "data-k": k,
-    title: `${c.arm_yield} arms, priority ${c.total_priority}`, onclick: () => show(k) }, `c${k + 1}`)));
-  box.append(stepper, legInfo, view);
+    title: `${c.arm_yield} arms, priority ${c.total_priority}`, onclick: () => { current = k; show(k); } }, `c${k + 1}`)));
+  const play = el("button", { type: "button", class: "play", title: "animate the motion leg into this configuration",
+    onclick: () => playLeg(p, current, view, legInfo, () => show(current)) }, "▶ play the leg into it");
+  box.append(stepper, play, legInfo, view);
   show(0);
   return box;
+}
+
+// Joint angles of every arm at time t_s of a motion leg (piecewise linear between waypoints).
+function anglesAt(motion, t) {
+  const out = new Map();
+  for (const tr of motion.trajectories) {
+    const w = tr.waypoints;
+    if (!w.length) continue;
+    let i = 0;
+    while (i < w.length - 1 && w[i + 1].t_s <= t) i++;
+    const a = w[i], b = w[Math.min(i + 1, w.length - 1)];
+    const f = b.t_s > a.t_s ? Math.min(1, Math.max(0, (t - a.t_s) / (b.t_s - a.t_s))) : 0;
+    out.set(tr.arm, [a.theta1_rad + f * (b.theta1_rad - a.theta1_rad), a.theta2_rad + f * (b.theta2_rad - a.theta2_rad)]);
+  }
+  return out;
+}
+
+function playLeg(p, k, view, legInfo, done) {
+  const motion = p.motions[k], root = view.querySelector("svg");
+  if (!motion || !root || root.dataset.playing) return;
+  const goal = new Map(p.configurations[k].assignments.map((a) => [a.arm, a]));
+  const end = Math.max(motion.makespan_s || 0, ...motion.trajectories.flatMap((t) => t.waypoints.map((w) => w.t_s)), 0);
+  const wallMs = Math.min(4000, Math.max(1000, end * 30));
+  const clock = el("span", { class: "clock" });
+  legInfo.append(" ", clock);
+  root.dataset.playing = "true";
+  const t0 = performance.now();
+  const frame = (now) => {
+    const t = Math.min(end, (now - t0) / wallMs * end);
+    const angles = anglesAt(motion, t), arms = svg("g", { class: "arms" });
+    for (const arm of state.instrument.arms) {
+      const q = angles.get(arm.arm) || [goal.get(arm.arm).theta1_rad, goal.get(arm.arm).theta2_rad];
+      arms.append(drawArm(arm, { ...goal.get(arm.arm), theta1_rad: q[0], theta2_rad: q[1] }));
+    }
+    root.querySelector("g.arms").replaceWith(arms);
+    clock.textContent = `t = ${t.toFixed(0)} s of ${end.toFixed(0)} s`;
+    if (t < end) requestAnimationFrame(frame); else { delete root.dataset.playing; done(); }
+  };
+  requestAnimationFrame(frame);
+}
+
+// ------------------------------------------------------------------------ the field on the sky
+
+// Targets and pointings about the field's tangent point, North up and East left (arcmin).
+function skyView(result, request, tiers, fate) {
+  const tp = result.tangent_point || result.pointings[0];
+  const rArcmin = state.instrument.fov_diameter_mm / 2 * state.instrument.plate_scale_arcsec_per_mm / 60;
+  const sky = (ra, dec) => { const [xi, eta] = standardCoords(ra, dec, tp.ra_deg, tp.dec_deg); return [-60 * xi, -60 * eta]; };
+  const pts = request.targets.map((t) => sky(t.ra_deg, t.dec_deg));
+  const centres = result.pointings.map((p) => sky(p.ra_deg, p.dec_deg));
+  const half = 1.15 * Math.max(rArcmin, ...pts.map(([x, y]) => Math.max(Math.abs(x), Math.abs(y))),
+    ...centres.map(([x, y]) => Math.max(Math.abs(x), Math.abs(y)) + rArcmin));
+  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, class: "sky", role: "img",
+    "aria-label": "the field on the sky" });
+  const u = half / 100;  // one percent of the view, for strokes and text
+  result.pointings.forEach((p, i) => root.append(
+    svg("circle", { class: "pointing-fov", cx: centres[i][0], cy: centres[i][1], r: rArcmin, fill: "none",
+      stroke: p.executable ? "#1f4e99" : "#c62828", "stroke-width": 0.4 * u }),
+    svg("text", { x: centres[i][0] + 0.72 * rArcmin, y: centres[i][1] - 0.72 * rArcmin, "font-size": 5 * u }, p.id)));
+  request.targets.forEach((t, i) => {
+    const f = fate.get(t.id), st = f && f.configuration !== undefined ? "this" : "unallocated";
+    root.append(targetMark({ x: 0, y: 0 }, st, TIER_COLOURS[tiers.index(t.priority)],
+      { class: "sky-target", transform: `translate(${pts[i][0]},${pts[i][1]}) scale(${0.7 * u})` },
+      `${t.id} (priority ${t.priority}): ${st === "this" ? "observed" : "not observed"}`));
+  });
+  const cx = -0.72 * half, cy = -0.72 * half, L = 0.12 * half;
+  const bar = [60, 30, 20, 10, 5, 2, 1, 0.5, 0.2, 0.1].find((b) => b <= half / 2) || 0.1;  // arcmin
+  root.append(svg("line", { x1: cx, y1: cy, x2: cx, y2: cy - L, stroke: "#000", "stroke-width": 0.4 * u }),
+    svg("text", { x: cx - 2 * u, y: cy - L - 2 * u, "font-size": 6 * u }, "N"),
+    svg("line", { x1: cx, y1: cy, x2: cx - L, y2: cy, stroke: "#000", "stroke-width": 0.4 * u }),
+    svg("text", { x: cx - L - 6 * u, y: cy + 2 * u, "font-size": 6 * u }, "E"),
+    svg("line", { class: "sky-scale", x1: 0.9 * half - bar, y1: 0.9 * half, x2: 0.9 * half, y2: 0.9 * half, stroke: "#000", "stroke-width": 0.6 * u }),
+    svg("text", { x: 0.9 * half - bar, y: 0.9 * half - 2 * u, "font-size": 5 * u }, `${bar}′`));
+  return el("div", { class: "field" }, el("h3", {}, "The field on the sky"),
+    el("p", {}, `North up, East left; circles: the fields of view of the ${result.pointings.length} pointing${result.pointings.length === 1 ? "" : "s"} ` +
+      "(red: not executable); filled: observed, crosses: not observed; colour: priority."), root);
 }
 
 function legText(p, k) {
@@ -398,7 +482,7 @@ function drawArm(arm, a) {
       "stroke-width": width, "stroke-linecap": b.shape === "capsule" ? "round" : "butt" }));
   }
   g.append(svg("circle", { cx: j.tip[0], cy: j.tip[1], r: 1.5, fill: colour }));
-  const label = svg("text", { x: j.tip[0] + 3, y: -(j.tip[1] + 3), "font-size": 7, fill: colour, transform: "scale(1,-1)" }, `arm ${a.arm}`);
+  const label = svg("text", { x: j.tip[0] - 6, y: -(j.tip[1] - 9), "font-size": 6, fill: colour, transform: "scale(1,-1)" }, `arm ${a.arm}`);
   g.append(svg("title", {}, `arm ${a.arm}: ${a.kind || ""} ${a.target_id || ""}`), label);
   return g;
 }
@@ -497,6 +581,15 @@ function assignmentsCsv(result, request) {
   return rows.map((r) => r.map(csvCell).join(",")).join("\n") + "\n";
 }
 
+function commandsCsv(result) {
+  const rows = [["pointing", "leg", "leg_status", "arm", "joint", "t_start_s", "from_rad", "to_rad", "speed_rad_s"]];
+  for (const p of result.pointings) {
+    p.motions.forEach((m, i) => m.trajectories.forEach((tr) => tr.commands.forEach((c) =>
+      rows.push([p.id, i, m.status, tr.arm, c.joint, c.t_start_s, c.from_rad, c.to_rad, c.speed_rad_s]))));
+  }
+  return rows.map((r) => r.map(csvCell).join(",")).join("\n") + "\n";
+}
+
 // ------------------------------------------------------------------------ start
 
 async function start() {
@@ -504,6 +597,7 @@ async function start() {
   $("clear-file").onclick = () => { $("file").value = ""; };
   $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
   $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
+  $("dl-commands").onclick = () => download("commands.csv", commandsCsv(state.result), "text/csv");
   const r = await fetchJson("v1/instrument");
   if (r.status !== 200) { showError("cannot read the instrument: " + errorText(r.status, r.body)); return; }
   state.instrument = r.body;
@@ -525,5 +619,5 @@ async function resumeJob(saved) {
   }
 }
 
-window.mxs = { describeLoc, projectTargets, armJoints, assignmentsCsv, state };
+window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, state };
 start();
