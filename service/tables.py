@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import re
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -56,9 +57,7 @@ FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml"
 MAX_ID_CHARS = 128
 
 _DECIMAL = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
-_SEXAGESIMAL = re.compile(
-    r"^[+-]?\d{1,3}(\s*[:hd°\s]\s*\d{1,2}(\.\d*)?){1,2}\s*[ms\"']?\s*(\d+(\.\d*)?\s*s?)?$"
-)
+_SEXAGESIMAL = re.compile(r"^[+-]?\d{1,3}\s*[:\shd°]\s*\d[\d\s:.hdms°′″'\"]*$")
 
 
 class TargetFileError(ValueError):
@@ -151,8 +150,6 @@ def _format(label: str) -> str | None:
 
 
 def _read_table(p: Path, label: str) -> Any:
-    import warnings
-
     from astropy.table import Table
 
     fmt = _format(label)
@@ -264,9 +261,11 @@ def _angle_cell(text: str, field: str, sexa_unit: Any, unit: Any, cell: str) -> 
                               f"sexagesimal such as {'16:41:41.7' if field == 'ra_deg' else '+36:27:41'})")
     try:
         named = re.search(r"[hd°]", text) is not None
-        angle = Angle(text) if named else Angle(text, unit=sexa_unit)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # e.g. minutes of 60 are an error, not a carry
+            angle = Angle(text) if named else Angle(text, unit=sexa_unit)
         value = float(angle.to_value(u.deg))
-    except (ValueError, u.UnitsError) as exc:
+    except (ValueError, u.UnitsError, Warning) as exc:
         raise TargetFileError(f"{cell}: {text!r} is not an angle ({exc})") from exc
     return value, "sexagesimal"
 

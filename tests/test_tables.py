@@ -86,12 +86,12 @@ def test_column_units_are_used(tmp_path: Path) -> None:
 def test_mixed_ra_column_reads_each_cell_by_its_form(tmp_path: Path) -> None:
     p = tmp_path / "mixed.csv"
     p.write_text("id,ra,dec,priority\na,250.4235,36.4613,1\nb,16:41:41.7,+36:27:41,2\n"
-                 "c,16h41m41.7s,36.4613,3\n")
+                 "c,16h41m41.7s,36°27′41″,3\n", encoding="utf-8")
     table = read_target_table(p)
     expected = Angle("16:41:41.7", unit=u.hourangle).deg
     assert [t.ra_deg for t in table.targets] == pytest.approx([250.4235, expected, expected])
     assert expected == pytest.approx(250.42375)
-    assert table.targets[1].dec_deg == pytest.approx(36 + 27 / 60 + 41 / 3600)
+    assert [t.dec_deg for t in table.targets[1:]] == pytest.approx([36 + 27 / 60 + 41 / 3600] * 2)
     (notice,) = [n for n in table.notices if "column 'ra' mixes" in n]
     assert "'ra'" in notice and "rows 1)" in notice and "rows 2, 3" in notice and "hours" in notice
 
@@ -128,6 +128,8 @@ def test_sexagesimal_round_trip(tmp_path_factory, cells) -> None:
     ("id,ra,dec,priority\na,10,5,1\na,11,5,1\n", "row 2, line 3, column 'id'", "duplicate id 'a'"),
     ("id,ra,dec,priority\na,,5,1\n", "row 1, line 2, column 'ra'", "empty ra_deg"),
     ("\nid,ra,dec\na,10,5\n\nb,10,x5\n", "row 2, line 5, column 'dec'", "not an angle"),
+    ("id,ra,dec\na,12:60:00,5\n", "row 1, line 2, column 'ra'", "not an angle"),
+    ("id,ra,dec\na,-01:00:00,5\n", "row 1, line 2, column 'ra'", "not in [0, 360)"),
 ])
 def test_bad_cells_name_row_line_and_column(tmp_path: Path, body: str, where: str,
                                             what: str) -> None:
