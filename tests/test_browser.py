@@ -232,6 +232,27 @@ def test_bad_rows_are_named_by_file_row_and_column(page, server, tmp_path: Path)
     assert text == "t.csv: row 2, line 4, column 'DEJ2000' (target b)"
 
 
+def test_example_files_are_read_on_upload(page, server, tmp_path: Path) -> None:
+    from astropy import units as u
+    from astropy.io.votable import from_table
+    from astropy.table import Table
+
+    page.goto(server + "/")
+    page.set_input_files("#file", str(ROOT / "examples" / "ngc869_targets.ecsv"))
+    page.wait_for_function("document.querySelector('#table-info').textContent.includes('60 targets')")
+    assert "read from ngc869_targets.ecsv" in page.inner_text("#table-info")
+    vt = from_table(Table({"_RAJ2000": [250.4235, 250.43] * u.deg,
+                           "_DEJ2000": [36.46, 36.47] * u.deg}))
+    vt.get_first_table().get_field_by_id("_RAJ2000").ucd = "pos.eq.ra;meta.main"
+    vt.get_first_table().get_field_by_id("_DEJ2000").ucd = "pos.eq.dec;meta.main"
+    vt.to_xml(str(tmp_path / "vizier.vot"))
+    page.set_input_files("#file", str(tmp_path / "vizier.vot"))
+    page.wait_for_function("document.querySelector('#table-info').textContent.includes('2 targets')")
+    info = page.inner_text("#table-info")
+    assert "ra_deg <- _RAJ2000" in info and "no id column" in info
+    assert page.is_hidden("#error")
+
+
 def test_docs_render_offline(page, server) -> None:
     page.goto(server + "/docs")
     page.wait_for_selector(".swagger-ui .info .title", timeout=20_000)

@@ -78,6 +78,13 @@ async function readTargetList() {
   return r.body;
 }
 
+// Read the chosen file at once, so its notices and errors show before planning.
+async function previewTable() {
+  if (!$("file").files[0] || state.running) return;
+  clearError();
+  try { await readTargetList(); } catch (e) { $("table-info").hidden = true; showError(e.message); }
+}
+
 function showTableInfo(list) {
   const box = $("table-info");
   box.replaceChildren();
@@ -594,7 +601,8 @@ function commandsCsv(result) {
 
 async function start() {
   $("go").onclick = runPlan;
-  $("clear-file").onclick = () => { $("file").value = ""; };
+  $("clear-file").onclick = () => { $("file").value = ""; $("table-info").hidden = true; };
+  $("file").onchange = previewTable;
   $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
   $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
   $("dl-commands").onclick = () => download("commands.csv", commandsCsv(state.result), "text/csv");
