@@ -126,7 +126,9 @@ def test_instrument(live_server) -> None:
 
 def test_web_form(live_server) -> None:
     r = httpx.get(live_server.url + "/")
-    assert r.status_code == 200 and "v1/jobs" in r.text
+    assert r.status_code == 200 and 'src="static/app.js"' in r.text
+    js = httpx.get(live_server.url + "/static/app.js")
+    assert js.status_code == 200 and "v1/jobs" in js.text and "v1/target-lists" in js.text
 
 
 def test_unknown_job_is_404(live_server) -> None:
