@@ -47,8 +47,11 @@ def test_pages_reference_no_external_host(client: TestClient, page: str) -> None
 
 
 def test_page_script_fetches_only_relative_paths(client: TestClient) -> None:
-    js = client.get("/static/app.js").text
-    assert "fetch" in js and not re.search(r"https?://(?!www\.w3\.org/2000/svg)", js)
+    html = client.get("/").text
+    scripts = re.findall(r'<script src="([^"]+)"', html)
+    assert scripts == ["static/viewer.js", "static/app.js"]
+    js = "".join(client.get("/" + src).text for src in scripts)
+    assert "fetch(" in js and not re.search(r"https?://(?!www\.w3\.org/2000/svg)", js)
     assert client.get("/docs-assets/swagger-ui-bundle.js").status_code == 200
     assert client.get("/redoc").status_code == 404  # ReDoc would need a CDN
 
