@@ -241,8 +241,9 @@ def _angles(col: Any, field: str, where: _Where, notices: list[str]) -> np.ndarr
         forms[form].append(i + 1)
     if forms["decimal"] and forms["sexagesimal"]:
         hours = field == "ra_deg" and sexa_unit == u.hourangle
+        decimal = "decimal degrees" if unit is None else f"decimal values in {unit}"
         notices.append(
-            f"{where.label}: column {col.name!r} mixes decimal degrees (rows "
+            f"{where.label}: column {col.name!r} mixes {decimal} (rows "
             f"{_row_list(forms['decimal'])}) and sexagesimal {'hours' if hours else 'degrees'} "
             f"(rows {_row_list(forms['sexagesimal'])}); each value was read by its own form")
     return out

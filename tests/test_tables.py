@@ -50,6 +50,24 @@ def test_vizier_votable_by_ucd_with_row_ids(tmp_path: Path) -> None:
     assert any("no priority column" in n for n in table.notices)
 
 
+def test_vizier_sexagesimal_columns_with_hms_units(tmp_path: Path) -> None:
+    t = Table({"RAJ2000": ["16 41 41.7", "16 41 42.0"], "DEJ2000": ["+36 27 41", "-00 30 00"],
+               "Seq": [7, 8]})
+    vt = from_table(t)
+    f = vt.get_first_table()
+    for name, ucd, unit in (("RAJ2000", "pos.eq.ra;meta.main", "h:m:s"),
+                            ("DEJ2000", "pos.eq.dec;meta.main", "d:m:s"),
+                            ("Seq", "meta.id;meta.main", None)):
+        f.get_field_by_id(name).ucd = ucd
+        if unit:
+            f.get_field_by_id(name).unit = unit
+    vt.to_xml(str(tmp_path / "v.vot"))
+    rows = read_targets(tmp_path / "v.vot")
+    assert [r["id"] for r in rows] == ["7", "8"]
+    assert [r["ra_deg"] for r in rows] == pytest.approx([250.42375, 250.425])
+    assert [r["dec_deg"] for r in rows] == pytest.approx([36 + 27 / 60 + 41 / 3600, -0.5])
+
+
 def test_ucd_wins_over_a_misleading_name(tmp_path: Path) -> None:
     t = Table({"ra": [1.0, 2.0], "x1": [10.0, 20.0], "x2": [5.0, 6.0], "label": ["a", "b"]})
     vt = from_table(t)
