@@ -37,10 +37,26 @@ VIEW_MARGIN = 1.12  # half-width of the view / FOV radius
 SCALE_BAR_ARCSEC = 60.0
 
 
-def plot_configuration(instrument: Instrument, joints: Mapping[int, tuple[float, float]],
-                       path: str | Path, **kwargs) -> Path:
-    """Draw one configuration to ``path`` (PNG); keywords as :func:`configuration_figure`."""
-    fig = configuration_figure(instrument, joints, **kwargs)
+def plot_configuration(
+    instrument: Instrument,
+    joints: Mapping[int, tuple[float, float]],
+    path: str | Path,
+    *,
+    target_x_mm: Sequence[float] = (),
+    target_y_mm: Sequence[float] = (),
+    target_priority: Sequence[int] = (),
+    allocated: Sequence[bool] = (),
+    target_status: Sequence[str] = (),
+    target_ids: Sequence[str] = (),
+    position_angle_deg: float = 0.0,
+    title: str = "",
+) -> Path:
+    """Draw one configuration to ``path`` (PNG); the arguments are those of
+    :func:`configuration_figure`."""
+    fig = configuration_figure(
+        instrument, joints, target_x_mm=target_x_mm, target_y_mm=target_y_mm,
+        target_priority=target_priority, allocated=allocated, target_status=target_status,
+        target_ids=target_ids, position_angle_deg=position_angle_deg, title=title)
     try:
         out = Path(path)
         fig.savefig(out)
