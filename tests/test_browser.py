@@ -158,6 +158,10 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert page.locator("svg.sky .sky-target").count() == N_EXAMPLE
     _play_first_leg(page, result)
     with page.expect_download() as dl:
+        page.locator(".pointing").first.locator("button.save-svg").click()
+    picture = Path(dl.value.path()).read_text()
+    assert picture.startswith("<svg") and picture.count('class="arm"') == 12
+    with page.expect_download() as dl:
         page.click("#dl-commands")
     commands = list(csv.DictReader(io.StringIO(Path(dl.value.path()).read_text())))
     assert len(commands) == sum(len(t["commands"]) for p in result["pointings"]
@@ -215,10 +219,12 @@ def test_bad_rows_are_named_by_file_row_and_column(page, server, tmp_path: Path)
     bad = tmp_path / "bad.csv"
     bad.write_text("id,ra,dec,priority\na,250.42,36.46,1\nb,250.43,36.47,2\nc,250.44,95,3\n")
     page.set_input_files("#file", str(bad))
-    page.click("#go")
-    page.wait_for_selector("#error:not([hidden])")
+    page.wait_for_selector("#error:not([hidden])")  # read at once, before planning
     assert "bad.csv: row 3, line 4, column 'dec'" in page.inner_text("#error")
-    assert not page.is_disabled("#go")
+    page.click("#go")
+    page.wait_for_function("!document.querySelector('#go').disabled")
+    assert "bad.csv: row 3, line 4, column 'dec'" in page.inner_text("#error")
+    assert page.is_hidden("#result")
     # a 422 of the job request names the form's field ...
     page.set_input_files("#file", [])
     page.fill("#pa", "400")

@@ -102,9 +102,19 @@ function configurationViewer(p, members, pos, tiers) {
     title: `${c.arm_yield} arms, priority ${c.total_priority}`, onclick: () => { current = k; show(k); } }, `c${k + 1}`)));
   const play = el("button", { type: "button", class: "play", title: "animate the motion leg into this configuration",
     onclick: () => playLeg(p, current, view, legInfo, () => show(current)) }, "▶ play the leg into it");
-  box.append(stepper, play, legInfo, view);
+  const save = el("button", { type: "button", class: "save-svg", title: "this picture as an SVG file",
+    onclick: () => savePicture(view.querySelector("svg"), `pointing${p.id}_c${current + 1}.svg`) }, "download picture (SVG)");
+  box.append(stepper, play, " ", save, legInfo, view);
   show(0);
   return box;
+}
+
+function savePicture(root, name) {
+  const copy = root.cloneNode(true);
+  copy.setAttribute("xmlns", SVG_NS);
+  copy.setAttribute("width", "800");
+  copy.setAttribute("height", "800");
+  download(name, new XMLSerializer().serializeToString(copy), "image/svg+xml");
 }
 
 // Joint angles of every arm at time t_s of a motion leg (piecewise linear between waypoints).
