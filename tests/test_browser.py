@@ -120,6 +120,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     page.goto(server + "/")
     page.set_input_files("#file", str(_example_csv(tmp_path / "m13.csv")))
     page.fill("#time-limit", "2")
+    page.fill("#pa", "30")  # the page's projection must rotate as the server's does
     page.select_option("#segmentation", "balanced")
     page.click("#go")
     assert page.is_disabled("#go")  # no second job while this one runs
@@ -129,6 +130,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert "column 'RAJ2000' mixes" in page.inner_text("#table-info")
     assert "done 100 %" in page.inner_text("#status")
     result = page.evaluate("mxs.state.result")
+    assert page.evaluate("mxs.state.request.position_angle_deg") == 30
     banner = page.inner_text("#banner")
     assert ("NOT executable" in banner) == (not result["executable"])
     summary = page.inner_text("#summary")
