@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import secrets
 import threading
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
@@ -18,18 +18,24 @@ from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
+from pydantic import BaseModel
+from starlette.concurrency import run_in_threadpool
 
 from models.instrument import Instrument
 from service import pipeline
 from service.errors import (
     BodyLimitMiddleware,
     CatchAllMiddleware,
-    FieldError,
     NotFound,
     ServiceError,
+    error_body,
     install_error_handlers,
 )
-from service.jobs import JobManager
+from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
+from service.jobpool import JobManager, PoolOptions
+from service.jobs import EXPIRED
+from service.limits import check_request
+from service.middleware import BodyTimeoutMiddleware
 from service.schemas import (
     AllocationRequest,
     AllocationResponse,
@@ -43,6 +49,7 @@ from service.schemas import (
     MotionPlanResponse,
     PlanRequest,
     PlanResponse,
+    Readiness,
     SegmentationRequest,
     SegmentationResponse,
 )
@@ -58,16 +65,23 @@ except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
 
 _bearer = HTTPBearer(auto_error=False, description="Required on POST when MXS_API_TOKEN is set.")
 
+RETRY_AFTER = {"Retry-After": {"description": "Seconds to wait before retrying.",
+                               "schema": {"type": "integer", "minimum": 1}}}
 ERRORS: dict[int | str, dict[str, Any]] = {
     401: {"model": ErrorResponse, "description": "Missing or wrong bearer token."},
+    408: {"model": ErrorResponse,
+          "description": "The request body did not arrive within the server's body timeout."},
     413: {"model": ErrorResponse, "description": "Request body too large."},
     501: {"model": ErrorResponse, "description": "This stage is not available in this build."},
-    503: {"model": ErrorResponse, "description": "Temporary failure; retry."},
+    503: {"model": ErrorResponse, "headers": RETRY_AFTER,
+          "description": "Overloaded (every heavy-request slot or the job queue is full), "
+          "shutting down, or a temporary failure: retry after `Retry-After` seconds."},
 }
 
 
 class ServiceState:
-    """Per-app state: settings, the loaded instrument and (lazily) the job manager."""
+    """Per-app state: settings, the loaded instrument and (lazily) the heavy executor and the
+    job manager."""
 
     def __init__(self, settings: Settings):
         self.settings = settings
@@ -75,6 +89,7 @@ class ServiceState:
             str(settings.instrument_file) if settings.instrument_file else None
         )
         self._jobs: JobManager | None = None
+        self._heavy: HeavyExecutor | None = None
         self._lock = threading.Lock()
 
     @property
@@ -82,19 +97,34 @@ class ServiceState:
         with self._lock:
             if self._jobs is None:
                 s = self.settings
-                self._jobs = JobManager(
-                    s.job_db, s.workers, str(s.instrument_file) if s.instrument_file else None
-                )
+                self._jobs = JobManager(s.job_db, PoolOptions(
+                    workers=s.workers,
+                    instrument_file=str(s.instrument_file) if s.instrument_file else None,
+                    lease_s=s.job_lease_s, max_attempts=s.job_max_attempts,
+                    max_queued=s.max_queued_jobs, retention_s=s.job_retention_s,
+                    retention_count=s.job_retention_count, retry_after_s=s.retry_after_s,
+                ))
             return self._jobs
+
+    @property
+    def heavy(self) -> HeavyExecutor:
+        with self._lock:
+            if self._heavy is None:
+                s = self.settings
+                self._heavy = HeavyExecutor(s.heavy_threads, s.heavy_queue, s.retry_after_s)
+            return self._heavy
 
     def close(self) -> None:
         with self._lock:
-            if self._jobs is not None:
-                self._jobs.shutdown()
-                self._jobs = None
+            heavy, self._heavy = self._heavy, None
+            jobs, self._jobs = self._jobs, None
+        if heavy is not None:
+            heavy.shutdown()
+        if jobs is not None:
+            jobs.shutdown()
 
 
-def _state(request: Request) -> ServiceState:
+async def _state(request: Request) -> ServiceState:
     return request.app.state.mxs
 
 
@@ -105,7 +135,7 @@ def _authorize(
     request: Request,
     creds: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> None:
-    token = _state(request).settings.api_token
+    token = request.app.state.mxs.settings.api_token
     if token is None:
         return
     if creds is None or not secrets.compare_digest(creds.credentials.encode(), token.encode()):
@@ -116,19 +146,35 @@ def _authorize(
 Auth = Depends(_authorize)
 
 
-def _check_limits(req: Any, settings: Settings, prefix: tuple[str | int, ...] = ("body",)) -> float:
-    """Deployment limits the schema cannot know; returns the time limit to use."""
-    targets = getattr(req, "targets", None)
-    if targets is not None and len(targets) > settings.max_targets:
-        raise FieldError((*prefix, "targets"),
-                         f"at most {settings.max_targets} targets per request, got {len(targets)}",
-                         "too_long")
-    limit = getattr(req, "time_limit_s", None)
-    if limit is not None and limit > settings.max_time_limit_s:
-        raise FieldError((*prefix, "time_limit_s"),
-                         f"must be <= {settings.max_time_limit_s} s on this server",
-                         "less_than_equal")
-    return float(limit if limit is not None else settings.default_time_limit_s)
+async def _on_overloaded(_: Request, exc: Overloaded) -> JSONResponse:
+    return JSONResponse(status_code=503, content=error_body(exc.code, exc.message),
+                        headers={"Retry-After": str(exc.retry_after_s)})
+
+
+def _cancelling(ticket: Ticket) -> pipeline.Progress:
+    """A progress callback that stops the computation once its request is cancelled."""
+
+    def progress(_: float) -> None:
+        ticket.check()
+
+    return progress
+
+
+async def _heavy(request: Request, st: ServiceState, model: type[BaseModel],
+                 compute: Callable[[pipeline.Progress], dict[str, Any]]) -> JSONResponse:
+    """Run ``compute`` in the bounded executor (503 + Retry-After when full) and answer its
+    result, validated and rendered off the event loop; stop it if the client leaves."""
+
+    def work(ticket: Ticket) -> JSONResponse:
+        result = compute(_cancelling(ticket))
+        return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
+
+    ticket = st.heavy.submit(work)
+    try:
+        return await wait_or_cancel(ticket, request.is_disconnected)
+    except Cancelled:
+        raise Overloaded("the request was cancelled (client gone or server shutting down)",
+                         st.settings.retry_after_s) from None
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -137,7 +183,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        _ = state.jobs  # open the job database now: fails interrupted jobs at start-up
+        _ = state.jobs  # open the job database now: re-queues jobs whose lease expired
+        _ = state.heavy
         yield
         state.close()
 
@@ -152,48 +199,87 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.state.mxs = state
     install_error_handlers(app)
+    app.add_exception_handler(Overloaded, _on_overloaded)  # type: ignore[arg-type]
     if settings.cors_origin_list:
         app.add_middleware(
             CORSMiddleware, allow_origins=settings.cors_origin_list, allow_methods=["GET", "POST"],
             allow_headers=["Authorization", "Content-Type"],
         )
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s)
     app.add_middleware(CatchAllMiddleware)
-
     install_web(app, max_targets=settings.max_targets, auth=Auth, responses=ERRORS)
+    _service_routes(app)
+    _stage_routes(app)
+    _job_routes(app)
+    return app
 
-    @app.get("/v1/health", operation_id="health", response_model=Health, tags=["service"], responses=ERRORS)
-    def health() -> dict[str, Any]:
+
+# Cheap routes are ``async``: they run on the event loop, never behind heavy work (which
+# runs in the bounded HeavyExecutor, never in the thread pool the page and files use).
+
+
+def _service_routes(app: FastAPI) -> None:
+
+    @app.get("/v1/health", operation_id="health", response_model=Health, tags=["service"],
+             responses=ERRORS)
+    async def health() -> dict[str, Any]:
+        """Liveness: the process serves requests (no database, no computation)."""
         return {"status": "ok", "version": VERSION}
 
-    @app.get("/v1/instrument", operation_id="get_instrument", response_model=InstrumentInfo, tags=["service"], responses=ERRORS)
-    def instrument(st: StateDep) -> dict[str, Any]:
+    @app.get("/v1/health/live", operation_id="health_live", response_model=Health,
+             tags=["service"], responses=ERRORS)
+    async def health_live() -> dict[str, Any]:
+        """Liveness, as `/v1/health`: what a container health check should probe."""
+        return {"status": "ok", "version": VERSION}
+
+    @app.get("/v1/health/ready", operation_id="health_ready", response_model=Readiness,
+             tags=["service"], responses=ERRORS)
+    async def health_ready(st: StateDep) -> JSONResponse:
+        """Readiness: the job database answers, the job workers run and a heavy-request slot
+        is free. 503 (with `Retry-After`) otherwise: route new work to another instance."""
+        jobs_ok, jobs_reason = await run_in_threadpool(st.jobs.ready)
+        heavy = st.heavy
+        room = heavy.has_room()
+        ready = jobs_ok and room
+        body = {"status": "ready" if ready else "not_ready", "version": VERSION,
+                "jobs": jobs_reason, "heavy_in_use": heavy.in_use,
+                "heavy_capacity": heavy.capacity}
+        headers = None if ready else {"Retry-After": str(st.settings.retry_after_s)}
+        return JSONResponse(Readiness.model_validate(body).model_dump(mode="json"),
+                            status_code=200 if ready else 503, headers=headers)
+
+    @app.get("/v1/instrument", operation_id="get_instrument", response_model=InstrumentInfo,
+             tags=["service"], responses=ERRORS)
+    async def instrument(st: StateDep) -> dict[str, Any]:
         return pipeline.instrument_info(st.instrument)
 
-    # Stage endpoints are plain ``def``: FastAPI runs them in its thread pool, never on the
-    # event loop. Long work belongs in /v1/jobs (process pool).
 
+def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/segmentations", operation_id="create_segmentation", response_model=SegmentationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
-    def segmentations(req: SegmentationRequest, st: StateDep) -> dict[str, Any]:
-        _check_limits(req, st.settings)
-        return pipeline.segmentation(req, st.instrument)
+    async def segmentations(req: SegmentationRequest, st: StateDep, request: Request) -> JSONResponse:
+        check_request(req, st.settings, st.instrument)
+        return await _heavy(request, st, SegmentationResponse,
+                            lambda progress: pipeline.segmentation(req, st.instrument, progress))
 
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
-    def allocations(req: AllocationRequest, st: StateDep) -> dict[str, Any]:
-        limit = _check_limits(req, st.settings)
-        return pipeline.allocation(req, st.instrument, time_limit_s=limit)
+    async def allocations(req: AllocationRequest, st: StateDep, request: Request) -> JSONResponse:
+        limit = check_request(req, st.settings, st.instrument)
+        return await _heavy(request, st, AllocationResponse, lambda progress: pipeline.allocation(
+            req, st.instrument, progress, time_limit_s=limit))
 
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
-    def motion_plans(req: MotionPlanRequest, st: StateDep) -> dict[str, Any]:
-        limit = _check_limits(req, st.settings)
-        return pipeline.motion_plan(req, st.instrument, time_limit_s=limit)
+    async def motion_plans(req: MotionPlanRequest, st: StateDep, request: Request) -> JSONResponse:
+        limit = check_request(req, st.settings, st.instrument)
+        return await _heavy(request, st, MotionPlanResponse, lambda progress: pipeline.motion_plan(
+            req, st.instrument, progress, time_limit_s=limit))
 
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
-    def plans(req: PlanRequest, st: StateDep) -> dict[str, Any]:
+    async def plans(req: PlanRequest, st: StateDep, request: Request) -> JSONResponse:
         """The whole pipeline: segmentation, then per pointing allocation (all
         configurations) and the motion sequence park -> c1 -> ... -> park, whose planner may
         change the configurations (a leg through park, targets moved to other or new
@@ -205,28 +291,43 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
         """
-        limit = _check_limits(req, st.settings)
-        return pipeline.plan(req, st.instrument, time_limit_s=limit,
-                             budget_s=st.settings.plan_budget_s)
+        limit = check_request(req, st.settings, st.instrument)
+        return await _heavy(request, st, PlanResponse, lambda progress: pipeline.plan(
+            req, st.instrument, progress, time_limit_s=limit, budget_s=st.settings.plan_budget_s))
 
+
+def _job_routes(app: FastAPI) -> None:
     @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
               dependencies=[Auth], responses=ERRORS)
-    def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
-        limit = _check_limits(job.request, st.settings, ("body", job.kind, "request"))
-        pipeline.require_stage(job.kind)  # 501 now rather than a job that must fail
+    async def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
+        """Queue a stage request as a job: validated now exactly as its endpoint validates it
+        (422 naming `body.request.<field>`), refused with 503 + `Retry-After` when the queue is
+        full (`MXS_MAX_QUEUED_JOBS`)."""
+        limit = check_request(job.request, st.settings, st.instrument,
+                              ("body", job.kind, "request"))
         request = job.request.model_dump(mode="json", exclude_none=True)
-        job_id = st.jobs.submit(job.kind, request, limit, st.settings.job_budget_s)
+        job_id = await run_in_threadpool(st.jobs.submit, job.kind, request, limit,
+                                         st.settings.job_budget_s)
         return JSONResponse(status_code=202, content={"job_id": job_id, "status": "queued"})
 
     @app.get("/v1/jobs/{job_id}", operation_id="get_job", response_model=JobStatus, tags=["jobs"],
-             responses={404: {"model": ErrorResponse, "description": "No such job."}, **ERRORS})
-    def get_job(job_id: str, st: StateDep) -> dict[str, Any]:
-        job = st.jobs.get(job_id)
+             responses={404: {"model": ErrorResponse, "description": "No such job."},
+                        410: {"model": ErrorResponse, "description": "The job finished longer "
+                              "ago than the server keeps results (MXS_JOB_RETENTION_S / "
+                              "MXS_JOB_RETENTION_COUNT)."},
+                        **ERRORS})
+    async def get_job(job_id: str, st: StateDep) -> dict[str, Any]:
+        job = await run_in_threadpool(st.jobs.get, job_id)
         if job is None:
-            raise NotFound(f"job {job_id!r} not found")
+            raise NotFound(f"job {job_id!r} not found (finished jobs are kept for "
+                           f"{st.settings.job_retention_s:g} s, at most the newest "
+                           f"{st.settings.job_retention_count})")
+        if job["status"] == EXPIRED:
+            raise ServiceError(
+                f"job {job_id!r} has expired: its result was deleted, as finished jobs are kept "
+                f"for {st.settings.job_retention_s:g} s and at most the newest "
+                f"{st.settings.job_retention_count}", status_code=410, code="gone")
         return job
-
-    return app
 
 
 app = create_app()

@@ -31,9 +31,15 @@ EXIT_CODES = """exit codes of `plan`:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
+    """uvicorn on ``service.app:app``; SIGTERM gives open requests ``MXS_SHUTDOWN_GRACE_S``,
+    then cancels them, stops the job workers and re-queues their jobs (a few seconds)."""
     import uvicorn
 
-    uvicorn.run("service.app:app", host=args.host, port=args.port, log_level=args.log_level)
+    from service.settings import Settings
+
+    settings = Settings()
+    uvicorn.run("service.app:app", host=args.host, port=args.port, log_level=args.log_level,
+                workers=args.workers, timeout_graceful_shutdown=max(int(settings.shutdown_grace_s), 1))
     return 0
 
 
@@ -159,6 +165,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--host", default="127.0.0.1")
     s.add_argument("--port", type=int, default=8000)
     s.add_argument("--log-level", default="info")
+    s.add_argument("--workers", type=int, default=None,
+                   help="server processes (uvicorn --workers); they share the job database")
     s.set_defaults(func=cmd_serve)
     p = sub.add_parser("plan", help="plan a target list (CSV, ECSV, VOTable, FITS)",
                        epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)

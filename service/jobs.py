@@ -1,31 +1,40 @@
-"""Background jobs: SQLite-persisted state, work done in a process pool.
+"""Background jobs: a SQLite job table shared by every server, worked off under leases.
 
-The parent process inserts a job as ``queued`` and hands it to a
-:class:`~concurrent.futures.ProcessPoolExecutor`; the worker process itself records
-``running``, progress, and finally ``done`` with the result or ``failed`` with the reason,
-each in its own committed transaction (WAL, synchronous=FULL), so a finished result
-survives any later crash. On start-up, jobs left ``queued``/``running`` by a previous
-server are marked ``failed`` ("interrupted by server restart").
+A job is inserted ``queued`` (refused with 503 + ``Retry-After`` when ``MXS_MAX_QUEUED_JOBS``
+are already waiting). Worker processes (:mod:`service.worker`) of any server on the same
+database claim the oldest queued job atomically, marking it ``running`` with an owner
+(``<server instance>/<pid>``) and a lease (``MXS_JOB_LEASE_S``) that a heartbeat renews while
+the job runs; progress, then ``done`` with the result or ``failed`` with the reason, are each
+committed in their own transaction (WAL, synchronous=FULL), so a finished result survives any
+later crash and is never overwritten (only open jobs are updated).
+
+Recovery never touches a live job: only a ``running`` job whose lease has expired (its server
+was killed, its worker died) is re-queued for any server to pick up, and failed with the
+reason once it has been interrupted ``MXS_JOB_MAX_ATTEMPTS`` times. A server that stops
+normally hands its own running jobs back to the queue at once; queued jobs stay in the shared
+table for the next server. Finished jobs are kept for ``MXS_JOB_RETENTION_S`` and at most the
+newest ``MXS_JOB_RETENTION_COUNT``; older ones are reduced to a tombstone that answers 410.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import multiprocessing
 import sqlite3
-import threading
 import time
 import uuid
-from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from service.errors import ServiceError, json_safe
+from service.errors import json_safe
 
 log = logging.getLogger("service.jobs")
 
 INTERRUPTED = "interrupted by server restart"
+EXPIRED = "expired"
+OPEN = "('queued', 'running')"
+FINISHED = "('done', 'failed')"
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
     job_id     TEXT PRIMARY KEY,
@@ -39,6 +48,15 @@ CREATE TABLE IF NOT EXISTS jobs (
     updated_at REAL NOT NULL
 )
 """
+# columns added to the first table layout (a database from an older server is migrated)
+_COLUMNS = {
+    "owner": "TEXT",
+    "lease_until": "REAL",
+    "attempts": "INTEGER NOT NULL DEFAULT 0",
+    "time_limit_s": "REAL",
+    "budget_s": "REAL",
+}
+_PUBLIC = ("job_id", "kind", "status", "progress", "result", "error", "created_at", "updated_at")
 
 
 def connect(db_path: str | Path) -> sqlite3.Connection:
@@ -48,71 +66,196 @@ def connect(db_path: str | Path) -> sqlite3.Connection:
     return con
 
 
+@dataclass(frozen=True)
+class ClaimedJob:
+    """What a worker needs to run one job it has claimed."""
+
+    job_id: str
+    kind: str
+    request: dict[str, Any]
+    time_limit_s: float
+    budget_s: float | None
+
+
+@dataclass(frozen=True)
+class Recovery:
+    """Outcome of one lease sweep: jobs handed back to the queue, jobs failed for good."""
+
+    requeued: int
+    failed: int
+
+
+class QueueFull(Exception):  # noqa: N818 - a condition, answered 503 by the app
+    def __init__(self, queued: int):
+        super().__init__(f"{queued} jobs are already queued")
+        self.queued = queued
+
+
 class JobStore:
     """All SQL of the job table. Cheap to create; one short-lived connection per call."""
 
     def __init__(self, db_path: str | Path):
         self.db_path = Path(db_path)
 
-    def init(self) -> int:
-        """Create the table (WAL mode) and fail jobs a previous server left unfinished."""
+    def init(self) -> None:
+        """Create (or migrate) the table, WAL mode. Touches no job."""
         if self.db_path.parent and not self.db_path.parent.exists():
             self.db_path.parent.mkdir(parents=True, exist_ok=True)
         with _closing(connect(self.db_path)) as con:
             con.execute("PRAGMA journal_mode = WAL")
             con.execute(_SCHEMA)
-            cur = con.execute(
-                "UPDATE jobs SET status='failed', error=?, updated_at=? "
-                "WHERE status IN ('queued', 'running')",
-                (INTERRUPTED, time.time()),
-            )
-            return cur.rowcount
+            have = {row[1] for row in con.execute("PRAGMA table_info(jobs)")}
+            for name, decl in _COLUMNS.items():
+                if name not in have:
+                    con.execute(f"ALTER TABLE jobs ADD COLUMN {name} {decl}")
+            con.execute("CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status, created_at)")
 
-    def create(self, kind: str, request: dict[str, Any]) -> str:
+    # ---------------------------------------------------------------- submission side
+
+    def create(self, kind: str, request: dict[str, Any], time_limit_s: float = 30.0,
+               budget_s: float | None = None, max_queued: int | None = None) -> str:
+        """Insert a queued job; :class:`QueueFull` when ``max_queued`` already wait."""
         job_id = uuid.uuid4().hex
         now = time.time()
+        blob = json.dumps(json_safe(request))
         with _closing(connect(self.db_path)) as con:
-            con.execute(
-                "INSERT INTO jobs (job_id, kind, status, progress, request, created_at, updated_at)"
-                " VALUES (?, ?, 'queued', 0, ?, ?, ?)",
-                (job_id, kind, json.dumps(json_safe(request)), now, now),
-            )
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                if max_queued is not None:
+                    (n,) = con.execute("SELECT COUNT(*) FROM jobs WHERE status='queued'").fetchone()
+                    if n >= max_queued:
+                        raise QueueFull(n)
+                con.execute(
+                    "INSERT INTO jobs (job_id, kind, status, progress, request, created_at, "
+                    "updated_at, time_limit_s, budget_s) VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?)",
+                    (job_id, kind, blob, now, now, float(time_limit_s), budget_s),
+                )
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
         return job_id
 
     def get(self, job_id: str) -> dict[str, Any] | None:
+        """The public fields of a job (``status`` may be ``expired``), or None."""
         with _closing(connect(self.db_path)) as con:
-            row = con.execute(
-                "SELECT job_id, kind, status, progress, result, error, created_at, updated_at "
-                "FROM jobs WHERE job_id = ?", (job_id,),
-            ).fetchone()
+            row = con.execute(f"SELECT {', '.join(_PUBLIC)} FROM jobs WHERE job_id = ?",
+                              (job_id,)).fetchone()
         if row is None:
             return None
-        keys = ("job_id", "kind", "status", "progress", "result", "error", "created_at",
-                "updated_at")
-        job = dict(zip(keys, row, strict=True))
+        job = dict(zip(_PUBLIC, row, strict=True))
         job["result"] = json.loads(job["result"]) if job["result"] else None
         return job
 
-    def set_running(self, job_id: str) -> None:
-        self._update(job_id, "status='running'", (), only_open=True)
+    def count(self, status: str) -> int:
+        with _closing(connect(self.db_path)) as con:
+            (n,) = con.execute("SELECT COUNT(*) FROM jobs WHERE status = ?", (status,)).fetchone()
+        return int(n)
+
+    # -------------------------------------------------------------------- worker side
+
+    def claim(self, owner: str, lease_s: float) -> ClaimedJob | None:
+        """Atomically take the oldest queued job for ``owner`` under a fresh lease."""
+        now = time.time()
+        with _closing(connect(self.db_path)) as con:
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                row = con.execute(
+                    "SELECT job_id, kind, request, time_limit_s, budget_s FROM jobs "
+                    "WHERE status='queued' ORDER BY created_at LIMIT 1").fetchone()
+                if row is not None:
+                    con.execute(
+                        "UPDATE jobs SET status='running', owner=?, lease_until=?, updated_at=? "
+                        "WHERE job_id=?", (owner, now + lease_s, now, row[0]))
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+        if row is None:
+            return None
+        return ClaimedJob(row[0], row[1], json.loads(row[2]),
+                          float(row[3]) if row[3] is not None else 30.0, row[4])
+
+    def renew(self, job_id: str, owner: str, lease_s: float) -> bool:
+        """Extend ``owner``'s lease on a running job; False when it is no longer theirs."""
+        with _closing(connect(self.db_path)) as con:
+            cur = con.execute("UPDATE jobs SET lease_until=? WHERE job_id=? AND owner=? "
+                              "AND status='running'", (time.time() + lease_s, job_id, owner))
+        return cur.rowcount == 1
+
+    def set_running(self, job_id: str, owner: str = "", lease_s: float = 30.0) -> None:
+        self._update(job_id, "status='running', owner=?, lease_until=?",
+                     (owner, time.time() + lease_s))
 
     def set_progress(self, job_id: str, progress: float) -> None:
         p = min(max(float(progress), 0.0), 1.0)
-        self._update(job_id, "progress=MAX(progress, ?)", (p,), only_open=True)
+        self._update(job_id, "progress=MAX(progress, ?)", (p,))
 
     def set_done(self, job_id: str, result: dict[str, Any]) -> None:
-        self._update(job_id, "status='done', progress=1, result=?",
-                     (json.dumps(json_safe(result)),), only_open=True)
+        self._update(job_id, "status='done', progress=1, result=?, owner=NULL, lease_until=NULL",
+                     (json.dumps(json_safe(result)),))
 
     def set_failed(self, job_id: str, error: str) -> None:
-        self._update(job_id, "status='failed', error=?", (error,), only_open=True)
+        self._update(job_id, "status='failed', error=?, owner=NULL, lease_until=NULL", (error,))
 
-    def _update(self, job_id: str, assignments: str, args: tuple[Any, ...], *,
-                only_open: bool) -> None:
-        where = "job_id = ?" + (" AND status IN ('queued', 'running')" if only_open else "")
+    def _update(self, job_id: str, assignments: str, args: tuple[Any, ...]) -> None:
+        """Change an open job only: a finished result is never overwritten."""
         with _closing(connect(self.db_path)) as con:
-            con.execute(f"UPDATE jobs SET {assignments}, updated_at=? WHERE {where}",
-                        (*args, time.time(), job_id))
+            con.execute(f"UPDATE jobs SET {assignments}, updated_at=? "
+                        f"WHERE job_id = ? AND status IN {OPEN}", (*args, time.time(), job_id))
+
+    # ------------------------------------------------------------------ recovery side
+
+    def recover(self, max_attempts: int, owner: str | None = None,
+                reason: str = "its lease expired") -> Recovery:
+        """Re-queue running jobs whose lease has expired (or all of ``owner``'s), counting
+        an attempt; a job interrupted ``max_attempts`` times is failed with ``reason``."""
+        now = time.time()
+        if owner is None:
+            where, args = "status='running' AND (lease_until IS NULL OR lease_until < ?)", (now,)
+        else:
+            where, args = "status='running' AND owner = ?", (owner,)
+        with _closing(connect(self.db_path)) as con:
+            con.execute("BEGIN IMMEDIATE")
+            failed = con.execute(
+                f"UPDATE jobs SET status='failed', owner=NULL, lease_until=NULL, updated_at=?, "
+                f"attempts=attempts+1, error=? WHERE {where} AND attempts+1 >= ?",
+                (now, f"{INTERRUPTED}: {reason}, {max_attempts} times", *args, max_attempts),
+            ).rowcount
+            requeued = con.execute(
+                f"UPDATE jobs SET status='queued', owner=NULL, lease_until=NULL, updated_at=?, "
+                f"attempts=attempts+1 WHERE {where}", (now, *args),
+            ).rowcount
+            con.execute("COMMIT")
+        return Recovery(requeued, failed)
+
+    def release(self, instance: str) -> int:
+        """Hand every running job of server ``instance`` back to the queue (a normal
+        shutdown: not counted as an attempt)."""
+        with _closing(connect(self.db_path)) as con:
+            return con.execute(
+                "UPDATE jobs SET status='queued', owner=NULL, lease_until=NULL, updated_at=? "
+                "WHERE status='running' AND owner LIKE ?", (time.time(), f"{instance}/%"),
+            ).rowcount
+
+    def expire(self, retention_s: float, retention_count: int) -> int:
+        """Reduce finished jobs older than ``retention_s`` or beyond the newest
+        ``retention_count`` to tombstones (status ``expired``, no request, no result); drop
+        tombstones ten retention periods old."""
+        now = time.time()
+        with _closing(connect(self.db_path)) as con:
+            con.execute("BEGIN IMMEDIATE")
+            n = con.execute(
+                f"UPDATE jobs SET status='{EXPIRED}', request='', result=NULL, updated_at=? "
+                f"WHERE status IN {FINISHED} AND (updated_at < ? OR job_id NOT IN ("
+                f"SELECT job_id FROM jobs WHERE status IN {FINISHED} "
+                "ORDER BY updated_at DESC LIMIT ?))",
+                (now, now - retention_s, retention_count),
+            ).rowcount
+            con.execute(f"DELETE FROM jobs WHERE status='{EXPIRED}' AND updated_at < ?",
+                        (now - 10 * retention_s,))
+            con.execute("COMMIT")
+        return n
 
 
 class _closing:
@@ -126,19 +269,19 @@ class _closing:
         self.con.close()
 
 
-# --------------------------------------------------------------------- worker side
+# --------------------------------------------------------------------- running a job
 
 
 def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
             instrument_file: str | None, time_limit_s: float,
             budget_s: float | None = None) -> str:
-    """Executed in a pool process: run the stage, persist the outcome. Never raises."""
+    """Run one claimed job's stage and persist its outcome. Never raises an ``Exception``."""
     from models.instrument import InstrumentError
     from service import pipeline
+    from service.errors import ServiceError
 
     store = JobStore(db_path)
     try:
-        store.set_running(job_id)
         last = [0.0, time.monotonic()]
 
         def progress(p: float) -> None:
@@ -160,70 +303,3 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
         log.exception("job %s (%s) crashed", job_id, kind)
         store.set_failed(job_id, f"internal error: {type(exc).__name__}: {exc}")
     return "failed"
-
-
-# --------------------------------------------------------------------- parent side
-
-
-class JobManager:
-    """Owns the store and the process pool of one server process."""
-
-    def __init__(self, db_path: str | Path, workers: int, instrument_file: str | None):
-        self.store = JobStore(db_path)
-        self.workers = workers
-        self.instrument_file = instrument_file
-        self._pool: ProcessPoolExecutor | None = None
-        self._lock = threading.Lock()
-        self.interrupted = self.store.init()
-        if self.interrupted:
-            log.warning("%d job(s) marked failed: %s", self.interrupted, INTERRUPTED)
-
-    def _executor(self) -> ProcessPoolExecutor:
-        with self._lock:
-            if self._pool is None:
-                self._pool = ProcessPoolExecutor(
-                    max_workers=self.workers, mp_context=multiprocessing.get_context("spawn")
-                )
-            return self._pool
-
-    def submit(self, kind: str, request: dict[str, Any], time_limit_s: float,
-               budget_s: float | None = None) -> str:
-        """Queue a job; ``time_limit_s`` bounds each solver call, ``budget_s`` a whole plan."""
-        job_id = self.store.create(kind, request)
-        try:
-            fut = self._executor().submit(
-                run_job, str(self.store.db_path), job_id, kind, request,
-                self.instrument_file, time_limit_s, budget_s,
-            )
-        except Exception as exc:  # broken pool: start a fresh one next time
-            log.exception("could not submit job %s", job_id)
-            with self._lock:
-                self._pool = None
-            self.store.set_failed(job_id, f"could not start the job: {exc}")
-            raise ServiceError("the job pool is unavailable; retry", status_code=503,
-                               code="unavailable") from exc
-        fut.add_done_callback(lambda f: self._finished(job_id, f))
-        return job_id
-
-    def _finished(self, job_id: str, fut: Future[str]) -> None:
-        exc = fut.exception() if not fut.cancelled() else None
-        if fut.cancelled() or exc is not None:
-            # the worker died (or the pool shut down) before it could record an outcome
-            reason = "cancelled at server shutdown" if fut.cancelled() else (
-                f"worker process failed: {type(exc).__name__}: {exc}")
-            try:
-                self.store.set_failed(job_id, reason)
-            except Exception:  # noqa: BLE001
-                log.exception("could not record the failure of job %s", job_id)
-            if exc is not None:
-                with self._lock:
-                    self._pool = None
-
-    def get(self, job_id: str) -> dict[str, Any] | None:
-        return self.store.get(job_id)
-
-    def shutdown(self, wait: bool = False) -> None:
-        with self._lock:
-            pool, self._pool = self._pool, None
-        if pool is not None:
-            pool.shutdown(wait=wait, cancel_futures=True)

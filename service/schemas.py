@@ -271,6 +271,14 @@ class Health(Response):
     version: str
 
 
+class Readiness(Response):
+    status: Literal["ready", "not_ready"]
+    version: str
+    jobs: str = Field(description="State of the job database and workers.")
+    heavy_in_use: int = Field(ge=0, description="Stage requests computing or waiting now.")
+    heavy_capacity: int = Field(ge=1, description="Stage requests admitted at most at once.")
+
+
 class ErrorResponse(Response):
     """Every non-validation error: a machine code and a human message."""
 

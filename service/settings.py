@@ -38,6 +38,39 @@ class Settings(BaseSettings):
         3600.0, gt=0, description="Wall-clock budget of one 'plan' job (the whole pipeline)."
     )
 
+    heavy_threads: int = Field(
+        2, ge=1, le=64, description="Threads computing synchronous stage requests "
+        "(segmentations, allocations, motion plans, plans)."
+    )
+    heavy_queue: int = Field(
+        4, ge=0, le=1000, description="Stage requests that may wait for a heavy thread; "
+        "beyond threads + queue a request is refused at once with 503 and Retry-After."
+    )
+    retry_after_s: int = Field(5, ge=1, le=3600, description="Retry-After of a 503 refusal.")
+    body_timeout_s: float = Field(
+        20.0, gt=0, description="Time a client has to send its whole request body (else 408)."
+    )
+    shutdown_grace_s: float = Field(
+        2.0, ge=0, description="On SIGTERM, time open requests get to finish before they are "
+        "cancelled (serve only)."
+    )
+    job_lease_s: float = Field(
+        30.0, ge=1, description="Lease of a running job; its worker renews it every third. A "
+        "job whose lease expired (server killed) is re-queued by any server on the database."
+    )
+    job_max_attempts: int = Field(
+        3, ge=1, description="Interruptions after which a job is failed instead of re-queued."
+    )
+    max_queued_jobs: int = Field(
+        100, ge=1, description="Jobs that may wait in the queue; more are refused with 503."
+    )
+    job_retention_s: float = Field(
+        7 * 86400.0, gt=0, description="Finished jobs older than this answer 410 Gone."
+    )
+    job_retention_count: int = Field(
+        1000, ge=1, description="Finished jobs kept at most (the newest); older answer 410."
+    )
+
     @field_validator("api_token")
     @classmethod
     def _empty_token_is_none(cls, v: str | None) -> str | None:

@@ -35,7 +35,7 @@ def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer
 
     db = tmp_path_factory.mktemp("live") / "jobs.sqlite3"
     app = create_app(Settings(job_db=db, workers=1, max_targets=500, max_body_bytes=200_000,
-                              default_time_limit_s=10.0))
+                              default_time_limit_s=10.0, heavy_queue=32))
     port = free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
     thread = threading.Thread(target=server.run, daemon=True)

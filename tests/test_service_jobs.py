@@ -46,9 +46,10 @@ def test_job_over_http(live_server) -> None:
 
 def test_job_survives_server_restart(tmp_path: Path) -> None:
     db = tmp_path / "jobs.sqlite3"
-    settings = Settings(job_db=db, workers=1)
+    settings = Settings(job_db=db, workers=1, job_max_attempts=1)
 
-    # first server: one job runs to its end in the process pool, another is left "running"
+    # first server: one job runs to its end in a worker process; another is left "running"
+    # with a lease that has already expired (as after a kill -9), a third is finished
     app1 = create_app(settings)
     with TestClient(app1) as c:
         jobs = app1.state.mxs.jobs
@@ -56,19 +57,20 @@ def test_job_survives_server_restart(tmp_path: Path) -> None:
         before = wait_terminal(lambda j: c.get(f"/v1/jobs/{j}").json(), finished)
         assert before["status"] == "done" and before["result"]["pointings"]
         store = JobStore(db)
-        in_flight = store.create("plan", {"targets": []})
-        store.set_running(in_flight)
-        store.set_progress(in_flight, 0.4)
         fake_done = store.create("allocation", {"targets": []})
         store.set_done(fake_done, {"configurations": [], "unallocated": [], "stats": {"x": 1}})
+    in_flight = store.create("plan", {"targets": []})
+    store.set_running(in_flight, owner="dead-server/1", lease_s=-1.0)
+    store.set_progress(in_flight, 0.4)
 
-    # second server on the same database file
+    # second server on the same database file: the expired job has had its one attempt
     app2 = create_app(settings)
     with TestClient(app2) as c:
         after = c.get(f"/v1/jobs/{finished}").json()
         assert after == before
         lost = c.get(f"/v1/jobs/{in_flight}").json()
-        assert lost["status"] == "failed" and lost["error"] == INTERRUPTED
+        assert lost["status"] == "failed" and lost["error"].startswith(INTERRUPTED)
+        assert "lease expired" in lost["error"]
         assert lost["progress"] == 0.4
         kept = c.get(f"/v1/jobs/{fake_done}").json()
         assert kept["status"] == "done" and kept["result"]["stats"] == {"x": 1}
@@ -85,7 +87,7 @@ def test_store_never_reopens_a_finished_job(tmp_path: Path) -> None:
     assert job is not None
     assert (job["status"], job["result"], job["error"], job["progress"]) == (
         "done", {"ok": True}, None, 1.0)
-    assert store.init() == 0  # nothing to interrupt
+    assert store.recover(max_attempts=3).requeued == 0  # nothing to interrupt
 
 
 def test_invalid_job_request_fails_cleanly_in_worker(tmp_path: Path) -> None:

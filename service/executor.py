@@ -1,0 +1,176 @@
+"""The bounded executor of the synchronous heavy endpoints, with admission control.
+
+Segmentations, allocations, motion plans and plans run on a fixed set of daemon threads
+(``MXS_HEAVY_THREADS``), never on the event loop nor on the thread pool that serves cheap
+routes, so ``/v1/health`` answers whatever the load. At most ``MXS_HEAVY_QUEUE`` more
+requests may wait for a thread; beyond that :meth:`HeavyExecutor.submit` refuses at once
+with :class:`Overloaded` (HTTP 503 with ``Retry-After``) instead of queueing without end.
+
+Every admitted request carries a :class:`Ticket`. Its ``cancel`` event is set when the
+client disconnects or the server shuts down: a request still waiting is dropped before it
+starts, and a running one stops at its next progress report (the ``progress`` callback the
+pipeline calls raises :class:`Cancelled`). The domain call's own ``time_limit_s`` is the
+hard deadline in between. The threads are daemons, so a stuck computation never holds up
+the process exit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import queue
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from service.errors import ServiceError
+
+log = logging.getLogger("service.executor")
+
+
+class Cancelled(BaseException):  # noqa: N818 - like asyncio.CancelledError, not an Exception
+    """Raised inside a heavy computation whose client left or whose server is stopping.
+
+    A ``BaseException`` so that the domain's ``except Exception`` safety nets let it through.
+    """
+
+
+class Overloaded(ServiceError):
+    """Every heavy slot is taken: HTTP 503 with a ``Retry-After`` header."""
+
+    status_code = 503
+    code = "overloaded"
+
+    def __init__(self, message: str, retry_after_s: int):
+        super().__init__(message)
+        self.retry_after_s = max(int(retry_after_s), 1)
+
+
+@dataclass(eq=False)
+class Ticket:
+    """One admitted request: its cancellation flag and the future of its answer."""
+
+    cancel: threading.Event = field(default_factory=threading.Event)
+    future: asyncio.Future[Any] | None = None
+
+    def check(self) -> None:
+        """Raise :class:`Cancelled` when the request should stop."""
+        if self.cancel.is_set():
+            raise Cancelled()
+
+
+@dataclass(frozen=True)
+class _Work:
+    ticket: Ticket
+    fn: Callable[[Ticket], Any]
+    loop: asyncio.AbstractEventLoop
+
+
+class HeavyExecutor:
+    """``threads`` daemon workers behind an admission limit of ``threads + queue`` requests."""
+
+    def __init__(self, threads: int, queue_size: int, retry_after_s: int = 5):
+        self.threads = threads
+        self.capacity = threads + queue_size
+        self.retry_after_s = retry_after_s
+        self._queue: queue.SimpleQueue[_Work | None] = queue.SimpleQueue()
+        self._lock = threading.Lock()
+        self._admitted: set[Ticket] = set()
+        self._closed = False
+        self._workers = [
+            threading.Thread(target=self._loop, name=f"mxs-heavy-{i}", daemon=True)
+            for i in range(threads)
+        ]
+        for t in self._workers:
+            t.start()
+
+    @property
+    def in_use(self) -> int:
+        with self._lock:
+            return len(self._admitted)
+
+    def has_room(self) -> bool:
+        with self._lock:
+            return not self._closed and len(self._admitted) < self.capacity
+
+    def submit(self, fn: Callable[[Ticket], Any]) -> Ticket:
+        """Admit ``fn(ticket)`` or raise :class:`Overloaded`. Call from the event loop."""
+        loop = asyncio.get_running_loop()
+        ticket = Ticket()
+        with self._lock:
+            if self._closed:
+                raise Overloaded("the server is shutting down; retry on another instance",
+                                 self.retry_after_s)
+            if len(self._admitted) >= self.capacity:
+                raise Overloaded(
+                    f"all {self.capacity} heavy-request slots are in use; retry later or "
+                    "submit the work as a job (POST /v1/jobs)", self.retry_after_s)
+            self._admitted.add(ticket)
+        ticket.future = loop.create_future()
+        self._queue.put(_Work(ticket, fn, loop))
+        return ticket
+
+    def _loop(self) -> None:
+        while True:
+            work = self._queue.get()
+            if work is None:
+                return
+            self._run(work)
+
+    def _run(self, work: _Work) -> None:
+        outcome: tuple[bool, Any]
+        try:
+            work.ticket.check()
+            outcome = (True, work.fn(work.ticket))
+        except Cancelled:
+            outcome = (False, Cancelled())
+        except Exception as exc:  # noqa: BLE001 - handed to the awaiting request
+            outcome = (False, exc)
+        finally:
+            with self._lock:
+                self._admitted.discard(work.ticket)
+        try:
+            work.loop.call_soon_threadsafe(_resolve, work.ticket, outcome)
+        except RuntimeError:  # the event loop is closed: nobody waits any more
+            pass
+
+    def shutdown(self) -> None:
+        """Refuse new work and cancel every admitted request; never waits for a thread."""
+        with self._lock:
+            self._closed = True
+            tickets = list(self._admitted)
+        for t in tickets:
+            t.cancel.set()
+        for _ in self._workers:
+            self._queue.put(None)
+
+
+def _resolve(ticket: Ticket, outcome: tuple[bool, Any]) -> None:
+    fut = ticket.future
+    if fut is None or fut.done():
+        return
+    ok, value = outcome
+    if ok:
+        fut.set_result(value)
+    else:
+        fut.set_exception(value)
+
+
+async def wait_or_cancel(ticket: Ticket, disconnected: Callable[[], Any],
+                         poll_s: float = 0.25) -> Any:
+    """Await ``ticket``'s answer; set its ``cancel`` flag as soon as ``disconnected()``
+    (an awaitable returning bool) says the client has gone, or when this task is cancelled."""
+    assert ticket.future is not None
+    try:
+        while True:
+            done, _ = await asyncio.wait({ticket.future}, timeout=poll_s)
+            if done:
+                return ticket.future.result()
+            if await disconnected():
+                ticket.cancel.set()
+                log.info("client disconnected: heavy request cancelled")
+                raise Cancelled()
+    except asyncio.CancelledError:
+        ticket.cancel.set()
+        raise

@@ -1,0 +1,50 @@
+"""Request checks that the schemas cannot make: this server's limits and its instrument.
+
+:func:`check_request` is the one check a stage request passes before any work is admitted,
+whether it comes to its own endpoint (``POST /v1/allocations`` ...) or inside a job
+(``POST /v1/jobs``): a job is refused with the same 422, naming the same field (under
+``body.request``), as the endpoint would give, instead of being accepted and failing later.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from models.instrument import Instrument
+from service.errors import FieldError
+from service.schemas import ArmState
+from service.settings import Settings
+
+Loc = tuple[str | int, ...]
+
+
+def check_request(req: Any, settings: Settings, inst: Instrument,
+                  prefix: Loc = ("body",)) -> float:
+    """Raise :class:`FieldError` (422) for what this deployment refuses; return the solver
+    time limit to use (the request's, else the server default)."""
+    targets = getattr(req, "targets", None)
+    if targets is not None and len(targets) > settings.max_targets:
+        raise FieldError((*prefix, "targets"),
+                         f"at most {settings.max_targets} targets per request, got {len(targets)}",
+                         "too_long")
+    limit = getattr(req, "time_limit_s", None)
+    if limit is not None and limit > settings.max_time_limit_s:
+        raise FieldError((*prefix, "time_limit_s"),
+                         f"must be <= {settings.max_time_limit_s} s on this server",
+                         "less_than_equal")
+    threshold = getattr(req, "threshold_mm", None)
+    diameter_mm = 2.0 * inst.fov_radius_mm
+    if threshold is not None and threshold > diameter_mm:
+        raise FieldError((*prefix, "threshold_mm"),
+                         f"{threshold} mm is larger than the FOV diameter {diameter_mm} mm: "
+                         "targets that far apart can never share a pointing", "less_than_equal")
+    for name in ("start", "goal", "disabled_arms"):
+        _check_arms(getattr(req, name, None), inst, (*prefix, name))
+    return float(limit if limit is not None else settings.default_time_limit_s)
+
+
+def _check_arms(states: Sequence[ArmState] | None, inst: Instrument, loc: Loc) -> None:
+    for i, s in enumerate(states or ()):
+        if s.arm >= inst.n_arms:
+            raise FieldError((*loc, i, "arm"), f"the instrument has arms 0..{inst.n_arms - 1}")
