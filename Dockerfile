@@ -25,6 +25,6 @@ VOLUME ["/data"]
 EXPOSE 8000
 
 HEALTHCHECK --interval=30s --timeout=5s --start-period=20s --retries=3 \
-    CMD python -c "import urllib.request, sys; r = urllib.request.urlopen('http://127.0.0.1:8000/v1/health', timeout=4); sys.exit(0 if r.status == 200 else 1)"
+    CMD python -c "import urllib.request, sys; r = urllib.request.urlopen('http://127.0.0.1:8000/v1/health/live', timeout=4); sys.exit(0 if r.status == 200 else 1)"
 
 CMD ["mxs-planner", "serve", "--host", "0.0.0.0", "--port", "8000"]
