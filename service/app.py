@@ -160,13 +160,23 @@ def _cancelling(ticket: Ticket) -> pipeline.Progress:
     return progress
 
 
+_MIN_LIMIT_S = 0.1  # the least time limit a request that waited for a thread is given
+Compute = Callable[[pipeline.Progress, Callable[[float], float]], dict[str, Any]]
+
+
 async def _heavy(request: Request, st: ServiceState, model: type[BaseModel],
-                 compute: Callable[[pipeline.Progress], dict[str, Any]]) -> JSONResponse:
-    """Run ``compute`` in the bounded executor (503 + Retry-After when full) and answer its
-    result, validated and rendered off the event loop; stop it if the client leaves."""
+                 compute: Compute) -> JSONResponse:
+    """Run ``compute(progress, left)`` in the bounded executor (503 + Retry-After when full)
+    and answer its result, validated and rendered off the event loop; stop it if the client
+    leaves. ``left(limit_s)`` is what remains of a time limit after the wait for a thread."""
 
     def work(ticket: Ticket) -> JSONResponse:
-        result = compute(_cancelling(ticket))
+        waited_s = ticket.waited_s
+
+        def left(limit_s: float) -> float:
+            return max(limit_s - waited_s, _MIN_LIMIT_S)
+
+        result = compute(_cancelling(ticket), left)
         return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
 
     ticket = st.heavy.submit(work)
@@ -261,21 +271,21 @@ def _stage_routes(app: FastAPI) -> None:
     async def segmentations(req: SegmentationRequest, st: StateDep, request: Request) -> JSONResponse:
         check_request(req, st.settings, st.instrument)
         return await _heavy(request, st, SegmentationResponse,
-                            lambda progress: pipeline.segmentation(req, st.instrument, progress))
+                            lambda progress, _: pipeline.segmentation(req, st.instrument, progress))
 
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def allocations(req: AllocationRequest, st: StateDep, request: Request) -> JSONResponse:
         limit = check_request(req, st.settings, st.instrument)
-        return await _heavy(request, st, AllocationResponse, lambda progress: pipeline.allocation(
-            req, st.instrument, progress, time_limit_s=limit))
+        return await _heavy(request, st, AllocationResponse, lambda progress, left: pipeline.allocation(
+            req, st.instrument, progress, time_limit_s=left(limit)))
 
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def motion_plans(req: MotionPlanRequest, st: StateDep, request: Request) -> JSONResponse:
         limit = check_request(req, st.settings, st.instrument)
-        return await _heavy(request, st, MotionPlanResponse, lambda progress: pipeline.motion_plan(
-            req, st.instrument, progress, time_limit_s=limit))
+        return await _heavy(request, st, MotionPlanResponse, lambda progress, left: pipeline.motion_plan(
+            req, st.instrument, progress, time_limit_s=left(limit)))
 
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
@@ -292,8 +302,9 @@ def _stage_routes(app: FastAPI) -> None:
         and the plan says `executable: false` with the `reasons`.
         """
         limit = check_request(req, st.settings, st.instrument)
-        return await _heavy(request, st, PlanResponse, lambda progress: pipeline.plan(
-            req, st.instrument, progress, time_limit_s=limit, budget_s=st.settings.plan_budget_s))
+        return await _heavy(request, st, PlanResponse, lambda progress, left: pipeline.plan(
+            req, st.instrument, progress, time_limit_s=limit,
+            budget_s=left(st.settings.plan_budget_s)))
 
 
 def _job_routes(app: FastAPI) -> None:

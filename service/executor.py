@@ -3,7 +3,7 @@
 Segmentations, allocations, motion plans and plans run on a fixed set of daemon threads
 (``MXS_HEAVY_THREADS``), never on the event loop nor on the thread pool that serves cheap
 routes, so ``/v1/health`` answers whatever the load. At most ``MXS_HEAVY_QUEUE`` more
-requests may wait for a thread; beyond that :meth:`HeavyExecutor.submit` refuses at once
+requests may wait for a thread (the time they wait is taken off their time limit); beyond that :meth:`HeavyExecutor.submit` refuses at once
 with :class:`Overloaded` (HTTP 503 with ``Retry-After``) instead of queueing without end.
 
 Every admitted request carries a :class:`Ticket`. Its ``cancel`` event is set when the
@@ -20,6 +20,7 @@ import asyncio
 import logging
 import queue
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -53,6 +54,13 @@ class Ticket:
 
     cancel: threading.Event = field(default_factory=threading.Event)
     future: asyncio.Future[Any] | None = None
+    admitted_at: float = field(default_factory=time.monotonic)
+    started_at: float | None = None
+
+    @property
+    def waited_s(self) -> float:
+        """Seconds between admission and the start of the computation (so far)."""
+        return (self.started_at or time.monotonic()) - self.admitted_at
 
     def check(self) -> None:
         """Raise :class:`Cancelled` when the request should stop."""
@@ -120,6 +128,7 @@ class HeavyExecutor:
 
     def _run(self, work: _Work) -> None:
         outcome: tuple[bool, Any]
+        work.ticket.started_at = time.monotonic()
         try:
             work.ticket.check()
             outcome = (True, work.fn(work.ticket))

@@ -43,8 +43,9 @@ class Settings(BaseSettings):
         "(segmentations, allocations, motion plans, plans)."
     )
     heavy_queue: int = Field(
-        4, ge=0, le=1000, description="Stage requests that may wait for a heavy thread; "
-        "beyond threads + queue a request is refused at once with 503 and Retry-After."
+        2, ge=0, le=1000, description="Stage requests that may wait for a heavy thread (the "
+        "wait is taken off their time limit); beyond threads + queue a request is refused at "
+        "once with 503 and Retry-After."
     )
     retry_after_s: int = Field(5, ge=1, le=3600, description="Retry-After of a 503 refusal.")
     body_timeout_s: float = Field(

@@ -1,0 +1,520 @@
+"""Load and restart benchmark of the HTTP service (issue-17 protocol): prints JSON.
+
+Every scenario runs real ``python -m service.cli serve`` processes on free local ports, with a
+fresh job database in a temporary directory, and talks to them with httpx.
+
+* ``load``: ``--clients`` threads post motion plans (``examples/requests/motion_plan.json``
+  with ``time_limit_s = --limit``) for ``--seconds``; a refused client waits 1 s and retries.
+  A prober gets ``/v1/health`` every 50 ms. Reported: health latency p50/p99/max and failures;
+  heavy requests answered within limit + 1 s, answered late, refused at once (503/429 with
+  ``Retry-After``, < 1 s), refused without ``Retry-After`` or slowly, errors (connection,
+  other statuses); the server tree's peak RSS.
+* ``abandoned``: clients that give up after 1 s; the CPU seconds the server tree spends in
+  the ``--seconds / 2`` after they left (work for clients that left should stop).
+* ``restarts``: plan jobs submitted, then (a) ``kill -9`` mid-run and a new server,
+  (b) SIGTERM (time to exit) and a new server, (c) a second server started on the same
+  database while the first computes, (d) a rolling restart of two servers. For each: finished
+  results lost, live jobs failed by another server, processes left 5 s after a server
+  ended, jobs that end failed (with their reasons) and jobs still not finished at the end.
+* ``flood``: ``--flood`` job submissions as fast as possible: 202 / 503 with Retry-After /
+  other; the server's RSS and database size growth.
+* ``slow_bodies``: ``--slow`` connections each sending 95 % of a body just under the body
+  limit, slowly; statuses received, time to be answered, server RSS before / peak / 5 s
+  after.
+
+Timings depend on the machine and its load: run it alone.
+
+Usage:
+    python benchmarks/load.py                 # 50 clients, 60 s, the full sizes
+    python benchmarks/load.py --smoke         # a small size of every scenario (~1-2 min)
+    python benchmarks/load.py --only load,flood --out load.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples" / "requests"
+SCENARIOS = ("load", "abandoned", "restarts", "flood", "slow_bodies")
+
+
+# ------------------------------------------------------------------ processes
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Server:
+    proc: subprocess.Popen[bytes]
+    url: str
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+
+def start_server(db: Path, **env: Any) -> Server:
+    port = free_port()
+    full = {**os.environ, "MXS_JOB_DB": str(db), **{f"MXS_{k.upper()}": str(v)
+                                                     for k, v in env.items()}}
+    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+                             "--log-level", "warning"], cwd=ROOT, env=full,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        try:
+            if httpx.get(url + "/v1/health", timeout=1).status_code == 200:
+                return Server(proc, url)
+        except httpx.HTTPError:
+            time.sleep(0.1)
+    proc.kill()
+    raise RuntimeError("server did not start")
+
+
+def _stat(pid: int) -> list[str] | None:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None
+
+
+def alive(pid: int) -> bool:
+    st = _stat(pid)
+    return st is not None and st[0] not in ("Z", "X")
+
+
+def tree(pid: int) -> list[int]:
+    """``pid`` and all its descendants."""
+    parents: dict[int, int] = {}
+    for p in Path("/proc").glob("[0-9]*"):
+        st = _stat(int(p.name))
+        if st is not None:
+            parents[int(p.name)] = int(st[1])
+    out, frontier = [pid], [pid]
+    while frontier:
+        frontier = [c for c, pp in parents.items() if pp in frontier]
+        out += frontier
+    return out
+
+
+def rss_mb(pids: list[int]) -> float:
+    total = 0
+    for pid in pids:
+        try:
+            for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1])
+        except OSError:
+            pass
+    return total / 1024
+
+
+def cpu_s(pids: list[int]) -> float:
+    tick = os.sysconf("SC_CLK_TCK")
+    return sum((int(st[11]) + int(st[12])) / tick for p in pids if (st := _stat(p)))
+
+
+class RssMonitor:
+    """Peak RSS of a process tree, sampled every 0.2 s in a thread."""
+
+    def __init__(self, pid: int):
+        self.pid, self.peak_mb, self._stop = pid, 0.0, threading.Event()
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(0.2):
+            self.peak_mb = max(self.peak_mb, rss_mb(tree(self.pid)))
+
+    def stop(self) -> float:
+        self._stop.set()
+        self._t.join()
+        return round(self.peak_mb, 1)
+
+
+def end(server: Server, sig: int = signal.SIGTERM) -> dict[str, Any]:
+    """Stop a server with ``sig``; seconds to exit and processes of its tree left 5 s later."""
+    pids = tree(server.pid)
+    t0 = time.monotonic()
+    server.proc.send_signal(sig)
+    try:
+        server.proc.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        server.proc.kill()
+        server.proc.wait()
+    exit_s = time.monotonic() - t0
+    time.sleep(max(5.0 - (time.monotonic() - t0), 0.0))
+    left = [p for p in pids[1:] if alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    return {"exit_s": round(exit_s, 2), "orphans_after_5s": len(left)}
+
+
+@contextmanager
+def workdir() -> Any:
+    with tempfile.TemporaryDirectory(prefix="mxs-load-") as d:
+        yield Path(d)
+
+
+def pct(xs: list[float], q: float) -> float | None:
+    return round(float(np.percentile(xs, q)) * 1000, 1) if xs else None
+
+
+# ---------------------------------------------------------------------- load
+
+
+def motion_request(limit_s: float) -> dict[str, Any]:
+    req = json.loads((EXAMPLES / "motion_plan.json").read_text())
+    req["time_limit_s"] = limit_s
+    return req
+
+
+def scenario_load(a: argparse.Namespace) -> dict[str, Any]:
+    with workdir() as d:
+        srv = start_server(d / "jobs.sqlite3")
+        mon = RssMonitor(srv.pid)
+        try:
+            stop = time.monotonic() + a.seconds
+            outcomes: list[str] = []
+            lock = threading.Lock()
+            req = motion_request(a.limit)
+
+            def client() -> None:
+                with httpx.Client(base_url=srv.url, timeout=a.limit + 30) as c:
+                    while time.monotonic() < stop:
+                        kind = _heavy_outcome(c, req, a.limit)
+                        with lock:
+                            outcomes.append(kind)
+                        if kind.startswith("refused"):
+                            time.sleep(1.0)
+
+            health = _probe_while(srv.url, [threading.Thread(target=client) for _ in range(a.clients)])
+            counts = {k: outcomes.count(k) for k in sorted(set(outcomes))}
+            return {"clients": a.clients, "seconds": a.seconds, "limit_s": a.limit,
+                    "health": health, "heavy": counts, "peak_rss_mb": mon.stop()}
+        finally:
+            mon.stop()
+            end(srv)
+
+
+def _heavy_outcome(c: httpx.Client, req: dict[str, Any], limit_s: float) -> str:
+    t0 = time.monotonic()
+    try:
+        r = c.post("/v1/motion-plans", json=req)
+    except httpx.HTTPError as exc:
+        return f"error_{type(exc).__name__}"
+    dt = time.monotonic() - t0
+    if r.status_code == 200:
+        return "answered_in_limit" if dt <= limit_s + 1.0 else "answered_late"
+    if r.status_code in (429, 503):
+        at_once = dt < 1.0 and "retry-after" in r.headers
+        return "refused_at_once_with_retry_after" if at_once else "refused_slowly_or_no_retry_after"
+    return f"status_{r.status_code}"
+
+
+def _probe_while(url: str, threads: list[threading.Thread]) -> dict[str, Any]:
+    for t in threads:
+        t.start()
+    lat: list[float] = []
+    fails = 0
+    with httpx.Client(base_url=url, timeout=10) as c:
+        while any(t.is_alive() for t in threads):
+            t0 = time.monotonic()
+            try:
+                ok = c.get("/v1/health").status_code == 200
+            except httpx.HTTPError:
+                ok = False
+            if ok:
+                lat.append(time.monotonic() - t0)
+            else:
+                fails += 1
+            time.sleep(0.05)
+    for t in threads:
+        t.join()
+    return {"probes": len(lat) + fails, "failures": fails, "p50_ms": pct(lat, 50),
+            "p99_ms": pct(lat, 99), "max_ms": pct(lat, 100)}
+
+
+def scenario_abandoned(a: argparse.Namespace) -> dict[str, Any]:
+    n = max(a.clients * 3 // 5, 1)
+    with workdir() as d:
+        srv = start_server(d / "jobs.sqlite3")
+        try:
+            req = motion_request(a.limit)
+
+            def leave() -> None:
+                try:
+                    httpx.post(srv.url + "/v1/motion-plans", json=req, timeout=1.0)
+                except httpx.HTTPError:
+                    pass
+
+            threads = [threading.Thread(target=leave) for _ in range(n)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            before = cpu_s(tree(srv.pid))
+            window = a.seconds / 2
+            time.sleep(window)
+            return {"clients_that_left_after_1s": n, "window_s": window,
+                    "server_cpu_s_after_they_left": round(cpu_s(tree(srv.pid)) - before, 2)}
+        finally:
+            end(srv)
+
+
+# ------------------------------------------------------------------- restarts
+
+
+PLAN_TARGETS = [12]  # targets of examples/requests/plan.json per plan job (--job-targets)
+
+
+def plan_job() -> dict[str, Any]:
+    req = json.loads((EXAMPLES / "plan.json").read_text())
+    req["targets"] = req["targets"][:PLAN_TARGETS[0]]
+    return {"kind": "plan", "request": req}
+
+
+def submit(url: str, n: int) -> list[str]:
+    ids = []
+    for _ in range(n):
+        r = httpx.post(url + "/v1/jobs", json=plan_job(), timeout=30)
+        r.raise_for_status()
+        ids.append(r.json()["job_id"])
+    return ids
+
+
+def states(url: str, ids: list[str]) -> dict[str, dict[str, Any]]:
+    return {j: httpx.get(f"{url}/v1/jobs/{j}", timeout=30).json() for j in ids}
+
+
+def wait_running(url: str, ids: list[str], timeout_s: float = 60) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if any(s["status"] == "running" for s in states(url, ids).values()):
+            return
+        time.sleep(0.2)
+
+
+def settle(url: str, ids: list[str], timeout_s: float) -> dict[str, dict[str, Any]]:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        st = states(url, ids)
+        if all(s["status"] in ("done", "failed") for s in st.values()) or time.monotonic() > deadline:
+            return st
+
+
+def judge(before: dict[str, dict[str, Any]], after: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    lost = sum(1 for j, s in before.items() if s["status"] == "done"
+               and (after[j]["status"] != "done" or after[j]["result"] != s["result"]))
+    failed = [s["error"] for s in after.values() if s["status"] == "failed"]
+    return {"jobs": len(after), "finished_results_lost": lost,
+            "done": sum(s["status"] == "done" for s in after.values()),
+            "failed": len(failed), "failure_reasons": sorted(set(failed)),
+            "not_finished": sum(s["status"] in ("queued", "running") for s in after.values())}
+
+
+def scenario_restarts(a: argparse.Namespace) -> dict[str, Any]:
+    env = {"workers": 1, "job_lease_s": 5}
+    out: dict[str, Any] = {}
+    with workdir() as d:
+        db = d / "jobs.sqlite3"
+        for name, sig in (("kill_9", signal.SIGKILL), ("sigterm", signal.SIGTERM)):
+            srv = start_server(db, **env)
+            ids = submit(srv.url, a.jobs)
+            wait_running(srv.url, ids)
+            before = states(srv.url, ids)
+            stopped = end(srv, sig)
+            nxt = start_server(db, **env)
+            after = settle(nxt.url, ids, a.settle)
+            out[name] = {**stopped, **judge(before, after)}
+            end(nxt)
+        out["second_server"] = _second_server(db, env, a)
+        out["rolling_restart"] = _rolling(db, env, a)
+    return out
+
+
+def _second_server(db: Path, env: dict[str, Any], a: argparse.Namespace) -> dict[str, Any]:
+    first = start_server(db, **env)
+    ids = submit(first.url, a.jobs)
+    wait_running(first.url, ids)
+    running = [j for j, s in states(first.url, ids).items() if s["status"] == "running"]
+    second = start_server(db, **env)
+    time.sleep(1.0)
+    failed_live = sum(states(second.url, running)[j]["status"] == "failed" for j in running)
+    after = settle(first.url, ids, a.settle)
+    res = {"live_jobs_failed_by_second_server": failed_live, **judge({}, after)}
+    res["orphans_after_5s"] = end(first)["orphans_after_5s"] + end(second)["orphans_after_5s"]
+    return res
+
+
+def _rolling(db: Path, env: dict[str, Any], a: argparse.Namespace) -> dict[str, Any]:
+    servers = [start_server(db, **env), start_server(db, **env)]
+    ids = submit(servers[0].url, a.jobs) + submit(servers[1].url, a.jobs)
+    wait_running(servers[0].url, ids)
+    orphans, snapshots = 0, states(servers[0].url, ids)
+    for i in range(2):  # replace each server in turn while the other serves
+        orphans += end(servers[i])["orphans_after_5s"]
+        servers[i] = start_server(db, **env)
+        now = states(servers[i].url, ids)
+        snapshots = {j: (s if s["status"] == "done" else now[j]) for j, s in snapshots.items()}
+    after = settle(servers[0].url, ids, a.settle)
+    res = judge(snapshots, after)
+    for s in servers:
+        orphans += end(s)["orphans_after_5s"]
+    res["live_jobs_failed"] = sum(INTERRUPTED_WORD in (s["error"] or "") for s in after.values())
+    res["orphans_after_5s"] = orphans
+    return res
+
+
+INTERRUPTED_WORD = "interrupted"
+
+
+# ---------------------------------------------------------------------- flood
+
+
+def scenario_flood(a: argparse.Namespace) -> dict[str, Any]:
+    with workdir() as d:
+        db = d / "jobs.sqlite3"
+        srv = start_server(db, workers=1)
+        try:
+            rss0 = rss_mb([srv.pid])
+            codes: list[str] = []
+            t0 = time.monotonic()
+            with httpx.Client(base_url=srv.url, timeout=30) as c:
+                for _ in range(a.flood):
+                    r = c.post("/v1/jobs", json=plan_job())
+                    ok503 = r.status_code == 503 and "retry-after" in r.headers
+                    codes.append("202" if r.status_code == 202 else
+                                 "503_retry_after" if ok503 else str(r.status_code))
+            size = sum(p.stat().st_size for p in d.glob("jobs.sqlite3*"))
+            return {"submitted": a.flood, "seconds": round(time.monotonic() - t0, 2),
+                    "answers": {k: codes.count(k) for k in sorted(set(codes))},
+                    "server_rss_growth_mb": round(rss_mb([srv.pid]) - rss0, 1),
+                    "db_mb": round(size / 2**20, 2)}
+        finally:
+            end(srv)
+
+
+# ---------------------------------------------------------------- slow bodies
+
+
+def scenario_slow_bodies(a: argparse.Namespace) -> dict[str, Any]:
+    limit = int(a.body_mb * 1_000_000)
+    with workdir() as d:
+        srv = start_server(d / "jobs.sqlite3", max_body_bytes=limit, body_timeout_s=a.body_timeout)
+        try:
+            port = int(srv.url.rsplit(":", 1)[1])
+            rss0 = rss_mb(tree(srv.pid))
+            mon = RssMonitor(srv.pid)
+            results: list[tuple[str, float]] = []
+            send_s = a.body_timeout * 3  # a sender far slower than the timeout allows
+
+            def slow() -> None:
+                results.append(_slow_sender(port, limit - 10_000, int(0.95 * limit), send_s))
+
+            threads = [threading.Thread(target=slow) for _ in range(a.slow)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join()
+            peak = mon.stop()
+            time.sleep(5)
+            statuses = [s for s, _ in results]
+            return {"connections": a.slow, "body_mb": round(0.95 * limit / 1e6, 2),
+                    "body_timeout_s": a.body_timeout,
+                    "answers": {k: statuses.count(k) for k in sorted(set(statuses))},
+                    "answered_after_s_max": round(max(t for _, t in results), 2),
+                    "rss_mb": {"before": round(rss0, 1), "peak": peak,
+                               "after_5s": round(rss_mb(tree(srv.pid)), 1)}}
+        finally:
+            end(srv)
+
+
+def _slow_sender(port: int, declared: int, send: int, over_s: float) -> tuple[str, float]:
+    t0 = time.monotonic()
+    chunk = 64 * 1024
+    pause = over_s / max(send // chunk, 1)
+    with socket.create_connection(("127.0.0.1", port), timeout=over_s + 30) as s:
+        s.sendall(b"POST /v1/segmentations HTTP/1.1\r\nHost: x\r\nContent-Type: "
+                  b"application/json\r\nContent-Length: " + str(declared).encode() + b"\r\n\r\n")
+        s.setblocking(False)
+        sent, answer = 0, b""
+        while time.monotonic() - t0 < over_s + 30:
+            try:
+                answer += s.recv(4096)
+                if b"\r\n" in answer or not answer:
+                    break
+            except BlockingIOError:
+                pass
+            if sent < send:
+                try:
+                    sent += s.send(b" " * min(chunk, send - sent))
+                except (BlockingIOError, BrokenPipeError, ConnectionResetError):
+                    pass
+            time.sleep(pause)
+    status = answer.split(b" ", 2)[1].decode() if answer.startswith(b"HTTP/") else "no_answer"
+    return status, time.monotonic() - t0
+
+
+# ------------------------------------------------------------------------ main
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--clients", type=int, default=50)
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--limit", type=float, default=5.0, help="time_limit_s of each motion plan")
+    p.add_argument("--jobs", type=int, default=6, help="plan jobs per restart scenario")
+    p.add_argument("--job-targets", type=int, default=12, help="targets per plan job (<= 12)")
+    p.add_argument("--settle", type=float, default=300.0, help="s to wait for jobs to finish")
+    p.add_argument("--flood", type=int, default=500)
+    p.add_argument("--slow", type=int, default=50, help="slow-body connections")
+    p.add_argument("--body-mb", type=float, default=10.0)
+    p.add_argument("--body-timeout", type=float, default=20.0)
+    p.add_argument("--only", default=",".join(SCENARIOS))
+    p.add_argument("--smoke", action="store_true", help="small sizes of every scenario")
+    p.add_argument("--out", type=Path)
+    a = p.parse_args(argv)
+    if a.smoke:
+        a.clients, a.seconds, a.limit, a.jobs, a.settle = 4, 6.0, 2.0, 2, 120.0
+        a.job_targets = 3
+        a.flood, a.slow, a.body_mb, a.body_timeout = 30, 3, 1.0, 2.0
+    PLAN_TARGETS[0] = a.job_targets
+    only = [s.strip() for s in a.only.split(",") if s.strip()]
+    unknown = sorted(set(only) - set(SCENARIOS))
+    if unknown:
+        p.error(f"unknown scenarios {unknown}; choose from {SCENARIOS}")
+    out: dict[str, Any] = {"smoke": a.smoke, "cpus": os.cpu_count()}
+    for name in only:
+        out[name] = globals()[f"scenario_{name}"](a)
+    text = json.dumps(out, indent=2)
+    print(text)
+    if a.out:
+        a.out.write_text(text + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
