@@ -26,7 +26,7 @@ Timings depend on the machine and its load: run it alone.
 
 Usage:
     python benchmarks/load.py                 # 50 clients, 60 s, the full sizes
-    python benchmarks/load.py --smoke         # a small size of every scenario (~1-2 min)
+    python benchmarks/load.py --smoke         # a small size of every scenario (minutes)
     python benchmarks/load.py --only load,flood --out load.json
 """
 
@@ -348,7 +348,8 @@ def scenario_restarts(a: argparse.Namespace) -> dict[str, Any]:
             stopped = end(srv, sig)
             nxt = start_server(db, **env)
             after = settle(nxt.url, ids, a.settle)
-            out[name] = {**stopped, **judge(before, after)}
+            running = sum(s["status"] == "running" for s in before.values())
+            out[name] = {**stopped, "running_at_stop": running, **judge(before, after)}
             end(nxt)
         out["second_server"] = _second_server(db, env, a)
         out["rolling_restart"] = _rolling(db, env, a)
