@@ -216,7 +216,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type"],
         )
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
-    app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s)
+    app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s,
+                       buffer_bytes=settings.max_body_buffer_bytes,
+                       retry_after_s=settings.retry_after_s)
     app.add_middleware(CatchAllMiddleware)
     install_web(app, max_targets=settings.max_targets, auth=Auth, responses=ERRORS)
     _service_routes(app)

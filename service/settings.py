@@ -51,6 +51,10 @@ class Settings(BaseSettings):
     body_timeout_s: float = Field(
         20.0, gt=0, description="Time a client has to send its whole request body (else 408)."
     )
+    max_body_buffer_bytes: int = Field(
+        200_000_000, ge=1024, description="Request bodies being received at once may hold at "
+        "most this together; beyond, 503 with Retry-After."
+    )
     shutdown_grace_s: float = Field(
         2.0, ge=0, description="On SIGTERM, time open requests get to finish before they are "
         "cancelled (serve only)."

@@ -363,3 +363,19 @@ def test_slow_body_is_408(tmp_path) -> None:
         assert httpx.get(url + "/v1/health", timeout=2).status_code == 200
         ok = httpx.post(url + "/v1/segmentations", json=SEG, timeout=30)  # normal bodies pass
         assert ok.status_code == 200, ok.text
+
+
+def test_bodies_in_flight_share_a_memory_budget(tmp_path) -> None:
+    app = create_app(Settings(job_db=tmp_path / "j.db", max_body_buffer_bytes=4096,
+                              retry_after_s=3))
+    with serve(app) as url:
+        port = int(url.rsplit(":", 1)[1])
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+            s.sendall(b"POST /v1/segmentations HTTP/1.1\r\nHost: x\r\n"
+                      b"Content-Type: application/json\r\nContent-Length: 100000\r\n\r\n")
+            s.sendall(b" " * 8192)
+            answer = s.recv(4096)
+        assert answer.startswith(b"HTTP/1.1 503") and b"retry-after: 3" in answer.lower(), answer
+        # the budget is released with the refused body: a normal request passes
+        ok = httpx.post(url + "/v1/segmentations", json=SEG, timeout=30)
+        assert ok.status_code == 200, ok.text
