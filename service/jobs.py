@@ -158,6 +158,8 @@ class JobStore:
         """Atomically take the oldest queued job for ``owner`` under a fresh lease."""
         now = time.time()
         with _closing(connect(self.db_path)) as con:
+            if con.execute("SELECT 1 FROM jobs WHERE status='queued' LIMIT 1").fetchone() is None:
+                return None  # the common idle case: no write lock taken
             con.execute("BEGIN IMMEDIATE")
             try:
                 row = con.execute(
