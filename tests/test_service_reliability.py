@@ -214,26 +214,39 @@ def test_finished_results_expire_with_410(tmp_path) -> None:
     assert store.get(ids[3])["status"] == "expired"
 
 
-def test_second_server_leaves_a_live_job_alone_and_requeues_an_expired_one(tmp_path) -> None:
+BIG_PLAN = {"targets": [{"id": f"t{i}", "ra_deg": 34.7 + 0.01 * (i % 20),
+                         "dec_deg": 57.1 + 0.01 * (i // 20), "priority": 1 + i % 7}
+                        for i in range(400)], "time_limit_s": 60}
+
+
+def test_second_manager_requeues_only_expired_leases(tmp_path) -> None:
+    """Two real managers on one database: B's start-up recovery re-queues (and then runs) the
+    job of a dead server, whose lease expired, but leaves A's running job alone, also in its
+    later lease sweeps; when A stops, A's job goes back to the queue and B takes it."""
     db = tmp_path / "j.db"
-    store = JobStore(db)
-    store.init()
-    live = store.create("segmentation", SEG)
-    store.set_running(live, owner="other-server/1", lease_s=600)
-    orphan = store.create("segmentation", SEG, time_limit_s=10.0)
-    store.set_running(orphan, owner="dead-server/1", lease_s=-1)
-    mgr = JobManager(db, PoolOptions(workers=1, lease_s=5))
+    a = JobManager(db, PoolOptions(workers=1, lease_s=1.5))
+    b = None
     try:
-        assert (mgr.recovered.requeued, mgr.recovered.failed) == (1, 0)
-        job = until(lambda: (j := store.get(orphan)) and j["status"] == "done" and j, 60,
-                    "the re-queued job to be done by the second server")
-        assert {t for p in job["result"]["pointings"] for t in p["target_ids"]} == {
+        j = a.submit("plan", BIG_PLAN, 60.0, 600.0)
+        until(lambda: a.store.get(j)["status"] == "running", 60, "A to run the job")
+        orphan = a.store.create("segmentation", SEG, time_limit_s=10.0)
+        a.store.set_running(orphan, owner="dead-server/1", lease_s=-1)
+        b = JobManager(db, PoolOptions(workers=1, lease_s=1.5))
+        assert (b.recovered.requeued, b.recovered.failed) == (1, 0)
+        done = until(lambda: (o := b.store.get(orphan))["status"] == "done" and o, 60,
+                     "B to run the re-queued job")
+        assert {t for p in done["result"]["pointings"] for t in p["target_ids"]} == {
             t["id"] for t in SEG["targets"]}
-        still = store.get(live)
-        assert still is not None and still["status"] == "running" and still["error"] is None
+        time.sleep(2.0)  # longer than a lease: A's heartbeat must have kept it
+        job = a.store.get(j)
+        assert job["status"] == "running" and job["error"] is None
+        a.shutdown()
+        assert a.worker_pids() == []
+        until(lambda: b.store.get(j)["status"] == "running", 60, "B to take the job over")
     finally:
-        mgr.shutdown()
-    assert mgr.worker_pids() == []
+        a.shutdown()
+        if b is not None:
+            b.shutdown()
 
 
 def test_a_job_interrupted_too_often_fails_with_the_reason(tmp_path) -> None:
@@ -304,9 +317,7 @@ def test_sigterm_on_a_busy_server_is_prompt_and_hands_jobs_back(tmp_path) -> Non
     proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
                              "--log-level", "warning"], cwd=ROOT, env=env)
     url = f"http://127.0.0.1:{port}"
-    big = {"targets": [{"id": f"t{i}", "ra_deg": 34.7 + 0.01 * (i % 20),
-                        "dec_deg": 57.1 + 0.01 * (i // 20), "priority": 1 + i % 7}
-                       for i in range(400)], "time_limit_s": 60}
+    big = BIG_PLAN
     try:
         until(lambda: _answers(url), 30, "server start")
         job = httpx.post(url + "/v1/jobs", json={"kind": "plan", "request": big}, timeout=10)
