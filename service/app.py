@@ -318,9 +318,12 @@ def _job_routes(app: FastAPI) -> None:
         full (`MXS_MAX_QUEUED_JOBS`)."""
         limit = check_request(job.request, st.settings, st.instrument,
                               ("body", job.kind, "request"))
-        request = job.request.model_dump(mode="json", exclude_none=True)
-        job_id = await run_in_threadpool(st.jobs.submit, job.kind, request, limit,
-                                         st.settings.job_budget_s)
+
+        def submit() -> str:  # off the event loop: a big request is dumped and stored here
+            request = job.request.model_dump(mode="json", exclude_none=True)
+            return st.jobs.submit(job.kind, request, limit, st.settings.job_budget_s)
+
+        job_id = await run_in_threadpool(submit)
         return JSONResponse(status_code=202, content={"job_id": job_id, "status": "queued"})
 
     @app.get("/v1/jobs/{job_id}", operation_id="get_job", response_model=JobStatus, tags=["jobs"],
@@ -329,18 +332,21 @@ def _job_routes(app: FastAPI) -> None:
                               "ago than the server keeps results (MXS_JOB_RETENTION_S / "
                               "MXS_JOB_RETENTION_COUNT)."},
                         **ERRORS})
-    async def get_job(job_id: str, st: StateDep) -> dict[str, Any]:
-        job = await run_in_threadpool(st.jobs.get, job_id)
-        if job is None:
-            raise NotFound(f"job {job_id!r} not found (finished jobs are kept for "
-                           f"{st.settings.job_retention_s:g} s, at most the newest "
-                           f"{st.settings.job_retention_count})")
-        if job["status"] == EXPIRED:
-            raise ServiceError(
-                f"job {job_id!r} has expired: its result was deleted, as finished jobs are kept "
-                f"for {st.settings.job_retention_s:g} s and at most the newest "
-                f"{st.settings.job_retention_count}", status_code=410, code="gone")
-        return job
+    async def get_job(job_id: str, st: StateDep) -> JSONResponse:
+        return await run_in_threadpool(_job_answer, st, job_id)
+
+
+def _job_answer(st: ServiceState, job_id: str) -> JSONResponse:
+    """A job's state, read, validated and rendered in a thread (results can be large)."""
+    job = st.jobs.get(job_id)
+    kept = (f"finished jobs are kept for {st.settings.job_retention_s:g} s, at most the newest "
+            f"{st.settings.job_retention_count}")
+    if job is None:
+        raise NotFound(f"job {job_id!r} not found ({kept})")
+    if job["status"] == EXPIRED:
+        raise ServiceError(f"job {job_id!r} has expired and its result was deleted ({kept})",
+                           status_code=410, code="gone")
+    return JSONResponse(JobStatus.model_validate(job).model_dump(mode="json", by_alias=True))
 
 
 app = create_app()
