@@ -9,8 +9,9 @@ watchdog thread that exits as soon as the parent pid changes (any platform, and 
 before ``prctl`` took effect).
 
 The supervisor thread starts the workers (on the first submission, or at once when jobs
-wait), restarts a worker that died and re-queues its job, sweeps expired leases of any server
-and applies the retention rules. :meth:`JobManager.shutdown` stops the workers within a
+wait), restarts a worker that died and re-queues its job, renews the leases of its live
+workers' jobs (a second heartbeat, independent of the worker's own), sweeps expired leases of
+any server and applies the retention rules. :meth:`JobManager.shutdown` stops the workers within a
 couple of seconds and hands this server's running jobs back to the queue.
 """
 
@@ -227,6 +228,10 @@ class JobManager:
 
     def _sweep(self) -> None:
         o = self.options
+        # leases are renewed here too, for every live worker: a job whose worker's own
+        # heartbeat is held up (e.g. a long call that keeps the GIL) is not taken for dead
+        self.store.renew_owners([f"{self.instance}/{pid}" for pid in self.worker_pids()],
+                                o.lease_s)
         rec = self.store.recover(o.max_attempts)
         if rec.requeued or rec.failed:
             log.warning("jobs with an expired lease: %d re-queued, %d failed", rec.requeued,

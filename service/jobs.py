@@ -185,6 +185,16 @@ class JobStore:
                               "AND status='running'", (time.time() + lease_s, job_id, owner))
         return cur.rowcount == 1
 
+    def renew_owners(self, owners: list[str], lease_s: float) -> int:
+        """Extend the leases of every running job of ``owners`` (a server renewing for its
+        live worker processes)."""
+        if not owners:
+            return 0
+        marks = ", ".join("?" * len(owners))
+        with _closing(connect(self.db_path)) as con:
+            return con.execute(f"UPDATE jobs SET lease_until=? WHERE status='running' AND "
+                               f"owner IN ({marks})", (time.time() + lease_s, *owners)).rowcount
+
     def set_running(self, job_id: str, owner: str = "", lease_s: float = 30.0) -> None:
         self._update(job_id, "status='running', owner=?, lease_until=?",
                      (owner, time.time() + lease_s))

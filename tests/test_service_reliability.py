@@ -390,3 +390,15 @@ def test_bodies_in_flight_share_a_memory_budget(tmp_path) -> None:
         # the budget is released with the refused body: a normal request passes
         ok = httpx.post(url + "/v1/segmentations", json=SEG, timeout=30)
         assert ok.status_code == 200, ok.text
+
+
+def test_a_server_renews_the_leases_of_its_live_workers(tmp_path) -> None:
+    store = JobStore(tmp_path / "j.db")
+    store.init()
+    mine, theirs = store.create("plan", {}), store.create("plan", {})
+    assert store.claim("me/1", lease_s=0.2).job_id == mine
+    assert store.claim("dead/2", lease_s=0.2).job_id == theirs
+    assert store.renew_owners(["me/1"], lease_s=60) == 1
+    time.sleep(0.3)
+    assert store.recover(max_attempts=3).requeued == 1
+    assert (store.get(mine)["status"], store.get(theirs)["status"]) == ("running", "queued")
