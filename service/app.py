@@ -179,9 +179,10 @@ async def _heavy(request: Request, st: ServiceState, model: type[BaseModel],
         result = compute(_cancelling(ticket), left)
         return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
 
-    ticket = st.heavy.submit(work)
+    heavy = st.heavy
+    ticket = heavy.submit(work)
     try:
-        return await wait_or_cancel(ticket, request.is_disconnected)
+        return await wait_or_cancel(heavy, ticket, request.is_disconnected)
     except Cancelled:
         raise Overloaded("the request was cancelled (client gone or server shutting down)",
                          st.settings.retry_after_s) from None

@@ -119,6 +119,13 @@ class HeavyExecutor:
         self._queue.put(_Work(ticket, fn, loop))
         return ticket
 
+    def cancel(self, ticket: Ticket) -> None:
+        """Stop ``ticket``'s work; a request still waiting gives its slot back at once."""
+        ticket.cancel.set()
+        with self._lock:
+            if ticket.started_at is None:
+                self._admitted.discard(ticket)
+
     def _loop(self) -> None:
         while True:
             work = self._queue.get()
@@ -128,7 +135,8 @@ class HeavyExecutor:
 
     def _run(self, work: _Work) -> None:
         outcome: tuple[bool, Any]
-        work.ticket.started_at = time.monotonic()
+        with self._lock:
+            work.ticket.started_at = time.monotonic()
         try:
             work.ticket.check()
             outcome = (True, work.fn(work.ticket))
@@ -166,10 +174,10 @@ def _resolve(ticket: Ticket, outcome: tuple[bool, Any]) -> None:
         fut.set_exception(value)
 
 
-async def wait_or_cancel(ticket: Ticket, disconnected: Callable[[], Any],
-                         poll_s: float = 0.25) -> Any:
-    """Await ``ticket``'s answer; set its ``cancel`` flag as soon as ``disconnected()``
-    (an awaitable returning bool) says the client has gone, or when this task is cancelled."""
+async def wait_or_cancel(executor: HeavyExecutor, ticket: Ticket,
+                         disconnected: Callable[[], Any], poll_s: float = 0.25) -> Any:
+    """Await ``ticket``'s answer; cancel it as soon as ``disconnected()`` (an awaitable
+    returning bool) says the client has gone, or when this task is cancelled."""
     assert ticket.future is not None
     try:
         while True:
@@ -177,9 +185,9 @@ async def wait_or_cancel(ticket: Ticket, disconnected: Callable[[], Any],
             if done:
                 return ticket.future.result()
             if await disconnected():
-                ticket.cancel.set()
+                executor.cancel(ticket)
                 log.info("client disconnected: heavy request cancelled")
                 raise Cancelled()
     except asyncio.CancelledError:
-        ticket.cancel.set()
+        executor.cancel(ticket)
         raise

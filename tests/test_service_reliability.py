@@ -402,3 +402,30 @@ def test_a_server_renews_the_leases_of_its_live_workers(tmp_path) -> None:
     time.sleep(0.3)
     assert store.recover(max_attempts=3).requeued == 1
     assert (store.get(mine)["status"], store.get(theirs)["status"]) == ("running", "queued")
+
+
+def test_a_waiting_request_whose_client_left_frees_its_slot_and_never_runs(tmp_path,
+                                                                           monkeypatch) -> None:
+    slow = SlowStage()
+    monkeypatch.setattr(pipeline, "segmentation", slow)
+    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=1))
+    with serve(app) as url:
+        codes: list[int] = []
+
+        def post() -> None:
+            codes.append(httpx.post(url + "/v1/segmentations", json=SEG, timeout=30).status_code)
+
+        first = threading.Thread(target=post)
+        first.start()
+        assert slow.started.acquire(timeout=10)
+        with pytest.raises(httpx.ReadTimeout):  # waits for the busy thread, then gives up
+            httpx.post(url + "/v1/segmentations", json=SEG, timeout=1.0)
+        until(lambda: app.state.mxs.heavy.in_use == 1, 5, "the waiting slot to be freed")
+        third = threading.Thread(target=post)
+        third.start()
+        until(lambda: app.state.mxs.heavy.in_use == 2, 5, "the third request admitted")
+        slow.release.set()
+        first.join(timeout=30)
+        third.join(timeout=30)
+        assert codes == [200, 200]
+        assert slow.stopped == ["finished", "finished"]  # the abandoned one never started
