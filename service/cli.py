@@ -39,7 +39,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     settings = Settings()
     uvicorn.run("service.app:app", host=args.host, port=args.port, log_level=args.log_level,
-                workers=args.workers, timeout_graceful_shutdown=max(int(settings.shutdown_grace_s), 1))
+                workers=args.workers, timeout_graceful_shutdown=settings.shutdown_grace_s)
     return 0
 
 

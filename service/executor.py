@@ -172,6 +172,8 @@ def _resolve(ticket: Ticket, outcome: tuple[bool, Any]) -> None:
         fut.set_result(value)
     else:
         fut.set_exception(value)
+        if isinstance(value, Cancelled):
+            fut.exception()  # maybe nobody awaits it any more (the client left): not an error
 
 
 async def wait_or_cancel(executor: HeavyExecutor, ticket: Ticket,

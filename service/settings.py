@@ -55,9 +55,9 @@ class Settings(BaseSettings):
         200_000_000, ge=1024, description="Request bodies being received at once may hold at "
         "most this together; beyond, 503 with Retry-After."
     )
-    shutdown_grace_s: float = Field(
-        2.0, ge=0, description="On SIGTERM, time open requests get to finish before they are "
-        "cancelled (serve only)."
+    shutdown_grace_s: int = Field(
+        2, ge=1, le=600, description="On SIGTERM, seconds open requests get to finish before "
+        "they are cancelled (mxs-planner serve)."
     )
     job_lease_s: float = Field(
         30.0, ge=1, description="Lease of a running job; its worker renews it every third. A "
