@@ -124,18 +124,22 @@ class ServiceState:
             jobs.shutdown()
 
 
-async def _state(request: Request) -> ServiceState:
+def _state(request: Request) -> ServiceState:
     return request.app.state.mxs
 
 
-StateDep = Annotated[ServiceState, Depends(_state)]
+async def _state_dep(request: Request) -> ServiceState:  # async: resolved on the event loop
+    return _state(request)
+
+
+StateDep = Annotated[ServiceState, Depends(_state_dep)]
 
 
 def _authorize(
     request: Request,
     creds: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
 ) -> None:
-    token = request.app.state.mxs.settings.api_token
+    token = _state(request).settings.api_token
     if token is None:
         return
     if creds is None or not secrets.compare_digest(creds.credentials.encode(), token.encode()):
