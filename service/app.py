@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import secrets
+import signal
 import threading
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
@@ -192,6 +193,30 @@ async def _heavy(request: Request, st: ServiceState, model: type[BaseModel],
                          st.settings.retry_after_s) from None
 
 
+def _on_sigterm(action: Callable[[], None]) -> Callable[[], None]:
+    """Run ``action`` first when the server (uvicorn) handling SIGTERM receives it: stage
+    requests in flight are answered 503 at once, so the server's graceful shutdown, which
+    waits for open requests, is not held up by long computations. Returns the undo."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None  # not the process's server (tests, embedded use)
+    previous = signal.getsignal(signal.SIGTERM)
+    if not callable(previous):
+        return lambda: None  # nobody handles SIGTERM: the default action ends the process
+
+    def handler(signum: int, frame: Any) -> None:
+        try:
+            action()
+        finally:
+            previous(signum, frame)
+
+    signal.signal(signal.SIGTERM, handler)
+
+    def restore() -> None:
+        signal.signal(signal.SIGTERM, previous)
+
+    return restore
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     state = ServiceState(settings)
@@ -199,8 +224,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         _ = state.jobs  # open the job database now: re-queues jobs whose lease expired
-        _ = state.heavy
+        heavy = state.heavy
+        restore = _on_sigterm(heavy.close)
         yield
+        restore()
         state.close()
 
     app = FastAPI(

@@ -56,6 +56,7 @@ class Ticket:
     future: asyncio.Future[Any] | None = None
     admitted_at: float = field(default_factory=time.monotonic)
     started_at: float | None = None
+    loop: asyncio.AbstractEventLoop | None = None
 
     @property
     def waited_s(self) -> float:
@@ -115,7 +116,7 @@ class HeavyExecutor:
                     f"all {self.capacity} heavy-request slots are in use; retry later or "
                     "submit the work as a job (POST /v1/jobs)", self.retry_after_s)
             self._admitted.add(ticket)
-        ticket.future = loop.create_future()
+        ticket.future, ticket.loop = loop.create_future(), loop
         self._queue.put(_Work(ticket, fn, loop))
         return ticket
 
@@ -152,13 +153,24 @@ class HeavyExecutor:
         except RuntimeError:  # the event loop is closed: nobody waits any more
             pass
 
-    def shutdown(self) -> None:
-        """Refuse new work and cancel every admitted request; never waits for a thread."""
+    def close(self) -> None:
+        """Refuse new work, cancel every admitted request and answer each at once (its
+        awaiting request raises :class:`Cancelled`); the threads finish in the background.
+        Safe to call from a signal handler or any thread."""
         with self._lock:
             self._closed = True
             tickets = list(self._admitted)
         for t in tickets:
             t.cancel.set()
+            if t.loop is not None:
+                try:
+                    t.loop.call_soon_threadsafe(_resolve, t, (False, Cancelled()))
+                except RuntimeError:  # the loop is closed
+                    pass
+
+    def shutdown(self) -> None:
+        """:meth:`close`, and let the threads exit; never waits for a thread."""
+        self.close()
         for _ in self._workers:
             self._queue.put(None)
 

@@ -214,7 +214,7 @@ def test_finished_results_expire_with_410(tmp_path) -> None:
     assert store.get(ids[3])["status"] == "expired"
 
 
-BIG_PLAN = {"targets": [{"id": f"t{i}", "ra_deg": 34.7 + 0.01 * (i % 20),
+BIG_PLAN: dict[str, Any] = {"targets": [{"id": f"t{i}", "ra_deg": 34.7 + 0.01 * (i % 20),
                          "dec_deg": 57.1 + 0.01 * (i // 20), "priority": 1 + i % 7}
                         for i in range(400)], "time_limit_s": 60}
 
@@ -310,21 +310,26 @@ def children(pid: int) -> list[int]:
     return out
 
 
-def test_sigterm_on_a_busy_server_is_prompt_and_hands_jobs_back(tmp_path) -> None:
+@pytest.mark.parametrize("command", [
+    ["-m", "uvicorn", "service.app:app"],  # plain uvicorn: no graceful-shutdown timeout
+    ["-m", "service.cli", "serve"],
+], ids=["uvicorn", "mxs-planner-serve"])
+def test_sigterm_on_a_busy_server_is_prompt_and_hands_jobs_back(tmp_path, command) -> None:
     port = free_port()
     env = {**os.environ, "MXS_JOB_DB": str(tmp_path / "j.db"), "MXS_WORKERS": "1",
-           "MXS_HEAVY_THREADS": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
+           "MXS_HEAVY_THREADS": "1", "MXS_RETRY_AFTER_S": "4"}
+    proc = subprocess.Popen([sys.executable, *command, "--port", str(port),
                              "--log-level", "warning"], cwd=ROOT, env=env)
     url = f"http://127.0.0.1:{port}"
-    big = BIG_PLAN
+    answers: list[httpx.Response] = []
     try:
         until(lambda: _answers(url), 30, "server start")
-        job = httpx.post(url + "/v1/jobs", json={"kind": "plan", "request": big}, timeout=10)
+        job = httpx.post(url + "/v1/jobs", json={"kind": "plan", "request": BIG_PLAN}, timeout=10)
         assert job.status_code == 202, job.text
         job_id = job.json()["job_id"]
-        threading.Thread(target=lambda: _ignore(lambda: httpx.post(
-            url + "/v1/plans", json=big, timeout=60)), daemon=True).start()
+        client = threading.Thread(target=lambda: answers.append(httpx.post(
+            url + "/v1/plans", json=BIG_PLAN, timeout=60)), daemon=True)
+        client.start()
         store = JobStore(tmp_path / "j.db")
         until(lambda: store.get(job_id)["status"] == "running", 30, "the job to run")
         until(lambda: httpx.get(url + "/v1/health/ready", timeout=5).json()["heavy_in_use"] == 1,
@@ -337,6 +342,9 @@ def test_sigterm_on_a_busy_server_is_prompt_and_hands_jobs_back(tmp_path) -> Non
         assert time.monotonic() - t0 <= 5.0
         assert store.get(job_id)["status"] == "queued"  # handed back for the next server
         until(lambda: not any(alive(p) for p in workers), 5, "no orphan process")
+        client.join(timeout=10)
+        (answer,) = answers  # the client in flight is told to retry elsewhere
+        assert answer.status_code == 503 and answer.headers["retry-after"] == "4", answer.text
     finally:
         if proc.poll() is None:
             proc.kill()
