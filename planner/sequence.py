@@ -207,6 +207,10 @@ class _Sequencer:
         return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.clock.left_s() / legs_left))
 
     def plan(self, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan:
+        if self.clock.left_s() <= 0:  # the sequence's time limit has passed: no more planning
+            arms = tuple(range(self.ins.n_arms))
+            return MotionPlan("failed", math.nan, (), arms,
+                              {"reasons": {k: "no time left in the sequence's time limit" for k in arms}})
         self.plans += 1
         return plan_motion(self.ins, start_q, goal_q, seed=self.opt.seed, time_budget_s=self.budget_s(),
                            via=None)

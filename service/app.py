@@ -7,7 +7,6 @@ their own with :func:`create_app`.
 from __future__ import annotations
 
 import logging
-import secrets
 import signal
 import threading
 from collections.abc import AsyncIterator, Callable
@@ -18,12 +17,12 @@ from typing import Annotated, Any
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
-from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
 from models.instrument import Instrument
 from service import pipeline
+from service.auth import Auth, AuthMiddleware, describe_security, effective_token, warn_if_empty
 from service.errors import (
     BodyLimitMiddleware,
     CatchAllMiddleware,
@@ -53,6 +52,7 @@ from service.schemas import (
     Readiness,
     SegmentationRequest,
     SegmentationResponse,
+    ValidationErrorResponse,
 )
 from service.settings import Settings
 from service.web import install_web
@@ -64,8 +64,6 @@ try:
 except PackageNotFoundError:  # pragma: no cover - running from a bare checkout
     VERSION = "0.0.0"
 
-_bearer = HTTPBearer(auto_error=False, description="Required on POST when MXS_API_TOKEN is set.")
-
 RETRY_AFTER = {"Retry-After": {"description": "Seconds to wait before retrying.",
                                "schema": {"type": "integer", "minimum": 1}}}
 ERRORS: dict[int | str, dict[str, Any]] = {
@@ -73,7 +71,10 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     408: {"model": ErrorResponse,
           "description": "The request body did not arrive within the server's body timeout."},
     413: {"model": ErrorResponse, "description": "Request body too large."},
-    501: {"model": ErrorResponse, "description": "This stage is not available in this build."},
+    422: {"model": ValidationErrorResponse,
+          "description": "Invalid input (also a body that is not UTF-8 JSON, nested too deeply "
+                         "or with a number of more than 4300 digits); `detail[].loc` names the "
+                         "field."},
     503: {"model": ErrorResponse, "headers": RETRY_AFTER,
           "description": "Overloaded (every heavy-request slot or the job queue is full), "
           "shutting down, or a temporary failure: retry after `Retry-After` seconds."},
@@ -134,21 +135,6 @@ async def _state_dep(request: Request) -> ServiceState:  # async: resolved on th
 
 
 StateDep = Annotated[ServiceState, Depends(_state_dep)]
-
-
-def _authorize(
-    request: Request,
-    creds: Annotated[HTTPAuthorizationCredentials | None, Depends(_bearer)],
-) -> None:
-    token = _state(request).settings.api_token
-    if token is None:
-        return
-    if creds is None or not secrets.compare_digest(creds.credentials.encode(), token.encode()):
-        raise ServiceError("a valid 'Authorization: Bearer <token>' header is required",
-                           status_code=401, code="unauthorized")
-
-
-Auth = Depends(_authorize)
 
 
 async def _on_overloaded(_: Request, exc: Overloaded) -> JSONResponse:
@@ -237,21 +223,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         lifespan=lifespan,
         docs_url=None,  # served offline by install_web
         redoc_url=None,
-        responses={422: {"description": "Invalid input; `detail[].loc` names the field."}},
     )
     app.state.mxs = state
     install_error_handlers(app)
     app.add_exception_handler(Overloaded, _on_overloaded)  # type: ignore[arg-type]
+    warn_if_empty(settings)
+    describe_security(app, required=effective_token(settings) is not None)
+    # outermost last: CORS headers on every answer (401, 413, 503 included); the token is
+    # checked before the body is read
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s,
+                       buffer_bytes=settings.max_body_buffer_bytes,
+                       retry_after_s=settings.retry_after_s)
+    app.add_middleware(AuthMiddleware, token=effective_token(settings))
+    app.add_middleware(CatchAllMiddleware)
     if settings.cors_origin_list:
         app.add_middleware(
             CORSMiddleware, allow_origins=settings.cors_origin_list, allow_methods=["GET", "POST"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
-    app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s,
-                       buffer_bytes=settings.max_body_buffer_bytes,
-                       retry_after_s=settings.retry_after_s)
-    app.add_middleware(CatchAllMiddleware)
     install_web(app, max_targets=settings.max_targets, auth=Auth, responses=ERRORS)
     _service_routes(app)
     _stage_routes(app)
@@ -329,8 +319,9 @@ def _stage_routes(app: FastAPI) -> None:
         change the configurations (a leg through park, targets moved to other or new
         configurations) so that every leg can be executed; the changes are listed per pointing.
 
-        The request is bounded as a whole by the server's plan budget (`MXS_PLAN_BUDGET_S`,
-        default 120 s): pointings reached after it ran out report their targets `no_time`.
+        The request's `time_limit_s` bounds the whole plan, answered within it + 1 s (default
+        and cap: the server's plan budget `MXS_PLAN_BUDGET_S`, default 120 s): pointings
+        reached after it ran out report their targets `no_time`.
         Plan big fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`,
         default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
@@ -359,7 +350,7 @@ def _job_routes(app: FastAPI) -> None:
         return JSONResponse(status_code=202, content={"job_id": job_id, "status": "queued"})
 
     @app.get("/v1/jobs/{job_id}", operation_id="get_job", response_model=JobStatus, tags=["jobs"],
-             responses={404: {"model": ErrorResponse, "description": "No such job."},
+             dependencies=[Auth], responses={404: {"model": ErrorResponse, "description": "No such job."},
                         410: {"model": ErrorResponse, "description": "The job finished longer "
                               "ago than the server keeps results (MXS_JOB_RETENTION_S / "
                               "MXS_JOB_RETENTION_COUNT)."},

@@ -16,13 +16,11 @@ __all__ = ["TargetFileError", "main", "read_targets"]
 
 EXIT_OK = 0
 EXIT_INVALID_INPUT = 2
-EXIT_STAGE_UNAVAILABLE = 3
 EXIT_NOT_EXECUTABLE = 4
 EXIT_CODES = """exit codes of `plan`:
   0  the plan is executable (every motion leg planned); plan.json and pictures written
   2  invalid input: a bad target table (the message names the file, row and column) or
      option
-  3  a pipeline stage is unavailable
   4  plan not executable: some motion leg could not be planned (the failed pointings, legs,
      arms and reasons are printed on stderr); plan.json and pictures are still written"""
 
@@ -35,9 +33,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     then cancels them, stops the job workers and re-queues their jobs (a few seconds)."""
     import uvicorn
 
+    from service.auth import warn_if_open
     from service.settings import Settings
 
     settings = Settings()
+    warn_if_open(args.host, settings)
     uvicorn.run("service.app:app", host=args.host, port=args.port, log_level=args.log_level,
                 workers=args.workers, timeout_graceful_shutdown=settings.shutdown_grace_s)
     return 0
@@ -48,7 +48,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from service import pipeline
-    from service.errors import ServiceError, StageUnavailable
+    from service.errors import ServiceError
     from service.schemas import PlanRequest
 
     try:
@@ -79,9 +79,6 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
         try:
             result = pipeline.plan(req, inst, progress, time_limit_s=args.time_limit or 30.0)
-        except StageUnavailable as exc:
-            print(f"error: {exc.message}", file=sys.stderr)
-            return EXIT_STAGE_UNAVAILABLE
         except (ServiceError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_INVALID_INPUT
@@ -175,7 +172,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")
     p.add_argument("--solver", choices=["highs", "cpsat", "bnb"], default="highs")
     p.add_argument("--position-angle", type=float, default=0.0, help="deg")
-    p.add_argument("--time-limit", type=float, default=None, help="per solver call, s")
+    p.add_argument("--time-limit", type=float, default=None,
+                   help="wall-clock limit of the whole plan, s (default: none; each solver call "
+                   "at most 30 s)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threshold-mm", type=float, default=None)
     p.add_argument("--instrument", default=None,

@@ -1,9 +1,10 @@
 """Error types, their HTTP answers, and the safety net that keeps every answer below 500.
 
 - request validation -> 422 ``{"detail": [pydantic errors], "message": "field: why"}``
+- a body that cannot be parsed at all (not UTF-8, nested too deeply, a number with too many
+  digits, malformed JSON) -> 422 naming ``body``
 - domain input errors (``InputError``, ``InstrumentError``, :class:`FieldError`) -> 422
 - :class:`ServiceError` -> its own status with ``{"error": code, "detail": message}``
-- a stage whose domain module has not landed -> 501 ``stage_unavailable``
 - anything unexpected -> logged with its traceback, answered 503 ``internal_error``
 - bodies over the configured size -> 413
 """
@@ -40,18 +41,6 @@ class ServiceError(Exception):
             self.code = code
 
 
-class StageUnavailable(ServiceError):
-    """The domain code of a pipeline stage is not installed (yet)."""
-
-    status_code = 501
-    code = "stage_unavailable"
-
-    def __init__(self, stage: str, why: str = ""):
-        msg = f"the {stage} stage is not available in this build"
-        super().__init__(msg + (f": {why}" if why else ""))
-        self.stage = stage
-
-
 class NotFound(ServiceError):
     status_code = 404
     code = "not_found"
@@ -80,12 +69,20 @@ def _loc_str(loc: tuple[str | int, ...] | list[Any]) -> str:
     return out
 
 
-def json_safe(obj: Any) -> Any:
-    """A copy of ``obj`` that ``json.dumps(allow_nan=False)`` accepts (odd values -> str)."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
+MAX_ECHO_DEPTH = 32  # deeper parts of an echoed input are replaced by OMITTED
+OMITTED = "<omitted>"
+
+
+def json_safe(obj: Any, max_depth: int | None = None) -> Any:
+    """A copy of ``obj`` that ``json.dumps(allow_nan=False)`` accepts (odd values -> str);
+    containers nested deeper than ``max_depth`` become ``"<omitted>"``."""
+    if isinstance(obj, (dict, list, tuple)):
+        if max_depth is not None and max_depth <= 0:
+            return OMITTED
+        depth = None if max_depth is None else max_depth - 1
+        if isinstance(obj, dict):
+            return {str(k): json_safe(v, depth) for k, v in obj.items()}
+        return [json_safe(v, depth) for v in obj]
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else str(obj)
     if obj is None or isinstance(obj, (str, int, bool)):
@@ -109,18 +106,40 @@ def _encodable(obj: Any) -> Any:
     return obj
 
 
+def _short(value: Any) -> Any:
+    """An echoed input as it goes into the answer: at most ~500 characters of JSON."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**100:
+        return OMITTED  # a huge integer: its decimal form is as long as the input
+    v = _encodable(json_safe(value, MAX_ECHO_DEPTH))
+    if isinstance(v, (str, list, dict)) and len(json.dumps(v)) > 500:
+        return OMITTED
+    return v
+
+
 def _validation_answer(errors: list[dict[str, Any]]) -> JSONResponse:
-    errs = _encodable(json_safe(errors))
-    for e in errs:
-        if isinstance(e.get("input"), (str, list, dict)) and len(json.dumps(e["input"])) > 500:
-            e["input"] = "<omitted>"
-        e.pop("url", None)
+    errs = []
+    for raw in errors:
+        e = {k: v for k, v in raw.items() if k not in ("input", "url")}
+        e = _encodable(json_safe(e, MAX_ECHO_DEPTH))
+        if "input" in raw:
+            e["input"] = _short(raw["input"])
+        errs.append(e)
     msg = "; ".join(f"{_loc_str(e.get('loc', []))}: {e.get('msg', '')}" for e in errs[:10])
     return JSONResponse(status_code=422, content={"detail": errs, "message": msg})
 
 
 async def _on_validation(_: Request, exc: RequestValidationError) -> JSONResponse:
-    return _validation_answer(list(exc.errors()))
+    return _validation_answer([_json_decode_error(e) for e in exc.errors()])
+
+
+def _json_decode_error(e: dict[str, Any]) -> dict[str, Any]:
+    """FastAPI's malformed-JSON error (``loc`` ("body", offset)) with the parser's reason."""
+    loc = list(e.get("loc", ()))
+    if e.get("type") != "json_invalid" or len(loc) != 2 or not isinstance(loc[1], int):
+        return e
+    why = (e.get("ctx") or {}).get("error", "")
+    return {"loc": ["body"], "type": "json_invalid",
+            "msg": f"the body is not valid JSON: {why} at character {loc[1]}"}
 
 
 async def _on_service_error(_: Request, exc: ServiceError) -> JSONResponse:
@@ -146,7 +165,27 @@ def parse_loc(field: str) -> list[str | int]:
     return out
 
 
+def unparsable_body_reason(cause: BaseException) -> str:
+    """Why a request body could not be read as JSON at all."""
+    if isinstance(cause, UnicodeError):
+        return "the body is not valid UTF-8 text (JSON must be UTF-8 encoded)"
+    if isinstance(cause, RecursionError):
+        return "the JSON is nested too deeply"
+    if isinstance(cause, ValueError) and "digits" in str(cause):
+        return f"a number has too many digits ({cause})"
+    return f"the body is not valid JSON ({type(cause).__name__}: {cause})"
+
+
 async def _on_http_error(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+    if exc.status_code == 400:
+        # the body could not be parsed (FastAPI's "There was an error parsing the body" for
+        # JSON, Starlette's multipart errors): a 422 naming the body and why
+        cause = exc.__cause__ or exc.__context__
+        generic = exc.detail == "There was an error parsing the body"
+        why = (unparsable_body_reason(cause) if generic and cause is not None
+               else f"the body cannot be read: {exc.detail}")
+        return _validation_answer([{"loc": ["body"], "msg": why,
+                                    "type": "json_invalid" if generic else "body_invalid"}])
     codes = {401: "unauthorized", 404: "not_found", 405: "method_not_allowed", 413: "too_large"}
     detail = exc.detail if isinstance(exc.detail, str) else json.dumps(json_safe(exc.detail))
     return JSONResponse(
@@ -245,7 +284,10 @@ class BodyLimitMiddleware:
                 try:
                     n = int(value)
                 except ValueError:
-                    await _send_json(send, 400, error_body("bad_request", "bad Content-Length"))
+                    await _send_json(send, 422, {
+                        "detail": [{"loc": ["header", "content-length"], "msg": "not an integer",
+                                    "type": "int_parsing"}],
+                        "message": "header.content-length: not an integer"})
                     return
                 if n > self.max_bytes:
                     await _send_json(send, 413, too_large)

@@ -7,19 +7,35 @@ the deployment (max targets per request, max time limit) are checked in ``app.py
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 
 N_ARMS = 12
 
+
+def _integral(v: Any) -> Any:
+    """JSON has one number type: an integral float (``1.0``, ``1e3``) is that integer; a
+    fractional one is an error naming the field (strings and booleans stay errors)."""
+    if isinstance(v, float) and math.isfinite(v):
+        if not v.is_integer():
+            raise ValueError(f"must be an integer, got {v!r}")
+        return int(v)
+    return v
+
+
+def Integer(**constraints: Any) -> Any:  # noqa: N802 - a type factory
+    """A JSON integer with ``constraints`` (``ge``, ``le``, ``description``); integral floats
+    are accepted."""
+    return Annotated[int, Field(strict=True, **constraints), BeforeValidator(_integral)]
+
+
 FiniteFloat = Annotated[float, Field(strict=True, allow_inf_nan=False)]
-ArmIndex = Annotated[int, Field(strict=True, ge=0, le=N_ARMS - 1, description="Arm number 0..11.")]
-Priority = Annotated[
-    int, Field(strict=True, ge=1, le=PRIORITY_MAX, description="Integer priority 1..2^32-1.")
-]
+ArmIndex = Integer(ge=0, le=N_ARMS - 1, description="Arm number 0..11.")
+Priority = Integer(ge=1, le=PRIORITY_MAX, description="Integer priority 1..2^32-1.")
 TargetId = Annotated[str, Field(min_length=1, max_length=128, description="Unique target id.")]
 RaDeg = Annotated[
     float, Field(ge=0.0, lt=360.0, strict=True, allow_inf_nan=False, description="Right ascension, deg.")
@@ -36,7 +52,7 @@ PositionAngleDeg = Annotated[
 FocalMm = Annotated[
     float, Field(ge=-1e5, le=1e5, strict=True, allow_inf_nan=False, description="FOV-frame coordinate, mm.")
 ]
-Seed = Annotated[int, Field(strict=True, ge=0, le=2**31 - 1, description="Random seed.")]
+Seed = Integer(ge=0, le=2**31 - 1, description="Random seed.")
 TimeLimitS = Annotated[
     float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False, description="Solver time limit, s.")
 ]
@@ -141,8 +157,8 @@ class SegmentationRequest(Request):
 
 
 class AllocationRequest(Request):
-    targets: list[PlaneTarget] | list[SkyTarget] = Field(
-        min_length=1,
+    targets: (Annotated[list[PlaneTarget], Field(min_length=1)]
+              | Annotated[list[SkyTarget], Field(min_length=1)]) = Field(
         description="Focal-plane targets, or sky targets (then `pointing` is required).",
     )
     pointing: TelescopePointing | None = Field(
@@ -197,7 +213,7 @@ class MotionPlanRequest(Request):
         None, description="Collision-check time step, s (default 0.1; at least 0.01). The product "
         "(220 s / dt_s) x (220 s / dt_col_s) may not exceed 1e6: smaller steps are refused with 422."
     )
-    max_start_stop: Annotated[int, Field(strict=True, ge=0, le=20)] | None = Field(
+    max_start_stop: Integer(ge=0, le=20) | None = Field(
         None, description="Most intermediate stops per arm (default 1)."
     )
     collision_buffer_mm: BufferMm | None = None
@@ -221,9 +237,11 @@ class PlanRequest(Request):
     solver: Solver = "highs"
     position_angle_deg: PositionAngleDeg = 0.0
     time_limit_s: TimeLimitS | None = Field(
-        None, description="Time limit of every solver call (each pointing's allocation, each "
-        "motion leg), s. A synchronous POST /v1/plans is also bounded as a whole by the "
-        "server's plan budget (MXS_PLAN_BUDGET_S); plan big fields with POST /v1/jobs."
+        None, description="Wall-clock limit of the whole plan, s: segmentation, then every "
+        "pointing's allocation and motion legs, with what is left shared out over the "
+        "pointings still to do. Default (and cap) the server's budget: MXS_PLAN_BUDGET_S for "
+        "POST /v1/plans, MXS_JOB_BUDGET_S for a plan job. Pointings reached after it ran out "
+        "report their targets `no_time`; plan big fields with POST /v1/jobs."
     )
     seed: Seed | None = None
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
@@ -284,6 +302,23 @@ class ErrorResponse(Response):
 
     error: str
     detail: str
+
+
+class ValidationErrorItem(Response):
+    """One invalid field: where (``loc``, starting with "body", "path" or "query"), why and
+    the machine type of the error."""
+
+    loc: list[str | int]
+    msg: str
+    type: str
+
+
+class ValidationErrorResponse(Response):
+    """HTTP 422: the request is invalid; ``detail[].loc`` names each field, ``message`` sums
+    them up in one line ("body.targets[0].dec_deg: ...")."""
+
+    detail: list[ValidationErrorItem]
+    message: str
 
 
 class JointPair(Response):

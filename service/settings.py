@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import Field, field_validator
+from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -22,7 +22,8 @@ class Settings(BaseSettings):
         "", description="Comma-separated origins allowed by CORS ('*' for any); empty = none."
     )
     api_token: str | None = Field(
-        None, description="When set, POST endpoints require 'Authorization: Bearer <token>'."
+        None, description="When set, POST endpoints and GET /v1/jobs/{job_id} require "
+        "'Authorization: Bearer <token>'. Empty counts as unset (logged as a warning)."
     )
     max_targets: int = Field(5000, ge=1, description="Most targets accepted in one request.")
     max_body_bytes: int = Field(10_000_000, ge=1024, description="Largest request body.")
@@ -75,11 +76,6 @@ class Settings(BaseSettings):
     job_retention_count: int = Field(
         1000, ge=1, description="Finished jobs kept at most (the newest); older answer 410."
     )
-
-    @field_validator("api_token")
-    @classmethod
-    def _empty_token_is_none(cls, v: str | None) -> str | None:
-        return v or None
 
     @property
     def cors_origin_list(self) -> list[str]:

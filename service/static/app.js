@@ -142,7 +142,7 @@ function setStatus(text, progress) {
 
 async function followJob(jobId) {
   for (;;) {
-    const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId));
+    const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId), { headers: authHeaders() });
     if (r.status !== 200) throw new Error(`job ${jobId}: ${errorText(r.status, r.body)}`);
     const job = r.body;
     setStatus(`job ${job.job_id}: ${job.status} ${(100 * job.progress).toFixed(0)} %`, job.progress);
