@@ -210,6 +210,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         _ = state.jobs  # open the job database now: re-queues jobs whose lease expired
+        await run_in_threadpool(pipeline.warm_up)  # the planner's compiled kernels, before the first request
         heavy = state.heavy
         restore = _on_sigterm(heavy.close)
         yield

@@ -112,7 +112,8 @@ def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: s
     """A worker process: claim, run, record; forever (until its server stops it)."""
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle
-    from service import pipeline  # noqa: F401 - import the domain before the first job
+    from service import pipeline  # import the domain and its compiled kernels before the first job
+    pipeline.warm_up()
     owner = f"{instance}/{os.getpid()}"
     store = JobStore(db_path)
     while True:

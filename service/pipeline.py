@@ -26,6 +26,7 @@ from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import plan_motion
+from planner.clearance import compile_kernels
 from planner.options import MotionOptions
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
 from service import adapters
@@ -51,6 +52,11 @@ log = logging.getLogger("service")
 ALLOCATION_SHARE = 0.5
 MIN_POINTING_S = 0.5
 RESERVE_SHARE, RESERVE_MAX_S = 0.05, 0.5
+
+
+def warm_up() -> None:
+    """Load (or compile once) the planner's compiled kernels, so that no request pays for it."""
+    compile_kernels()
 
 
 def _noop(_: float) -> None:
