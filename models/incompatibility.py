@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy import sparse
 
 from models.collision import (
     arm_pair_clearance_mm,
@@ -26,6 +25,7 @@ from models.collision import (
     segment_distance_mm,
     segment_distance_xy,
 )
+from models.errors import StructureTooLarge, TimeLimitExceeded
 from models.instrument import Instrument
 from models.kinematics import inverse_fov, tip_fov
 
@@ -34,6 +34,7 @@ FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV 
 PARK = -1  # target index of a park assignment
 FIXED = -2  # target index of a current/fixed (out-of-service) location
 BLANK = -3  # target index of a blank-sky location (thesis Algorithm 5 padding)
+MAX_PAIRS = 80_000_000  # ~1.4 GB of structure (17 bytes a pair): beyond it a field is refused
 
 
 @dataclass(frozen=True)
@@ -317,23 +318,20 @@ def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey,
     return keep
 
 
-def compute_incompatibility(
-    instrument: Instrument,
-    reachability: Reachability,
-    buffer_mm: float | None = None,
-    chunk_pairs: int = 1_000_000,
-) -> Incompatibility:
-    """Every incompatible pair of assignments of different arms (thesis 5.4, set H of eq. 5.15).
+@dataclass(frozen=True)
+class _Bodies:
+    """Per body, contiguous coordinate arrays (assignment axis last) in float64 and float32,
+    the padded float32 bounding boxes and the static keep masks of one build."""
 
-    Per arm pair, the statically possible body pairs are tested on the whole block of
-    assignment pairs: a bounding-box prefilter, then the exact capsule distance on the
-    survivors. Pairs on the same target are marked first and never re-tested.
-    """
-    t0 = time.perf_counter()
-    buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
-    asg = reachability.assignments
+    f64: tuple[np.ndarray, ...]  # sx, sy, ex, ey, rad: (n_bodies, n_assignments)
+    f32: tuple[np.ndarray, ...]
+    box: tuple[np.ndarray, ...]  # lox, hix, loy, hiy (float32)
+    keep: dict[tuple[int, int, int, int], np.ndarray]
+    thr_mm: float
+
+
+def _bodies(instrument: Instrument, asg: Assignments, buffer_mm: float) -> _Bodies:
     seg_s, seg_e, seg_r = body_segments_mm(instrument, asg.arm, asg.theta1_rad, asg.theta2_rad)
-    # per body, contiguous coordinate arrays (assignment axis last) for cheap slicing
     # decided at buffer + TIE_MM: a pair exactly at the buffer (two tips 25 mm apart on a
     # symmetric layout) is incompatible, so rounding can never let the structure accept what
     # the verifiers (clearance < buffer) reject
@@ -341,84 +339,159 @@ def compute_incompatibility(
     sx, sy = np.ascontiguousarray(seg_s[..., 0].T), np.ascontiguousarray(seg_s[..., 1].T)
     ex, ey = np.ascontiguousarray(seg_e[..., 0].T), np.ascontiguousarray(seg_e[..., 1].T)
     rad = np.ascontiguousarray(seg_r.T)
+    del seg_s, seg_e, seg_r
     # float32 for the bulk test (3x faster); pairs within FLOAT32_BAND_MM of the buffer
     # are re-decided in float64 so the answer equals the exact computation
-    sx32, sy32, ex32, ey32, rad32 = (v.astype(np.float32) for v in (sx, sy, ex, ey, rad))
+    f32 = tuple(v.astype(np.float32) for v in (sx, sy, ex, ey, rad))
     # boxes padded by the float32 band: at an exact tie (boxes touching at the buffer) the
     # rounded float32 bounds must not skip the pair
-    lox = (np.minimum(sx, ex) - rad - FLOAT32_BAND_MM).astype(np.float32)
-    hix = (np.maximum(sx, ex) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32)
-    loy = (np.minimum(sy, ey) - rad - FLOAT32_BAND_MM).astype(np.float32)
-    hiy = (np.maximum(sy, ey) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32)
-    target = asg.target
+    box = ((np.minimum(sx, ex) - rad - FLOAT32_BAND_MM).astype(np.float32),
+           (np.maximum(sx, ex) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32),
+           (np.minimum(sy, ey) - rad - FLOAT32_BAND_MM).astype(np.float32),
+           (np.maximum(sy, ey) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32))
     keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, thr_mm)
-    t_geom = time.perf_counter()
-    found_i, found_j, found_same = [], [], []
-    n_arms = instrument.n_arms
-    starts = asg.arm_start
-    for k in range(n_arms):
-        a0, a1 = int(starts[k]), int(starts[k + 1])
-        if a1 == a0:
+    return _Bodies((sx, sy, ex, ey, rad), f32, box, keep, thr_mm)
+
+
+def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
+                 a0: int, r0: int, r1: int, b0: int, b1: int) -> np.ndarray:
+    """Incompatible pairs (i, j) of rows r0:r1 (arm k) x columns b0:b1 (arm kk), int32 (m, 2),
+    in row-major order: same target first, then each statically possible body pair through
+    the box prefilter, the float32 distance and the float64 re-decision of the band."""
+    sx, sy, ex, ey, rad = b.f64
+    sx32, sy32, ex32, ey32, rad32 = b.f32
+    lox, hix, loy, hiy = b.box
+    ta = target[r0:r1]
+    hit = (ta[:, None] == target[None, b0:b1]) & (ta[:, None] >= 0)
+    for bi, bj in body_pairs:
+        # static prune: a body that stays near its base (L1, L2) only meets the other
+        # arm's assignments whose body passes close to that region
+        rk = b.keep[(k, bi, kk, bj)][r0 - a0:r1 - a0]
+        ck = b.keep[(kk, bj, k, bi)]
+        if not rk.any() or not ck.any():
             continue
-        for kk in range(k + 1, n_arms):
+        ri = np.flatnonzero(rk) + r0
+        cj_ = np.flatnonzero(ck) + b0
+        cand = lox[bi][ri][:, None] < hix[bj][cj_][None, :]
+        cand &= hix[bi][ri][:, None] > lox[bj][cj_][None, :]
+        cand &= loy[bi][ri][:, None] < hiy[bj][cj_][None, :]
+        cand &= hiy[bi][ri][:, None] > loy[bj][cj_][None, :]
+        cand &= ~hit[np.ix_(ri - r0, cj_ - b0)]
+        ci, cj = np.nonzero(cand)
+        del cand
+        if not len(ci):
+            continue
+        ai, bk = ri[ci], cj_[cj]
+        gap = segment_distance_xy(sx32[bi, ai], sy32[bi, ai], ex32[bi, ai], ey32[bi, ai],
+                                  sx32[bj, bk], sy32[bj, bk], ex32[bj, bk], ey32[bj, bk])
+        gap -= rad32[bi, ai] + rad32[bj, bk] + np.float32(b.thr_mm)
+        close = gap < 0
+        unsure = np.flatnonzero(np.abs(gap) < FLOAT32_BAND_MM)
+        if len(unsure):
+            ua, ub = ai[unsure], bk[unsure]
+            d64 = segment_distance_xy(sx[bi, ua], sy[bi, ua], ex[bi, ua], ey[bi, ua],
+                                      sx[bj, ub], sy[bj, ub], ex[bj, ub], ey[bj, ub])
+            close[unsure] = d64 - rad[bi, ua] - rad[bj, ub] < b.thr_mm
+        hit[ai[close] - r0, bk[close] - b0] = True
+    hi_, hj_ = np.nonzero(hit)
+    out = np.empty((len(hi_), 2), np.int32)
+    out[:, 0] = hi_ + r0
+    out[:, 1] = hj_ + b0
+    return out
+
+
+def _check_deadline(deadline_s: float | None, limit_s: float | None) -> None:
+    if deadline_s is not None and time.perf_counter() > deadline_s:
+        raise TimeLimitExceeded("incompatibility", limit_s)
+
+
+def _symmetric_csr(pairs: np.ndarray, n: int, slice_pairs: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr int64, indices int32) of the symmetric adjacency of ``pairs``, sorted per row.
+
+    ``pairs`` must be in generation order (blocks of arms k < kk, rows ascending within a
+    block, row-major within a chunk): then writing every (j, i) entry before every (i, j)
+    entry, each in that order, leaves each row's columns ascending, with no sort and no
+    temporary larger than one slice of pairs.
+    """
+    count = np.bincount(pairs[:, 0], minlength=n) + np.bincount(pairs[:, 1], minlength=n)
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(count, out=indptr[1:])
+    indices = np.empty(int(indptr[-1]), np.int32)
+    fill = indptr[:-1].copy()
+    for row_col, other in ((1, 0), (0, 1)):
+        for s0 in range(0, len(pairs), slice_pairs):
+            rows = pairs[s0:s0 + slice_pairs, row_col]
+            cols = pairs[s0:s0 + slice_pairs, other]
+            order = np.argsort(rows, kind="stable")
+            rs = rows[order]
+            first = np.flatnonzero(np.r_[True, rs[1:] != rs[:-1]])
+            group = np.repeat(first, np.diff(np.r_[first, len(rs)]))
+            rank = np.arange(len(rs)) - group
+            indices[fill[rs] + rank] = cols[order]
+            uniq = rs[first]
+            fill[uniq] += np.diff(np.r_[first, len(rs)])
+    return indptr, indices
+
+
+def compute_incompatibility(
+    instrument: Instrument,
+    reachability: Reachability,
+    buffer_mm: float | None = None,
+    chunk_pairs: int = 1_000_000,
+    *,
+    deadline_s: float | None = None,
+    time_limit_s: float | None = None,
+    max_pairs: int = MAX_PAIRS,
+) -> Incompatibility:
+    """Every incompatible pair of assignments of different arms (thesis 5.4, set H of eq. 5.15).
+
+    Per arm pair, the statically possible body pairs are tested block by block (at most
+    ``chunk_pairs`` assignment pairs at a time): a bounding-box prefilter, then the exact
+    capsule distance on the survivors. Pairs on the same target are marked first and never
+    re-tested. Memory is the result (17 bytes per pair) plus one block.
+
+    ``deadline_s`` (a ``time.perf_counter()`` instant; ``time_limit_s`` is only quoted in the
+    error) is checked between blocks: past it, :class:`~models.errors.TimeLimitExceeded`.
+    More than ``max_pairs`` pairs raise :class:`~models.errors.StructureTooLarge` (field
+    ``targets``) before the memory is spent.
+    """
+    t0 = time.perf_counter()
+    buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
+    asg = reachability.assignments
+    _check_deadline(deadline_s, time_limit_s)
+    bodies = _bodies(instrument, asg, buffer_mm)
+    t_geom = time.perf_counter()
+    found: list[np.ndarray] = []
+    total = 0
+    starts = asg.arm_start
+    for k in range(instrument.n_arms):
+        a0, a1 = int(starts[k]), int(starts[k + 1])
+        for kk in range(k + 1, instrument.n_arms):
             b0, b1 = int(starts[kk]), int(starts[kk + 1])
-            if b1 == b0:
+            if b1 == b0 or a1 == a0:
                 continue
-            body_pairs = _body_pairs_that_can_meet(instrument, k, kk, thr_mm)
+            body_pairs = _body_pairs_that_can_meet(instrument, k, kk, bodies.thr_mm)
             step = max(1, chunk_pairs // (b1 - b0))
             for r0 in range(a0, a1, step):
-                r1 = min(a1, r0 + step)
-                ta = target[r0:r1]
-                same = (ta[:, None] == target[None, b0:b1]) & (ta[:, None] >= 0)
-                hit = same.copy()
-                for bi, bj in body_pairs:
-                    # static prune: a body that stays near its base (L1, L2) only meets
-                    # the other arm's assignments whose body passes close to that region
-                    rk = keep[(k, bi, kk, bj)][r0 - a0:r1 - a0]
-                    ck = keep[(kk, bj, k, bi)]
-                    if not rk.any() or not ck.any():
-                        continue
-                    ri = np.flatnonzero(rk) + r0
-                    cj_ = np.flatnonzero(ck) + b0
-                    cand = lox[bi][ri][:, None] < hix[bj][cj_][None, :]
-                    cand &= hix[bi][ri][:, None] > lox[bj][cj_][None, :]
-                    cand &= loy[bi][ri][:, None] < hiy[bj][cj_][None, :]
-                    cand &= hiy[bi][ri][:, None] > loy[bj][cj_][None, :]
-                    cand &= ~hit[np.ix_(ri - r0, cj_ - b0)]
-                    ci, cj = np.nonzero(cand)
-                    ci, cj = ri[ci] - r0, cj_[cj] - b0
-                    if not len(ci):
-                        continue
-                    ai, bk = ci + r0, cj + b0
-                    gap = segment_distance_xy(sx32[bi, ai], sy32[bi, ai], ex32[bi, ai], ey32[bi, ai],
-                                              sx32[bj, bk], sy32[bj, bk], ex32[bj, bk], ey32[bj, bk])
-                    gap -= rad32[bi, ai] + rad32[bj, bk] + np.float32(thr_mm)
-                    close = gap < 0
-                    unsure = np.flatnonzero(np.abs(gap) < FLOAT32_BAND_MM)
-                    if len(unsure):
-                        ua, ub = ai[unsure], bk[unsure]
-                        d64 = segment_distance_xy(sx[bi, ua], sy[bi, ua], ex[bi, ua], ey[bi, ua],
-                                                  sx[bj, ub], sy[bj, ub], ex[bj, ub], ey[bj, ub])
-                        close[unsure] = d64 - rad[bi, ua] - rad[bj, ub] < thr_mm
-                    hit[ci[close], cj[close]] = True
-                hi_, hj_ = np.nonzero(hit)
-                found_i.append(hi_ + r0)
-                found_j.append(hj_ + b0)
-                found_same.append(same[hi_, hj_])
+                _check_deadline(deadline_s, time_limit_s)
+                found.append(_chunk_pairs(bodies, body_pairs, asg.target, k, kk, a0, r0, min(a1, r0 + step), b0, b1))
+                total += len(found[-1])
+                if total > max_pairs:
+                    raise StructureTooLarge("targets", f"the incompatibility structure of this field has more than "
+                                            f"{max_pairs} assignment pairs; split the field into pointings "
+                                            "(segmentation) or lower collision_buffer_mm")
+    del bodies
     t_pairs = time.perf_counter()
     # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
-    gi = np.concatenate(found_i).astype(np.int32) if found_i else np.zeros(0, np.int32)
-    gj = np.concatenate(found_j).astype(np.int32) if found_j else np.zeros(0, np.int32)
-    same_target = np.concatenate(found_same) if found_same else np.zeros(0, bool)
-    pairs = np.column_stack([gi, gj])
-    n = len(asg)
-    adj = sparse.coo_matrix((np.ones(2 * len(gi), np.int8), (np.concatenate([gi, gj]), np.concatenate([gj, gi]))),
-                            shape=(n, n)).tocsr()
-    adj.sort_indices()
+    pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int32)
+    del found
+    _check_deadline(deadline_s, time_limit_s)
+    same_target = (asg.target[pairs[:, 0]] >= 0) & (asg.target[pairs[:, 0]] == asg.target[pairs[:, 1]])
+    indptr, indices = _symmetric_csr(pairs, len(asg))
     t_end = time.perf_counter()
     return Incompatibility(
         reachability=reachability, pairs=pairs, same_target=same_target,
-        indptr=adj.indptr.astype(np.int64), indices=adj.indices.astype(np.int32), buffer_mm=buffer_mm,
+        indptr=indptr, indices=indices, buffer_mm=buffer_mm,
         timings_s={"bodies": t_geom - t0, "pairs": t_pairs - t_geom, "assemble": t_end - t_pairs},
     )
 
@@ -434,12 +507,19 @@ def incompatibility_for_targets(
     fixed: dict[int, tuple[float, float]] | None = None,
     blank_per_arm: int = 0,
     seed: int = 0,
+    deadline_s: float | None = None,
+    time_limit_s: float | None = None,
+    max_pairs: int = MAX_PAIRS,
 ) -> Incompatibility:
-    """Reachability plus incompatibility for FOV targets, with per-phase timings."""
+    """Reachability plus incompatibility for FOV targets, with per-phase timings.
+
+    ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see :func:`compute_incompatibility`.
+    """
     t0 = time.perf_counter()
     reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
                               blank_per_arm=blank_per_arm, seed=seed)
     t1 = time.perf_counter()
-    inc = compute_incompatibility(instrument, reach, buffer_mm)
+    inc = compute_incompatibility(instrument, reach, buffer_mm, deadline_s=deadline_s, time_limit_s=time_limit_s,
+                                  max_pairs=max_pairs)
     inc.timings_s["reachability"] = t1 - t0
     return inc

@@ -11,15 +11,17 @@ the rotation with the fewest configurations, then highest priority completeness,
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
 
 import numpy as np
 
-from models.errors import InputError
+from models.errors import InputError, TimeLimitExceeded
+from models.incompatibility import build_assignments, incompatibility_for_targets
 from models.instrument import Instrument
-from models.types import AllocationResult, PlaneTargets
+from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing import Progress, sequence_configurations
 
@@ -67,6 +69,23 @@ def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
     x, y = np.asarray(targets.x_mm, float), np.asarray(targets.y_mm, float)
     return PlaneTargets(targets.ids, c * x - s * y, s * x + c * y, targets.priority)
+
+
+def timed_out_result(instrument: Instrument, targets: PlaneTargets,
+                     fixed: dict[int, tuple[float, float]] | None, elapsed_s: float) -> AllocationResult:
+    """The partial answer of a call whose time ran out while the incompatibility structure
+    was built: no configuration; each target ``unreachable`` (no enabled arm reaches it,
+    cheap to know) or ``no_time``; ``stats["stop_reason"] == "no_time"``."""
+    reach = build_assignments(instrument, targets.x_mm, targets.y_mm, fixed=fixed)
+    unreachable = set(reach.unreachable.tolist())
+    n = len(targets)
+    unalloc = tuple(Unallocated(i, targets.ids[i], "unreachable" if i in unreachable else "no_time")
+                    for i in range(n))
+    stats = {"n_targets": n, "n_reachable": n - len(unreachable), "n_configurations": 0,
+             "field_completeness": 0.0 if n else 1.0, "reachable_completeness": 0.0 if n else 1.0,
+             "priority_completeness": 0.0 if n else 1.0, "stop_reason": "no_time",
+             "timed_out_in": "incompatibility", "timers_s": {"incompatibility_s": elapsed_s}}
+    return AllocationResult((), unalloc, stats)
 
 
 def allocate(
@@ -149,9 +168,20 @@ def allocate(
     seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
 
     def run(tgts: PlaneTargets) -> AllocationResult:
+        # the structure build counts against the call's limit: it gets the same deadline
+        # and the sequence only what is left
+        t0 = time.perf_counter()
+        try:
+            inc = incompatibility_for_targets(
+                instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
+                blank_per_arm=seq_opts.get("blank_per_arm", 0), seed=int(seed),
+                deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s)
+        except TimeLimitExceeded:
+            return timed_out_result(instrument, tgts, fixed, time.perf_counter() - t0)
+        left_s = max(time_limit_s - (time.perf_counter() - t0), 1e-3)
         return sequence_configurations(instrument, tgts, solve_one, start_q=start_q, fixed=fixed,
-                                       buffer_mm=collision_buffer_mm, time_limit_s=time_limit_s, seed=int(seed),
-                                       progress=progress, **seq_opts)
+                                       buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),
+                                       progress=progress, incompatibility=inc, **seq_opts)
 
     if not position_angles_deg:
         return run(targets)
