@@ -290,7 +290,7 @@ def _body_pairs_that_can_meet(instrument: Instrument, k: int, kk: int, buffer_mm
 
 
 def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey, rad,
-                       buffer_mm: float) -> dict[tuple[int, int, int, int], np.ndarray]:
+                       buffer_mm: float, check=lambda: None) -> dict[tuple[int, int, int, int], np.ndarray]:
     """keep[(k, bi, kk, bj)][a]: can body bi of assignment a (of arm k) meet body bj of arm kk?
 
     Decided against the static region swept by body bj of arm kk (a capsule around its two
@@ -301,6 +301,7 @@ def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey,
     n_arms = instrument.n_arms
     for k in range(n_arms):
         sl = asg.of_arm(k)
+        check()
         for kk in range(n_arms):
             if kk == k:
                 continue
@@ -330,7 +331,7 @@ class _Bodies:
     thr_mm: float
 
 
-def _bodies(instrument: Instrument, asg: Assignments, buffer_mm: float) -> _Bodies:
+def _bodies(instrument: Instrument, asg: Assignments, buffer_mm: float, check) -> _Bodies:
     seg_s, seg_e, seg_r = body_segments_mm(instrument, asg.arm, asg.theta1_rad, asg.theta2_rad)
     # decided at buffer + TIE_MM: a pair exactly at the buffer (two tips 25 mm apart on a
     # symmetric layout) is incompatible, so rounding can never let the structure accept what
@@ -349,12 +350,13 @@ def _bodies(instrument: Instrument, asg: Assignments, buffer_mm: float) -> _Bodi
            (np.maximum(sx, ex) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32),
            (np.minimum(sy, ey) - rad - FLOAT32_BAND_MM).astype(np.float32),
            (np.maximum(sy, ey) + rad + thr_mm + FLOAT32_BAND_MM).astype(np.float32))
-    keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, thr_mm)
+    check()
+    keep = _static_keep_masks(instrument, asg, sx, sy, ex, ey, rad, thr_mm, check)
     return _Bodies((sx, sy, ex, ey, rad), f32, box, keep, thr_mm)
 
 
 def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
-                 a0: int, r0: int, r1: int, b0: int, b1: int) -> np.ndarray:
+                 a0: int, r0: int, r1: int, b0: int, b1: int, check) -> np.ndarray:
     """Incompatible pairs (i, j) of rows r0:r1 (arm k) x columns b0:b1 (arm kk), int32 (m, 2),
     in row-major order: same target first, then each statically possible body pair through
     the box prefilter, the float32 distance and the float64 re-decision of the band."""
@@ -364,6 +366,7 @@ def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
     ta = target[r0:r1]
     hit = (ta[:, None] == target[None, b0:b1]) & (ta[:, None] >= 0)
     for bi, bj in body_pairs:
+        check()
         # static prune: a body that stays near its base (L1, L2) only meets the other
         # arm's assignments whose body passes close to that region
         rk = b.keep[(k, bi, kk, bj)][r0 - a0:r1 - a0]
@@ -400,12 +403,16 @@ def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
     return out
 
 
-def _check_deadline(deadline_s: float | None, limit_s: float | None) -> None:
-    if deadline_s is not None and time.perf_counter() > deadline_s:
-        raise TimeLimitExceeded("incompatibility", limit_s)
+def _deadline_check(deadline_s: float | None, limit_s: float | None):
+    """A no-argument check raising TimeLimitExceeded once ``deadline_s`` has passed."""
+    def check() -> None:
+        if deadline_s is not None and time.perf_counter() > deadline_s:
+            raise TimeLimitExceeded("incompatibility", limit_s)
+    return check
 
 
-def _symmetric_csr(pairs: np.ndarray, n: int, slice_pairs: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
+def _symmetric_csr(pairs: np.ndarray, n: int, check=lambda: None,
+                   slice_pairs: int = 1 << 20) -> tuple[np.ndarray, np.ndarray]:
     """(indptr int64, indices int32) of the symmetric adjacency of ``pairs``, sorted per row.
 
     ``pairs`` must be in generation order (blocks of arms k < kk, rows ascending within a
@@ -420,6 +427,7 @@ def _symmetric_csr(pairs: np.ndarray, n: int, slice_pairs: int = 1 << 20) -> tup
     fill = indptr[:-1].copy()
     for row_col, other in ((1, 0), (0, 1)):
         for s0 in range(0, len(pairs), slice_pairs):
+            check()
             rows = pairs[s0:s0 + slice_pairs, row_col]
             cols = pairs[s0:s0 + slice_pairs, other]
             order = np.argsort(rows, kind="stable")
@@ -458,8 +466,9 @@ def compute_incompatibility(
     t0 = time.perf_counter()
     buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
     asg = reachability.assignments
-    _check_deadline(deadline_s, time_limit_s)
-    bodies = _bodies(instrument, asg, buffer_mm)
+    check = _deadline_check(deadline_s, time_limit_s)
+    check()
+    bodies = _bodies(instrument, asg, buffer_mm, check)
     t_geom = time.perf_counter()
     found: list[np.ndarray] = []
     total = 0
@@ -473,8 +482,8 @@ def compute_incompatibility(
             body_pairs = _body_pairs_that_can_meet(instrument, k, kk, bodies.thr_mm)
             step = max(1, chunk_pairs // (b1 - b0))
             for r0 in range(a0, a1, step):
-                _check_deadline(deadline_s, time_limit_s)
-                found.append(_chunk_pairs(bodies, body_pairs, asg.target, k, kk, a0, r0, min(a1, r0 + step), b0, b1))
+                found.append(_chunk_pairs(bodies, body_pairs, asg.target, k, kk, a0, r0, min(a1, r0 + step), b0, b1,
+                                          check))
                 total += len(found[-1])
                 if total > max_pairs:
                     raise StructureTooLarge("targets", f"the incompatibility structure of this field has more than "
@@ -485,9 +494,9 @@ def compute_incompatibility(
     # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
     pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int32)
     del found
-    _check_deadline(deadline_s, time_limit_s)
+    check()
     same_target = (asg.target[pairs[:, 0]] >= 0) & (asg.target[pairs[:, 0]] == asg.target[pairs[:, 1]])
-    indptr, indices = _symmetric_csr(pairs, len(asg))
+    indptr, indices = _symmetric_csr(pairs, len(asg), check)
     t_end = time.perf_counter()
     return Incompatibility(
         reachability=reachability, pairs=pairs, same_target=same_target,
