@@ -32,7 +32,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import pdist, squareform
 
-from models.errors import InputError
+from models.errors import InputError, TimeLimitExceeded
 from models.sky import (
     focal_mm_to_sky,
     sky_to_focal_mm,
@@ -42,6 +42,7 @@ from models.sky import (
 from solvers.enclosing_circle import smallest_enclosing_circle
 
 FOV_TOL_MM = 1e-6  # a member may sit this far outside the FOV circle (rounding only)
+STAGE_PAIRS_PER_POINT = 64  # sparse linkage: at most this many first-stage pairs per point
 SCIPY_MAX_POINTS = 2_500  # "auto": below this scipy's dense linkage is the fastest exact path
 Mode = Literal["complete-linkage", "balanced"]
 
@@ -88,7 +89,7 @@ def _compact(labels: np.ndarray) -> np.ndarray:
     return rank[inv.ravel()]
 
 
-def _rnn_rounds(m: int, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _rnn_rounds(m: int, u: np.ndarray, v: np.ndarray, w: np.ndarray, check=lambda: None) -> np.ndarray:
     """Complete-linkage agglomeration of m clusters joined by sparse edges (u < v, distance w).
 
     An absent edge means "farther than the threshold": with complete linkage
@@ -106,6 +107,7 @@ def _rnn_rounds(m: int, u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarr
     order = np.argsort(w, kind="stable")
     u, v, w = u[order], v[order], w[order]
     while u.size:
+        check()
         # edges are sorted by w; the sort position is a strict total order even with tied
         # distances, so the first edge is always a reciprocal pair and every round merges
         rank = np.arange(u.size, dtype=np.int64)
@@ -195,7 +197,7 @@ def _cluster_pair_max_dist(xy, offsets, a, b, chunk=4_000_000) -> np.ndarray:
 
 
 def sparse_complete_linkage(points_mm: np.ndarray, threshold_mm: float,
-                            stages: int = 4) -> np.ndarray:
+                            stages: int = 4, *, check=lambda: None) -> np.ndarray:
     """Threshold complete linkage without the O(n^2) matrix; returns labels.
 
     Only pairs closer than the threshold can ever merge, so edges come from a KD-tree. To
@@ -205,12 +207,32 @@ def sparse_complete_linkage(points_mm: np.ndarray, threshold_mm: float,
     from those clusters (complete-linkage distance is always the farthest member pair,
     whatever the merge history), finding candidate cluster pairs by a KD-tree over one
     anchor member per cluster and their exact distance from convex-hull vertices.
+
+    The first stage is lowered (more stages) until its point pairs number at most
+    ``STAGE_PAIRS_PER_POINT`` per point, so a field packed into a few millimetres costs
+    O(n) memory too; exact duplicates merge at height 0 without changing any other
+    complete-linkage distance, so only the distinct points are clustered. ``check`` is
+    called between stages and rounds (a deadline raises from it).
     """
     pts = np.asarray(points_mm, dtype=float)
+    _, first, inverse = np.unique(pts, axis=0, return_index=True, return_inverse=True)
+    if len(first) < len(pts):
+        order = np.argsort(first, kind="stable")  # distinct points in order of first appearance
+        rank = np.empty(len(first), dtype=np.int64)
+        rank[order] = np.arange(len(first))
+        sub = sparse_complete_linkage(pts[first[order]], threshold_mm, stages, check=check)
+        return _compact(sub[rank[inverse.ravel()]])
     n = len(pts)
+    if n > 1:
+        tree = cKDTree(pts)
+        budget = STAGE_PAIRS_PER_POINT * n
+        while stages < 64 and (int(tree.count_neighbors(tree, threshold_mm / 2.0 ** (stages - 1))) - n) // 2 > budget:
+            check()
+            stages += 1
     labels = np.arange(n, dtype=np.int64)
     radii = [threshold_mm / 2.0 ** k for k in range(stages - 1, -1, -1)]
     for k, r in enumerate(radii):
+        check()
         r_query = r * (1 + 1e-9) + 1e-12  # KD-tree rounding; exact filter below
         if k == 0:
             m = n
@@ -230,7 +252,7 @@ def sparse_complete_linkage(points_mm: np.ndarray, threshold_mm: float,
         a, b, w = a[keep], b[keep], w[keep]
         swap = a > b
         a[swap], b[swap] = b[swap], a[swap]
-        root = _rnn_rounds(m, a, b, w)
+        root = _rnn_rounds(m, a, b, w, check)
         labels = root if k == 0 else root[labels]
     return _compact(labels)
 
@@ -287,6 +309,7 @@ def nn_chain_complete_linkage(points_mm: np.ndarray, threshold_mm: float) -> np.
 def threshold_complete_linkage(
     points_mm: np.ndarray, threshold_mm: float,
     method: Literal["auto", "sparse", "nn-chain", "scipy"] = "auto",
+    check=lambda: None,
 ) -> np.ndarray:
     """Cluster labels (0..k-1, in order of first appearance) of threshold complete linkage.
 
@@ -301,7 +324,7 @@ def threshold_complete_linkage(
     if method == "auto":
         method = "scipy" if len(pts) <= SCIPY_MAX_POINTS else "sparse"
     if method == "sparse":
-        return sparse_complete_linkage(pts, threshold_mm)
+        return sparse_complete_linkage(pts, threshold_mm, check=check)
     if method == "nn-chain":
         return nn_chain_complete_linkage(pts, threshold_mm)
     if method == "scipy":
@@ -518,6 +541,7 @@ def segment_field(
     plate_scale_arcsec_per_mm: float = 1.2,
     mode: Mode = "complete-linkage",
     seed: int = 0,
+    time_limit_s: float | None = None,
 ) -> Segmentation:
     """Group targets into pointings that each fit the FOV (thesis ch. 4.3, Algorithms 1-2).
 
@@ -527,8 +551,19 @@ def segment_field(
     targets; all targets must lie within 90 deg of it. ``mode="balanced"`` trades the plain
     complete-linkage partition for fewer, more even pointings. Invalid input raises
     InputError naming the field ("targets[3].dec_deg", "threshold_mm", ...).
+    ``time_limit_s`` bounds the call: past it (checked between phases and inside the
+    clustering rounds) :class:`~models.errors.TimeLimitExceeded` is raised, since a partial
+    partition would leave targets in no pointing.
     """
     t0 = time.perf_counter()
+    if time_limit_s is not None and not (isinstance(time_limit_s, int | float) and math.isfinite(time_limit_s)
+                                         and time_limit_s > 0):
+        raise InputError("time_limit_s", "must be a positive finite number of seconds")
+
+    def check() -> None:
+        if time_limit_s is not None and time.perf_counter() - t0 > time_limit_s:
+            raise TimeLimitExceeded("segmentation", time_limit_s)
+
     R, scale = float(fov_radius_mm), float(plate_scale_arcsec_per_mm)
     ra, dec, t = _validate(ra_deg, dec_deg, threshold_mm, tangent_point, R, scale, mode)
     tangent = (tuple(float(v) for v in tangent_point) if tangent_point is not None
@@ -539,16 +574,21 @@ def segment_field(
         raise InputError(e.field.replace("dec_deg[", "targets[").replace("]", "].dec_deg"),
                          e.message) from None
     xy = np.column_stack([x, y])
-    labels = threshold_complete_linkage(xy, t)
+    labels = threshold_complete_linkage(xy, t, check=check)
+    check()
     groups = _groups(labels)
     cxy = _centres(xy, groups, seed)
+    check()
     pra, pdec = focal_mm_to_sky(cxy[:, 0], cxy[:, 1], tangent[0], tangent[1], scale)
     groups, pra, pdec, n_repaired = _verify_and_repair(groups, pra, pdec, ra, dec, R, scale, seed)
     n_cl = len(groups)
     if mode == "balanced":
+        check()
         groups, pra, pdec = _balance(groups, pra, pdec, xy, ra, dec, tangent, R, scale, seed)
+        check()
         groups, pra, pdec, n_rep2 = _verify_and_repair(groups, pra, pdec, ra, dec, R, scale, seed)
         n_repaired += n_rep2
+    check()
 
     # the guarantees, checked on the final answer (never return a target outside its FOV)
     lab = np.full(len(ra), -1, dtype=np.int64)
