@@ -389,7 +389,7 @@ class DelaySearch:
         while self.rnd < self.max_rounds:
             rnd = self.rnd
             nxt = build_problem(self.geoms, self.cur, self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm,
-                                self.stats, old=self.prob, deadline=None if rnd == 0 else deadline)
+                                self.stats, old=self.prob, deadline=deadline)
             if nxt is None:
                 if pause and self.straight is not None and not self.extended:
                     # out of time while adding the other theta2 directions: pause with the

@@ -136,7 +136,11 @@ def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = Non
         return failed_plan(leg, list(reasons), stats)
     refusal: Refusal | None = None
     rejected: tuple[tuple[int, ...], dict[int, str]] | None = None
+    timed_out = False
     for strategy in strategy_sequence(leg.options) if sequence is None else sequence:
+        if budget.expired():  # the leg's time limit: no further strategy is started
+            timed_out = True
+            break
         out = strategy.plan(leg, stage_budget(strategy.name, leg, budget))
         merge_stats(stats, out.stats)
         if isinstance(out, Refusal):
@@ -158,7 +162,8 @@ def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = Non
     elif rejected is not None:
         arms, why = rejected
     else:
-        arms, why = tuple(leg.enabled), {int(a): "no strategy left" for a in leg.enabled}
+        arms, why = tuple(leg.enabled), {int(a): "time budget exhausted" if timed_out else "no strategy left"
+                                         for a in leg.enabled}
     stats["reasons"] = {int(a): why.get(a, "not planned") for a in arms}
     stats["compute_s"] = time.perf_counter() - t0
     return failed_plan(leg, arms, stats)

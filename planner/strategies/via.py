@@ -69,13 +69,15 @@ class Via:
                 or same_configuration(via_q, leg.goal_q)
                 or ends_unplannable(leg.instrument, leg.geoms, via_q, via_q, leg.buffer_mm)):
             return Refusal()
+        if budget.expired():
+            return Refusal()
         each_s = max(VIA_MIN_BUDGET_S, budget.left_s())
         sub = MotionOptions(dt_s=o.dt_s, dt_col_s=o.dt_col_s, max_start_stop=0, collision_buffer_mm=leg.buffer_mm,
                             seed=o.seed, horizon_s=o.horizon_s, grid=o.grid, strategies=("delays",), via=None)
         parts: list[Candidate] = []
         cur = leg.start_q
         for target in (via_q, leg.goal_q):
-            out = self.legs.plan(leg.with_ends(cur, target, sub), Budget.of(each_s))
+            out = self.legs.plan(leg.with_ends(cur, target, sub), Budget(budget.deadline, each_s))
             if not isinstance(out, Candidate):
                 failed = list(out.arms) or list(leg.enabled)
                 return Refusal((), {}, {"attempt_log": [{"direction": "via", "failed_arms": failed}]})
