@@ -34,7 +34,7 @@ FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV 
 PARK = -1  # target index of a park assignment
 FIXED = -2  # target index of a current/fixed (out-of-service) location
 BLANK = -3  # target index of a blank-sky location (thesis Algorithm 5 padding)
-MAX_PAIRS = 80_000_000  # ~1.4 GB of structure (17 bytes a pair): beyond it a field is refused
+MAX_PAIRS = 60_000_000  # ~1 GB of structure (17 bytes a pair), ~1.9 GB with the allocator: refused beyond
 
 
 @dataclass(frozen=True)
