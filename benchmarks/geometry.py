@@ -127,10 +127,10 @@ def _arm_frame(instrument: Instrument, k: int, x: float, y: float) -> tuple[floa
 
 
 def _roots(f, lo: float, hi: float, tol: float) -> list[float]:
-    """Every root of ``f`` on [lo, hi]: sign changes on a scan (refined by Brent) and
+    """Every root of ``f`` (vectorised) on [lo, hi]: sign changes on a scan (refined by Brent) and
     tangencies (a local minimum of |f| refined to a residual below ``tol``)."""
     grid = np.linspace(lo, hi, SCAN_POINTS)
-    vals = np.array([f(g) for g in grid])
+    vals = np.asarray(f(grid), float)  # f is vectorised
     out = []
     for i in range(len(grid) - 1):
         if vals[i] == 0.0:
@@ -166,16 +166,16 @@ def oracle_solutions(instrument: Instrument, k: int, x_mm: float, y_mm: float) -
     a = instrument.arms[k]
     px, py = _arm_frame(instrument, k, x_mm, y_mm)
 
-    def f1(t1: float) -> float:
-        return math.hypot(px - a.d13_mm * math.cos(t1), py - a.d13_mm * math.sin(t1)) - a.d3tip_mm
+    def f1(t1):
+        return np.hypot(px - a.d13_mm * np.cos(t1), py - a.d13_mm * np.sin(t1)) - a.d3tip_mm
 
     out = []
     for t1 in _roots(f1, a.theta1_min_rad, a.theta1_max_rad, ROOT_TOL_MM):
         j3 = (a.d13_mm * math.cos(t1), a.d13_mm * math.sin(t1))
         ux, uy = (px - j3[0]) / a.d3tip_mm, (py - j3[1]) / a.d3tip_mm
 
-        def f2(s: float, j3=j3, ux=ux, uy=uy) -> float:
-            return math.hypot(j3[0] + s * ux - a.d12_mm, j3[1] + s * uy) - a.d24_mm
+        def f2(s, j3=j3, ux=ux, uy=uy):
+            return np.hypot(j3[0] + s * ux - a.d12_mm, j3[1] + s * uy) - a.d24_mm
 
         for s in _roots(f2, a.stop_min_mm, a.stop_max_mm, ROOT_TOL_MM):
             if a.stop_min_mm < s < a.stop_max_mm:
