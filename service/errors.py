@@ -4,6 +4,7 @@
 - a body that cannot be parsed at all (not UTF-8, nested too deeply, a number with too many
   digits, malformed JSON) -> 422 naming ``body``
 - domain input errors (``InputError``, ``InstrumentError``, :class:`FieldError`) -> 422
+- a stage out of time with no partial answer (``TimeLimitExceeded``) -> 422 naming ``time_limit_s``
 - :class:`ServiceError` -> its own status with ``{"error": code, "detail": message}``
 - anything unexpected -> logged with its traceback, answered 503 ``internal_error``
 - bodies over the configured size -> 413
@@ -22,6 +23,9 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from models.errors import InputError, TimeLimitExceeded
+from models.instrument import InstrumentError
 
 log = logging.getLogger("service")
 
@@ -195,30 +199,20 @@ async def _on_http_error(_: Request, exc: StarletteHTTPException) -> JSONRespons
     )
 
 
-def domain_input_errors() -> tuple[type[Exception], ...]:
-    """Exception types the domain raises for invalid input (imported lazily: may not exist)."""
-    types: list[type[Exception]] = []
-    try:
-        from models.instrument import InstrumentError
-
-        types.append(InstrumentError)
-    except ImportError:  # pragma: no cover
-        pass
-    try:
-        from models.errors import InputError
-
-        types.append(InputError)
-    except ImportError:
-        pass
-    return tuple(types)
+async def _on_time_limit(_: Request, exc: TimeLimitExceeded) -> JSONResponse:
+    """A stage that cannot answer partially ran out of the request's time: the limit is the
+    client's to raise (422 on ``time_limit_s``), not a server fault."""
+    msg = f"{exc}; the {exc.stage} stage needs a longer time_limit_s for this input"
+    return _validation_answer([{"loc": ["body", "time_limit_s"], "msg": msg, "type": "time_limit"}])
 
 
 def install_error_handlers(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, _on_validation)  # type: ignore[arg-type]
     app.add_exception_handler(ServiceError, _on_service_error)  # type: ignore[arg-type]
     app.add_exception_handler(StarletteHTTPException, _on_http_error)  # type: ignore[arg-type]
-    for t in domain_input_errors():
+    for t in (InstrumentError, InputError):
         app.add_exception_handler(t, _on_domain_input_error)  # type: ignore[arg-type]
+    app.add_exception_handler(TimeLimitExceeded, _on_time_limit)  # type: ignore[arg-type]
 
 
 async def _send_json(send: Send, status: int, body: dict[str, Any]) -> None:

@@ -473,6 +473,21 @@ def test_domain_input_error_is_422(tmp_path, monkeypatch) -> None:
         assert r.json()["detail"][0]["loc"] == ["body", "targets", 3, "dec_deg"]
 
 
+def test_stage_out_of_time_is_422_on_time_limit(tmp_path, monkeypatch) -> None:
+    from models.errors import TimeLimitExceeded
+
+    def slow(*_: Any, **__: Any) -> Any:
+        raise TimeLimitExceeded("segmentation", 0.5)
+
+    monkeypatch.setattr(pipeline, "segmentation", slow)
+    app = create_app(Settings(job_db=tmp_path / "j.db"))
+    with TestClient(app) as c:
+        r = c.post("/v1/segmentations", json={"targets": sky(4)})
+        assert r.status_code == 422
+        assert r.json()["detail"][0]["loc"] == ["body", "time_limit_s"]
+        assert "segmentation" in r.json()["detail"][0]["msg"]
+
+
 def test_example_requests_are_valid() -> None:
     from service.schemas import REQUEST_TYPES, JobStatus  # noqa: F401
 
