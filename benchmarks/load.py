@@ -16,7 +16,7 @@ fresh job database in a temporary directory, and talks to them with httpx.
   database while the first computes, (d) a rolling restart of two servers. For each: finished
   results lost, live jobs failed by another server, processes left 5 s after a server
   ended, jobs that end failed (with their reasons) and jobs still not finished at the end.
-* ``flood``: ``--flood`` job submissions as fast as possible: 202 / 503 with Retry-After /
+* ``flood``: ``--flood`` job submissions as fast as possible: 202 / 429 with Retry-After /
   other; the server's RSS and database size growth.
 * ``slow_bodies``: ``--slow`` connections each sending 95 % of a body just under the body
   limit, slowly; statuses received, time to be answered, server RSS before / peak / 5 s
@@ -415,9 +415,9 @@ def scenario_flood(a: argparse.Namespace) -> dict[str, Any]:
             with httpx.Client(base_url=srv.url, timeout=30) as c:
                 for _ in range(a.flood):
                     r = c.post("/v1/jobs", json=plan_job())
-                    ok503 = r.status_code == 503 and "retry-after" in r.headers
+                    refused = r.status_code in (429, 503) and "retry-after" in r.headers
                     codes.append("202" if r.status_code == 202 else
-                                 "503_retry_after" if ok503 else str(r.status_code))
+                                 f"{r.status_code}_retry_after" if refused else str(r.status_code))
             size = sum(p.stat().st_size for p in d.glob("jobs.sqlite3*"))
             return {"submitted": a.flood, "seconds": round(time.monotonic() - t0, 2),
                     "answers": {k: codes.count(k) for k in sorted(set(codes))},

@@ -362,12 +362,15 @@ class DelaySearch:
     def _failed(self) -> DelayResult:
         return self._end(DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight))
 
-    def straight_phase(self, deadline: float | None = None) -> DelayResult | None:
-        """Straight options only; None when paused (see the class docstring)."""
+    def straight_phase(self, deadline: float | None = None,
+                       first_round_deadline: float | None = None) -> DelayResult | None:
+        """Straight options only; None when paused (see the class docstring). Round 0's tables
+        (the straight problem later strategies start from) are built until
+        ``first_round_deadline`` (None: to the end), the rest until ``deadline``."""
         n = len(self.geoms)
         if any(not o for o in self.opts):
             return self._end(DelayResult(None, self.opts, [k for k in range(n) if not self.opts[k]], 0))
-        return self._rounds(deadline, pause=True)
+        return self._rounds(deadline, pause=True, first_round_deadline=first_round_deadline)
 
     def detour_phase(self, deadline: float | None = None, prefer: list[int] | None = None,
                      futile: bool = False) -> DelayResult:
@@ -385,11 +388,12 @@ class DelaySearch:
         out = self._rounds(deadline, pause=False, prefer=prefer, futile=futile)
         return out if out is not None else self._failed()
 
-    def _rounds(self, deadline, pause: bool, prefer=None, futile=False) -> DelayResult | None:
+    def _rounds(self, deadline, pause: bool, prefer=None, futile=False,
+                first_round_deadline: float | None = None) -> DelayResult | None:
         while self.rnd < self.max_rounds:
             rnd = self.rnd
             nxt = build_problem(self.geoms, self.cur, self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm,
-                                self.stats, old=self.prob, deadline=deadline)
+                                self.stats, old=self.prob, deadline=first_round_deadline if rnd == 0 else deadline)
             if nxt is None:
                 if pause and self.straight is not None and not self.extended:
                     # out of time while adding the other theta2 directions: pause with the
@@ -495,5 +499,5 @@ def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *
     """Straight moves with departure delays; on failure, one-stop detours for the blamed arms
     (both phases of :class:`DelaySearch`, keyword arguments as there)."""
     search = DelaySearch(geoms, start_q, goal_q, **kwargs)
-    res = search.straight_phase(deadline)
+    res = search.straight_phase(deadline, first_round_deadline=deadline)
     return res if res is not None else search.detour_phase(deadline)

@@ -101,11 +101,15 @@ class Leg:
 
 
 class Budget:
-    """A deadline on ``time.perf_counter()``; ``total_s`` is the budget the shares refer to."""
+    """A deadline on ``time.perf_counter()``; ``total_s`` is the budget the shares refer to;
+    ``hard_deadline`` the whole leg's deadline, which a strategy's share never extends (a
+    strategy may finish work it cannot do without, such as the straight-move tables the
+    later strategies start from, up to it)."""
 
-    def __init__(self, deadline: float, total_s: float) -> None:
+    def __init__(self, deadline: float, total_s: float, hard_deadline: float | None = None) -> None:
         self.deadline = float(deadline)
         self.total_s = float(total_s)
+        self.hard_deadline = self.deadline if hard_deadline is None else float(hard_deadline)
 
     @staticmethod
     def of(seconds: float) -> Budget:
@@ -121,11 +125,11 @@ class Budget:
     def share(self, fraction: float, cap_s: float) -> Budget:
         """A sub-deadline: ``min(fraction * total_s, cap_s)`` from now, within this budget."""
         d = time.perf_counter() + min(fraction * self.total_s, cap_s)
-        return Budget(min(d, self.deadline), self.total_s)
+        return Budget(min(d, self.deadline), self.total_s, self.hard_deadline)
 
     def keep(self, seconds: float) -> Budget:
         """This budget with ``seconds`` kept back at its end (for a later strategy)."""
-        return Budget(self.deadline - seconds, self.total_s)
+        return Budget(self.deadline - seconds, self.total_s, self.hard_deadline)
 
 
 @dataclass(frozen=True, eq=False)
@@ -231,7 +235,7 @@ def stage_budget(name: str, leg: Leg, budget: Budget) -> Budget:
         if leg.cache.cluster_s is not None:  # the cluster's time is its own, not the delay stage's
             f, cap = sh.DETOURS_AFTER_CLUSTER_SHARE
             d = min(d + leg.cache.cluster_s, time.perf_counter() + min(f * budget.total_s, cap))
-        return Budget(d, budget.total_s)
+        return Budget(d, budget.total_s, budget.hard_deadline)
     if name == "prioritized" and o.via is not None and o.max_start_stop >= 1:
         f, cap = sh.VIA_RESERVE_SHARE
         return budget.keep(min(f * budget.total_s, cap))

@@ -76,9 +76,12 @@ ERRORS: dict[int | str, dict[str, Any]] = {
                          "or with a number of more than 4300 digits); `detail[].loc` names the "
                          "field."},
     503: {"model": ErrorResponse, "headers": RETRY_AFTER,
-          "description": "Overloaded (every heavy-request slot or the job queue is full), "
+          "description": "Overloaded (every heavy-request slot is taken), "
           "shutting down, or a temporary failure: retry after `Retry-After` seconds."},
 }
+QUEUE_FULL: dict[str, Any] = {"model": ErrorResponse, "headers": RETRY_AFTER,
+                              "description": "The job queue is full (`MXS_MAX_QUEUED_JOBS`): retry after "
+                                             "`Retry-After` seconds."}
 
 
 class ServiceState:
@@ -138,7 +141,7 @@ StateDep = Annotated[ServiceState, Depends(_state_dep)]
 
 
 async def _on_overloaded(_: Request, exc: Overloaded) -> JSONResponse:
-    return JSONResponse(status_code=503, content=error_body(exc.code, exc.message),
+    return JSONResponse(status_code=exc.status_code, content=error_body(exc.code, exc.message),
                         headers={"Retry-After": str(exc.retry_after_s)})
 
 
@@ -335,10 +338,10 @@ def _stage_routes(app: FastAPI) -> None:
 
 def _job_routes(app: FastAPI) -> None:
     @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
-              dependencies=[Auth], responses=ERRORS)
+              dependencies=[Auth], responses={**ERRORS, 429: QUEUE_FULL})
     async def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
         """Queue a stage request as a job: validated now exactly as its endpoint validates it
-        (422 naming `body.request.<field>`), refused with 503 + `Retry-After` when the queue is
+        (422 naming `body.request.<field>`), refused with 429 + `Retry-After` when the queue is
         full (`MXS_MAX_QUEUED_JOBS`)."""
         limit = check_request(job.request, st.settings, st.instrument,
                               ("body", job.kind, "request"))

@@ -48,6 +48,14 @@ class Overloaded(ServiceError):
         self.retry_after_s = max(int(retry_after_s), 1)
 
 
+class QueueLimit(Overloaded):
+    """The job queue holds its configured maximum: HTTP 429 with a ``Retry-After`` header (a
+    quota on queued work, not a server fault)."""
+
+    status_code = 429
+    code = "queue_full"
+
+
 @dataclass(eq=False)
 class Ticket:
     """One admitted request: its cancellation flag and the future of its answer."""

@@ -34,7 +34,7 @@ from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
-from service.executor import Overloaded
+from service.executor import Overloaded, QueueLimit
 from service.jobs import JobStore, QueueFull, run_job
 
 log = logging.getLogger("service.jobs")
@@ -158,14 +158,14 @@ class JobManager:
     def submit(self, kind: str, request: dict[str, Any], time_limit_s: float,
                budget_s: float | None = None) -> str:
         """Queue a job; ``time_limit_s`` bounds each solver call, ``budget_s`` a whole plan.
-        Raises :class:`Overloaded` (503 + Retry-After) when the queue is full."""
+        Raises :class:`~service.executor.QueueLimit` (429 + Retry-After) when the queue is full."""
         if self._stop.is_set():
             raise Overloaded("the server is shutting down; retry", self.options.retry_after_s)
         try:
             job_id = self.store.create(kind, request, time_limit_s, budget_s,
                                        max_queued=self.options.max_queued)
         except QueueFull as exc:
-            raise Overloaded(f"the job queue is full ({exc.queued} jobs waiting, at most "
+            raise QueueLimit(f"the job queue is full ({exc.queued} jobs waiting, at most "
                              f"{self.options.max_queued}); retry later",
                              self.options.retry_after_s) from exc
         self._want.set()

@@ -85,7 +85,7 @@ class Recovery:
     failed: int
 
 
-class QueueFull(Exception):  # noqa: N818 - a condition, answered 503 by the app
+class QueueFull(Exception):  # noqa: N818 - a condition, answered 429 by the app
     def __init__(self, queued: int):
         super().__init__(f"{queued} jobs are already queued")
         self.queued = queued

@@ -19,7 +19,7 @@ from planner.clearance import clearance_rows, clearance_to_arms, lipschitz_clear
 from planner.geometry import ArmGeom
 
 INS = default_instrument()
-coord = st.one_of(st.integers(-4, 4).map(float), st.floats(-200, 200, allow_nan=False, allow_infinity=False))
+coord = st.one_of(st.integers(-4, 4).map(float), st.floats(-200, 200, allow_nan=False, allow_infinity=False, allow_subnormal=False))
 
 
 def numpy_clearance(sa, ea, ra, sb, eb, rb):

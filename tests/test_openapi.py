@@ -57,6 +57,7 @@ def api_schema(tmp_path_factory: pytest.TempPathFactory):
     app = create_app(Settings(
         job_db=tmp_path_factory.mktemp("st") / "jobs.sqlite3", workers=1, max_targets=8,
         default_time_limit_s=1.0, max_time_limit_s=2.0, plan_budget_s=0.4, job_budget_s=0.4,
+        max_queued_jobs=100_000,  # the queue bound is tested in test_service_reliability.py
     ))
     yield schemathesis.openapi.from_asgi("/openapi.json", app)
     app.state.mxs.close()

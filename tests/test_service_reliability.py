@@ -184,8 +184,9 @@ def test_job_queue_is_bounded(tmp_path, monkeypatch) -> None:
                  for _ in range(3)]
         assert codes == [202, 202, 202]
         r = c.post("/v1/jobs", json={"kind": "segmentation", "request": SEG})
-        assert r.status_code == 503 and r.headers["retry-after"] == "9", r.text
+        assert r.status_code == 429 and r.headers["retry-after"] == "9", r.text
         assert "queue is full" in r.json()["detail"]
+        assert "429" in app.openapi()["paths"]["/v1/jobs"]["post"]["responses"]
     assert JobStore(tmp_path / "j.db").count("queued") == 3
 
 

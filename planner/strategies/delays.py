@@ -88,7 +88,7 @@ class Delays:
         search.finished = False
         leg.cache.delay_search = search
         leg.cache.delay_deadline = budget.deadline
-        res = search.straight_phase(budget.deadline)
+        res = search.straight_phase(budget.deadline, first_round_deadline=budget.hard_deadline)
         if res is None:  # paused: every straight option failed, the detour rounds may go on
             stats: dict = {}
             _report(search, stats)

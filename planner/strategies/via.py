@@ -77,7 +77,7 @@ class Via:
         parts: list[Candidate] = []
         cur = leg.start_q
         for target in (via_q, leg.goal_q):
-            out = self.legs.plan(leg.with_ends(cur, target, sub), Budget(budget.deadline, each_s))
+            out = self.legs.plan(leg.with_ends(cur, target, sub), Budget(budget.deadline, each_s, budget.hard_deadline))
             if not isinstance(out, Candidate):
                 failed = list(out.arms) or list(leg.enabled)
                 return Refusal((), {}, {"attempt_log": [{"direction": "via", "failed_arms": failed}]})
