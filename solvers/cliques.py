@@ -46,7 +46,7 @@ class CliqueOptions:
     disc_spacing_mm: float = 7.5
     column_seeds: int = 600
     column_seed_max_columns: int = 2500
-    max_columns: int = 6000
+    max_columns: int = 2500
 
     def __post_init__(self) -> None:
         if not (self.disc_radius_mm > 0 and self.disc_spacing_mm > 0):

@@ -59,13 +59,17 @@ class ExactOptions:
     ``incumbent_nodes``: node budget of the incumbent dive; ``form``: conflict rows
     (``aggregated`` or ``pairwise``, see :func:`solvers.ilp.build_model_arrays`);
     ``move_search``: stage 2 as a bisection over move thresholds (``bisect``, see
-    :func:`_bisect_move`) or as one min-max model (``native``, eq. 5.16 per arm)."""
+    :func:`_bisect_move`) or as one min-max model (``native``, eq. 5.16 per arm);
+    ``max_columns``: when pruning leaves more columns than this (a weak incumbent, e.g. at a
+    tier transition mid-sequence), the caller's ``large`` solve runs instead (the lazy
+    candidate model of solvers.ilp, which answers within short sequence limits)."""
 
     presolve: bool = True
     cliques: bool = True
-    incumbent_nodes: int = 300
+    incumbent_nodes: int = 3000
     form: str = "aggregated"
     move_search: str = "bisect"
+    max_columns: int = 2000
     clique_options: CliqueOptions = CliqueOptions()
 
     def __post_init__(self) -> None:
@@ -102,8 +106,10 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
     if hint is not None:
         incumbent = np.asarray(hint, np.int64)
     else:
-        coarse = dataclasses.replace(problem, tie_break=None)
-        r = solve_bnb_chosen(coarse, node_limit=nodes, minimize_move=False, field=f,
+        # with the tie-break, a search cut at its node limit gets one more pass in full-weight
+        # order over the columns that can reach its incumbent (solvers.bnb), which often
+        # finds the better incumbent at a tier transition
+        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=2000,
                              deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
         if r["chosen"] is not None:
             incumbent = np.asarray(r["chosen"], np.int64)
@@ -247,12 +253,14 @@ def _bisect_move(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray
 
 def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: str, minimize_move: bool = True,
                  hint: np.ndarray | None = None, columns: np.ndarray | None = None,
-                 options: ExactOptions = ExactOptions()) -> ConfigSolution:
+                 options: ExactOptions = ExactOptions(),
+                 large: Callable[[ConfigProblem, np.ndarray | None], ConfigSolution] | None = None
+                 ) -> ConfigSolution:
     """Exact lexicographic solve (see module docstring) with an engine's stage solver
     (:func:`solvers.ilp.highs_stage_solver` / :func:`solvers.ilp.cpsat_stage_solver`).
 
     ``columns``: a column mask the caller has PROVEN to hold every solution at least as good
-    as ``hint`` (used as given, no further pruning)."""
+    as ``hint`` (used as given, no further pruning).  ``large``: see ``ExactOptions.max_columns``."""
     validate_problem(problem)
     t0 = time.perf_counter()
     deadline = t0 + problem.time_limit_s
@@ -280,6 +288,17 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             return ConfigSolution(np.full(n_arms, -1), status, 0, 0, 0.0, None, stats)
         total, yld, longest = evaluate(problem, chosen)
         return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
+
+    if large is not None and columns is None and int(cols.sum()) > options.max_columns:
+        rest = deadline - time.perf_counter()
+        if rest > 0.005:
+            sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
+            sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
+            if incumbent is None or ((sol.chosen >= 0).all() and
+                                     _coarse_total(problem, sol.chosen) >= _coarse_total(problem, incumbent)):
+                return sol
+            stats["model"] = "lazy (its answer was below the incumbent)"
+            return finish(incumbent, "feasible", sol.gap)
 
     m, s = build_exact_model(problem, cols, options)
     stats.update(s)

@@ -52,7 +52,7 @@ from solvers.problem import ConfigProblem, ConfigSolution, evaluate
 
 MAX_EXACT_DOUBLE = 2**53
 MOVE_TICKS_PER_S = 1_000_000  # CP-SAT works in integer microseconds for x_l
-HIGHS_PRESOLVE_NNZ = 500_000
+HIGHS_PRESOLVE_NNZ = 150_000
 
 __all__ = ["ModelArrays", "build_model_arrays", "chosen_columns", "coarse_weights", "conflict_adjacency", "cpsat_stage_solver",
            "exact_weight", "greedy_solution", "highs_stage_solver", "hint_vector", "safe_weights", "solve_ilp_cpsat",
@@ -701,9 +701,13 @@ def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interfa
     if staged:
         from solvers.exact import ExactOptions, solve_staged
 
+        def large(p: ConfigProblem, start) -> ConfigSolution:
+            return _lazy_solve(p, highs_stage_solver(p, interface, "choose"), form=form, minimize_move=minimize_move,
+                               candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=start)
+
         return solve_staged(problem, highs_stage_solver(problem, interface, highs_presolve), backend=f"highs/{interface}",
                             minimize_move=minimize_move, hint=hint, columns=columns,
-                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form))
+                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form), large=large)
     return _lazy_solve(problem, highs_stage_solver(problem, interface, highs_presolve), form=form, minimize_move=minimize_move,
                        candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=hint,
                        columns=columns)
@@ -781,9 +785,14 @@ def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers
     if staged:
         from solvers.exact import ExactOptions, solve_staged
 
+        def large(p: ConfigProblem, start) -> ConfigSolution:
+            return _lazy_solve(p, cpsat_stage_solver(p, workers, linearization_level), form=form,
+                               minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
+                               hint=start)
+
         return solve_staged(problem, cpsat_stage_solver(problem, workers, linearization_level), backend="cpsat",
                             minimize_move=minimize_move, hint=hint, columns=columns,
-                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form))
+                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form), large=large)
     return _lazy_solve(problem, cpsat_stage_solver(problem, workers, linearization_level), form=form,
                        minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
                        hint=hint, columns=columns)
