@@ -44,7 +44,7 @@ class CliqueOptions:
 
     disc_radius_mm: float = 15.0
     disc_spacing_mm: float = 7.5
-    column_seeds: int = 600
+    column_seeds: int = 200
     column_seed_max_columns: int = 2500
     max_columns: int = 2500
 

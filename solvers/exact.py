@@ -66,7 +66,7 @@ class ExactOptions:
 
     presolve: bool = True
     cliques: bool = True
-    incumbent_nodes: int = 3000
+    incumbent_nodes: int = 1000
     form: str = "aggregated"
     move_search: str = "bisect"
     max_columns: int = 2000
@@ -109,7 +109,7 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
         # with the tie-break, a search cut at its node limit gets one more pass in full-weight
         # order over the columns that can reach its incumbent (solvers.bnb), which often
         # finds the better incumbent at a tier transition
-        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=2000,
+        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=1000,
                              deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
         if r["chosen"] is not None:
             incumbent = np.asarray(r["chosen"], np.int64)
@@ -168,14 +168,24 @@ def _restrict(m: ModelArrays, keep: np.ndarray) -> ModelArrays:
                                n_target_rows=int(row_ok[:m.n_target_rows].sum()))
 
 
-def build_exact_model(problem: ConfigProblem, columns: np.ndarray, options: ExactOptions) -> tuple[ModelArrays, dict]:
+def _arm_bound(m: ModelArrays) -> int:
+    """Sum over arms of the best weight among the arm's columns: the trivial upper bound."""
+    best = np.zeros(len(m.eq_indptr) - 1, np.int64)
+    np.maximum.at(best, m.arm_of, m.weight)
+    return sum(int(v) for v in best)
+
+
+def build_exact_model(problem: ConfigProblem, columns: np.ndarray, options: ExactOptions,
+                      incumbent_coarse: int | None = None) -> tuple[ModelArrays, dict]:
     """The stage-1 model over ``columns`` (bool over assignments): safe *coarse* weights,
-    optional clique rows.  Returns (model, stats)."""
+    optional clique rows — not when ``incumbent_coarse`` already meets the per-arm bound
+    (the LP bound cannot be tighter than that, and the engine proves it at the root).
+    Returns (model, stats)."""
     t0 = time.perf_counter()
     m = build_model_arrays(problem, options.form, np.asarray(columns, bool), wildcards=False)
     m = dataclasses.replace(m, weight=coarse_weights(problem, m.var))
     n_cliques = 0
-    if options.cliques:
+    if options.cliques and (incumbent_coarse is None or incumbent_coarse < _arm_bound(m)):
         m, n_cliques = add_clique_rows(problem, m, options.clique_options)
     return m, {"n_vars": m.n_vars, "n_rows": m.n_rows, "nnz": m.nnz, "clique_rows": n_cliques,
                "model_build_s": time.perf_counter() - t0}
@@ -300,7 +310,8 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             stats["model"] = "lazy (its answer was below the incumbent)"
             return finish(incumbent, "feasible", sol.gap)
 
-    m, s = build_exact_model(problem, cols, options)
+    m, s = build_exact_model(problem, cols, options,
+                             None if incumbent is None else _coarse_total(problem, incumbent))
     stats.update(s)
     if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
         return finish(None, "infeasible", None)
