@@ -170,7 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("targets", help="target table: columns id, ra_deg, dec_deg, priority")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")
-    p.add_argument("--solver", choices=["highs", "cpsat", "bnb"], default="highs")
+    p.add_argument("--solver", choices=["highs", "cpsat", "bnb"], default="bnb")
     p.add_argument("--position-angle", type=float, default=0.0, help="deg")
     p.add_argument("--time-limit", type=float, default=None,
                    help="wall-clock limit of the whole plan, s (default: none; each solver call "

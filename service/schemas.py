@@ -165,7 +165,7 @@ class AllocationRequest(Request):
         None, description="Telescope pointing; required when `targets` are sky targets."
     )
     method: Method = "ilp"
-    solver: Solver = "highs"
+    solver: Solver = "bnb"
     configurations: Literal["one", "all"] = "one"
     time_limit_s: TimeLimitS | None = None
     seed: Seed | None = None
@@ -234,7 +234,7 @@ class MotionPlanRequest(Request):
 class PlanRequest(Request):
     targets: list[SkyTarget] = Field(min_length=1)
     method: Method = "ilp"
-    solver: Solver = "highs"
+    solver: Solver = "bnb"
     position_angle_deg: PositionAngleDeg = 0.0
     time_limit_s: TimeLimitS | None = Field(
         None, description="Wall-clock limit of the whole plan, s: segmentation, then every "

@@ -64,6 +64,28 @@ def _solver_fn(method: str, solver: str, options: dict) -> Callable[[ConfigProbl
     return partial(solve_ilp_cpsat, **options)
 
 
+def stage_engines(method: str, solver: str) -> tuple[Callable[[ConfigProblem], ConfigSolution], dict[str, str]]:
+    """The rescue's exact one-target solve for the chosen engine, and which engine does
+    which part of a sequence (returned as ``stats["engines"]``).
+
+    HiGHS and CP-SAT requests rescue with their own engine.  ``bnb`` rescues with CP-SAT,
+    its exact fallback (a node-limited bitset search wanders in the zero-weight rest
+    placements of a rescue model), as does the semi-greedy heuristic.  Repacking and the
+    configuration lower bounds are multi-configuration CP-SAT / LP models whatever the engine.
+    """
+    from solvers.ilp import solve_ilp_cpsat, solve_ilp_highs
+
+    if method == "ilp" and solver == "highs":
+        rescue, name = partial(solve_ilp_highs, minimize_move=False), "highs"
+    else:
+        rescue, name = partial(solve_ilp_cpsat, minimize_move=False), "cpsat"
+    configurations = {"highs": "highs", "cpsat": "cpsat", "bnb": "bnb (cpsat for proofs past its node limit)"}
+    engines = {"configurations": configurations[solver] if method == "ilp" else "semigreedy",
+               "rescue": name, "repair": "ejection chains (no engine)", "repacking": "cpsat + tabu search",
+               "lower_bounds": "max-flow, cpsat, LP (highs via scipy)"}
+    return rescue, engines
+
+
 def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
     """The field rotated by ``angle_deg`` about the FOV centre (a change of position angle)."""
     c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
@@ -138,7 +160,11 @@ def allocate(
             raise InputError(f"fixed[{k}]", "must be a finite (theta1_rad, theta2_rad) pair")
     seq_opts = {k: method_options.pop(k) for k in list(method_options) if k in SEQ_OPTIONS}
     if configurations == "one":
+        # one configuration: the request's whole limit is its limit (the adaptive share of
+        # a sequence's budget is for sequences)
         seq_opts["max_configurations"] = 1
+        seq_opts.setdefault("adaptive_limits", False)
+        seq_opts.setdefault("config_time_limit_s", time_limit_s)
     for name in ("config_time_limit_s", "repack_time_limit_s", "repair_time_limit_s"):
         v = seq_opts.get(name)
         if v is not None and not (math.isfinite(v) and v > 0):
@@ -166,6 +192,7 @@ def allocate(
         seq_opts.setdefault("repair_time_limit_s", 0.5)
         seq_opts.setdefault("blank_per_arm", 16)
     seq_opts.setdefault("config_time_limit_s", min(time_limit_s, 5.0))
+    exact_one, engines = stage_engines(method, solver)
 
     def run(tgts: PlaneTargets) -> AllocationResult:
         # the structure build counts against the call's limit: it gets the same deadline
@@ -181,7 +208,8 @@ def allocate(
         left_s = max(time_limit_s - (time.perf_counter() - t0), 1e-3)
         return sequence_configurations(instrument, tgts, solve_one, start_q=start_q, fixed=fixed,
                                        buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),
-                                       progress=progress, incompatibility=inc, **seq_opts)
+                                       progress=progress, incompatibility=inc, exact_one=exact_one,
+                                       engines=engines, **seq_opts)
 
     if not position_angles_deg:
         return run(targets)

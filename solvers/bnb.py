@@ -88,7 +88,8 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
 
 
 def _adjacency(inc) -> sparse.csr_matrix:
-    from solvers.ilp import _adjacency as cached  # built once per structure, shared with the ILP
+    # built once per structure, shared with the ILP
+    from solvers.ilp import conflict_adjacency as cached
 
     return cached(inc)
 
@@ -475,9 +476,9 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
     """
     import dataclasses
 
-    from solvers.ilp import _exact_weight, _validate_problem
+    from solvers.ilp import exact_weight, validate_problem
 
-    _validate_problem(problem)
+    validate_problem(problem)
     t0 = time.perf_counter()
     if problem.time_limit_s < fallback_min_s:
         fallback = None
@@ -515,7 +516,7 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
         stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
         if sol.status in ("optimal", "feasible") and (
                 r["chosen"] is None or sol.status == "optimal"
-                or _exact_weight(coarse, sol.chosen) > _exact_weight(coarse, r["chosen"])):
+                or exact_weight(coarse, sol.chosen) > exact_weight(coarse, r["chosen"])):
             r = {**r, "chosen": sol.chosen, "proved": sol.status == "optimal",
                  "move_proved": bool(sol.stats.get("move_optimal")), "tie_proved": False}
         elif sol.status == "infeasible":
@@ -534,5 +535,5 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
     total, yld, longest = evaluate(problem, r["chosen"])
     if r["proved"]:
         return ConfigSolution(r["chosen"], "optimal", total, yld, longest, None, stats)
-    w = _exact_weight(problem, r["chosen"])
+    w = exact_weight(problem, r["chosen"])
     return ConfigSolution(r["chosen"], "feasible", total, yld, longest, max(r["bound"] - w, 0) / max(w, 1), stats)

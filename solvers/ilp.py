@@ -52,8 +52,11 @@ from solvers.problem import ConfigProblem, ConfigSolution, evaluate
 
 MAX_EXACT_DOUBLE = 2**53
 MOVE_TICKS_PER_S = 1_000_000  # CP-SAT works in integer microseconds for x_l
+HIGHS_PRESOLVE_NNZ = 150_000
 
-__all__ = ["ModelArrays", "build_model_arrays", "safe_weights", "solve_ilp_cpsat", "solve_ilp_highs"]
+__all__ = ["ModelArrays", "build_model_arrays", "chosen_columns", "coarse_weights", "conflict_adjacency", "cpsat_stage_solver",
+           "exact_weight", "greedy_solution", "highs_stage_solver", "hint_vector", "safe_weights", "solve_ilp_cpsat",
+           "solve_ilp_highs", "stage_matrix", "validate_problem"]
 
 
 # ----------------------------------------------------------------------------- model arrays
@@ -134,7 +137,7 @@ def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[
 _ADJ: dict[int, tuple[weakref.ref, sparse.csr_matrix]] = {}
 
 
-def _adjacency(inc) -> sparse.csr_matrix:
+def conflict_adjacency(inc) -> sparse.csr_matrix:
     """The incompatibility as a CSR matrix, built once per structure (it does not change
     between the configurations of a sequence; 4 M entries on a dense 1,200-target field)."""
     hit = _ADJ.get(id(inc))
@@ -199,7 +202,7 @@ def build_model_arrays(problem: ConfigProblem, form: str = "aggregated",
     t_indices = order[keep]
     t_indptr = np.r_[0, np.cumsum(sizes[sizes >= 2])].astype(np.int64)
     # conflicts restricted to allowed columns
-    adj = _adjacency(inc)
+    adj = conflict_adjacency(inc)
     sub = adj[var][:, var]
     sub.sort_indices()  # rows ascending by construction; columns sorted within each row
     r = np.repeat(np.arange(sub.shape[0], dtype=np.int64), np.diff(sub.indptr))
@@ -255,7 +258,7 @@ def build_model_arrays(problem: ConfigProblem, form: str = "aggregated",
 # ------------------------------------------------------------------------- solution helpers
 
 
-def _chosen_cols(m: ModelArrays, x: np.ndarray, n_arms: int) -> np.ndarray:
+def chosen_columns(m: ModelArrays, x: np.ndarray, n_arms: int) -> np.ndarray:
     """One column per arm: the column of each arm's eq. 5.13 row with the largest value."""
     cols = np.full(n_arms, -1, dtype=np.int64)
     for k in range(n_arms):
@@ -265,7 +268,7 @@ def _chosen_cols(m: ModelArrays, x: np.ndarray, n_arms: int) -> np.ndarray:
     return cols
 
 
-def _validate_problem(problem: ConfigProblem) -> None:
+def validate_problem(problem: ConfigProblem) -> None:
     if not (problem.time_limit_s > 0 and math.isfinite(problem.time_limit_s)):
         raise ValueError("time_limit_s must be a positive finite number")
     if not (0 <= problem.mip_rel_gap < 1):
@@ -375,7 +378,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
     every solution at least as good as its hint (solvers.bnb.prune_columns); the model is
     restricted to them without wildcards (no lazy expansion) and remains exact.
     """
-    _validate_problem(problem)
+    validate_problem(problem)
     t_start = time.perf_counter()
     a = problem.assignments
     n_arms = len(a.arm_start) - 1
@@ -423,9 +426,9 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
             s.update(stage="restricted", n_vars=m.n_vars)
             stats["rounds"].append(s)
             if x is not None:
-                cols = _chosen_cols(m, x, n_arms)
+                cols = chosen_columns(m, x, n_arms)
                 chosen = m.var[cols]
-                w = _exact_weight(problem, chosen)
+                w = exact_weight(problem, chosen)
                 gap = None if relax_bound is None else max(relax_bound - w, 0) / max(w, 1)
                 best, status1, gap1 = (chosen, w), "feasible", gap
             break
@@ -444,7 +447,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
             if stage == 1:
                 status1 = status
             break
-        cols = _chosen_cols(m, x, n_arms)
+        cols = chosen_columns(m, x, n_arms)
         wild = m.var[cols] < 0
         if stage == 1 and status == "optimal":
             relax_bound = int(sum(int(v) for v in m.weight[cols]))
@@ -470,7 +473,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
             stage = 2
             continue
         # stage 2: exact integer re-check (HiGHS tolerances must not trade away weight)
-        w2 = _exact_weight(problem, chosen)
+        w2 = exact_weight(problem, chosen)
         if w2 >= w1 and evaluate(problem, chosen)[2] <= evaluate(problem, best[0])[2]:
             best = (chosen, w2)
             stats["move_optimal"] = status == "optimal"
@@ -485,7 +488,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
         g = greedy_solution(problem)
         if g is None:
             return finish(None, "timeout", None)
-        w = _exact_weight(problem, g)
+        w = exact_weight(problem, g)
         stats["fallback"] = "greedy"
         return finish(g, "feasible", None if relax_bound is None else max(relax_bound - w, 0) / max(w, 1))
     stats.setdefault("move_optimal", False)
@@ -496,7 +499,7 @@ def _lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_mov
 MAX_STAGE2_ROUNDS = 3
 
 
-def _exact_weight(problem: ConfigProblem, chosen: np.ndarray) -> int:
+def exact_weight(problem: ConfigProblem, chosen: np.ndarray) -> int:
     w, _, _ = safe_weights(problem, np.asarray(chosen, int))
     return sum(int(v) for v in w)
 
@@ -504,7 +507,7 @@ def _exact_weight(problem: ConfigProblem, chosen: np.ndarray) -> int:
 # ---------------------------------------------------------------------------------- HiGHS
 
 
-def _stage_matrix(m: ModelArrays, stage: int, w1: int | None):
+def stage_matrix(m: ModelArrays, stage: int, w1: int | None):
     """(A, row_lo, row_hi, cost, integer, sense_max) of stage 1 or 2 over the model arrays."""
     n = m.n_vars
     n_arms = len(m.eq_indptr) - 1
@@ -536,20 +539,26 @@ def _stage_matrix(m: ModelArrays, stage: int, w1: int | None):
     return A, np.concatenate(lo), np.concatenate(hi), cost, integer, stage == 1
 
 
-def _highs_arrays(problem: ConfigProblem, interface: str):
+def highs_stage_solver(problem: ConfigProblem, interface: str, highs_presolve: str = "choose"):
+    """A stage solver over HiGHS: ``solve(model, stage, w1, time_limit_s, hint)`` returning
+    ``(status, x, gap, stats)``.  ``highs_presolve``: HiGHS' own presolve ("choose", "off"
+    or "auto": off up to ``HIGHS_PRESOLVE_NNZ`` non-zeros — after the column pruning and
+    clique rows of solvers.exact it mostly costs time there — on above, where the root LP
+    without it can overrun the time limit several times over)."""
     def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
-        A, row_lo, row_hi, cost, integer, sense_max = _stage_matrix(m, stage, w1)
+        A, row_lo, row_hi, cost, integer, sense_max = stage_matrix(m, stage, w1)
         col_hi = np.where(integer, 1.0, np.inf)
         if interface == "pyomo":
             return _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s)
-        start = _hint_vector(m, hint)
+        start = hint_vector(m, hint)
         if start is not None and stage == 2:
             start = np.r_[start, float(np.max(m.move_s[start > 0.5], initial=0.0))]
-        return _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start)
+        pre = highs_presolve if highs_presolve != "auto" else ("off" if A.nnz <= HIGHS_PRESOLVE_NNZ else "choose")
+        return _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start, pre)
     return solve
 
 
-def _hint_vector(m: ModelArrays, hint) -> np.ndarray | None:
+def hint_vector(m: ModelArrays, hint) -> np.ndarray | None:
     """0/1 column vector of a hinted choice (None unless every hinted assignment is a column)."""
     if hint is None:
         return None
@@ -557,11 +566,13 @@ def _hint_vector(m: ModelArrays, hint) -> np.ndarray | None:
     return x if int(x.sum()) == len(hint) else None
 
 
-def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start=None):
+def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start=None,
+                   presolve: str = "choose"):
     import highspy
 
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
+    h.setOptionValue("presolve", presolve)
     h.setOptionValue("time_limit", float(time_limit_s))
     h.setOptionValue("mip_rel_gap", float(problem.mip_rel_gap))
     # integer objective coefficients: any solution within < 1 of the bound is optimal
@@ -666,24 +677,46 @@ def _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, t
 
 def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interface: str = "highspy",
                     minimize_move: bool = True, candidates_per_arm: int | None = 8,
-                    hint: np.ndarray | None = None) -> ConfigSolution:
+                    hint: np.ndarray | None = None, staged: bool = True, presolve: bool = True,
+                    cliques: bool = True, columns: np.ndarray | None = None,
+                    highs_presolve: str | None = None) -> ConfigSolution:
     """Exact allocation of one configuration with HiGHS (thesis eqs. 5.13–5.18).
 
     ``interface``: ``"highspy"`` (fast path) or ``"pyomo"`` (Pyomo model, APPSI HiGHS).
     ``minimize_move``: lexicographic stage 2 (min longest move, eq. 5.16).
-    ``candidates_per_arm``: lazy candidate expansion (None = the full model at once).
+    ``staged`` (default): :func:`solvers.exact.solve_staged` — incumbent, proven column
+    pruning (``presolve``), clique rows (``cliques``), one proof per lexicographic tier.
+    ``staged=False``: the lazy candidate expansion (``candidates_per_arm``; None = the full
+    model at once) with the tie-break folded into the stage-1 weight.
     ``hint``: a feasible choice passed to HiGHS as a MIP start (highspy interface).
+    ``highs_presolve``: HiGHS' own presolve, "off", "choose" or "auto" (default: "auto" when
+    staged, see :func:`highs_stage_solver`; "choose" otherwise).
     """
     if interface not in ("highspy", "pyomo"):
         raise ValueError(f"interface must be 'highspy' or 'pyomo', got {interface!r}")
-    return _lazy_solve(problem, _highs_arrays(problem, interface), form=form, minimize_move=minimize_move,
-                       candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=hint)
+    if highs_presolve is None:
+        highs_presolve = "auto" if staged else "choose"
+    if highs_presolve not in ("off", "choose", "auto"):
+        raise ValueError(f"highs_presolve must be 'off', 'choose' or 'auto', got {highs_presolve!r}")
+    if staged:
+        from solvers.exact import ExactOptions, solve_staged
+
+        def large(p: ConfigProblem, start) -> ConfigSolution:
+            return _lazy_solve(p, highs_stage_solver(p, interface, "choose"), form=form, minimize_move=minimize_move,
+                               candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=start)
+
+        return solve_staged(problem, highs_stage_solver(problem, interface, highs_presolve), backend=f"highs/{interface}",
+                            minimize_move=minimize_move, hint=hint, columns=columns,
+                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form), large=large)
+    return _lazy_solve(problem, highs_stage_solver(problem, interface, highs_presolve), form=form, minimize_move=minimize_move,
+                       candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=hint,
+                       columns=columns)
 
 
 # ---------------------------------------------------------------------------------- CP-SAT
 
 
-def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_level: int):
+def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearization_level: int):
     from ortools.sat.python import cp_model
 
     def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
@@ -708,7 +741,7 @@ def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_lev
                 model.Add(xl >= cp_model.LinearExpr.WeightedSum([x[j] for j in cols],
                                                                 [int(ticks[j]) for j in cols]))
             model.Minimize(xl)
-        start = _hint_vector(m, hint)
+        start = hint_vector(m, hint)
         if start is not None:
             for j in range(m.n_vars):
                 model.AddHint(x[j], bool(start[j]))
@@ -739,14 +772,27 @@ def _cpsat_arrays(problem: ConfigProblem, workers: int | None, linearization_lev
 def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers: int | None = None,
                     linearization_level: int = 2, minimize_move: bool = True,
                     candidates_per_arm: int | None = 8, hint: np.ndarray | None = None,
-                    columns: np.ndarray | None = None) -> ConfigSolution:
+                    columns: np.ndarray | None = None, staged: bool = True, presolve: bool = True,
+                    cliques: bool = True) -> ConfigSolution:
     """Exact allocation of one configuration with OR-Tools CP-SAT (same model, exact int64).
 
-    Aggregated conflict rows are at-most-one constraints, which CP-SAT handles natively.
+    Conflict and clique rows are at-most-one constraints, which CP-SAT handles natively.
     ``workers``: CP-SAT workers (>= 2; default ``problem.threads``).  ``hint``: a feasible
     choice (assignment index per arm, e.g. solvers.semigreedy.warm_start or the
-    branch-and-bound incumbent) given to CP-SAT as a solution hint.
+    branch-and-bound incumbent) given to CP-SAT as a solution hint.  ``staged``,
+    ``presolve``, ``cliques``, ``columns``: as in :func:`solve_ilp_highs`.
     """
-    return _lazy_solve(problem, _cpsat_arrays(problem, workers, linearization_level), form=form,
+    if staged:
+        from solvers.exact import ExactOptions, solve_staged
+
+        def large(p: ConfigProblem, start) -> ConfigSolution:
+            return _lazy_solve(p, cpsat_stage_solver(p, workers, linearization_level), form=form,
+                               minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
+                               hint=start)
+
+        return solve_staged(problem, cpsat_stage_solver(problem, workers, linearization_level), backend="cpsat",
+                            minimize_move=minimize_move, hint=hint, columns=columns,
+                            options=ExactOptions(presolve=presolve, cliques=cliques, form=form), large=large)
+    return _lazy_solve(problem, cpsat_stage_solver(problem, workers, linearization_level), form=form,
                        minimize_move=minimize_move, candidates_per_arm=candidates_per_arm, backend="cpsat",
                        hint=hint, columns=columns)

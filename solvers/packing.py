@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from models.incompatibility import Incompatibility
-from solvers.ilp import _adjacency
+from solvers.ilp import conflict_adjacency
 
 __all__ = ["tabu_pack"]
 
@@ -102,7 +102,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     # dense conflict matrix over the candidate locations: incompatible pairs + same arm
     glob2loc = np.full(n_all, -1, np.int64)
     glob2loc[loc] = np.arange(n_loc)
-    conflict = _adjacency(inc)[loc][:, loc].toarray().astype(bool)
+    conflict = conflict_adjacency(inc)[loc][:, loc].toarray().astype(bool)
     conflict |= arm_of_loc[:, None] == arm_of_loc[None, :]
     np.fill_diagonal(conflict, False)
     conf_i = conflict.astype(np.int32)  # rows added to / subtracted from the count columns

@@ -133,6 +133,8 @@ def sequence_configurations(
     rescue: bool = True,
     blank_per_arm: int = 0,
     tail_fraction: float = 0.0,
+    exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
+    engines: dict[str, str] | None = None,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
@@ -150,7 +152,9 @@ def sequence_configurations(
     at most ``repair_time_limit_s`` and half the time left) before the CP-SAT ``repack``.
     Unallocated targets: ``unreachable`` (no enabled arm
     reaches them), ``conflict`` (reachable but no further configuration could take them),
-    ``no_time``.
+    ``no_time``.  ``exact_one``: the exact single-configuration solve the rescue uses for
+    one leftover target at a time (default: CP-SAT); ``engines`` (which engine did which
+    part) is returned as ``stats["engines"]``.
     """
     t0 = time.perf_counter()
     timers: dict[str, float] = {}
@@ -239,7 +243,8 @@ def sequence_configurations(
         extra = _rescue_conflicts(instrument, targets, priority, np.flatnonzero(pending), ~pending & ~unreachable,
                                   q_last, solve_one, fixed, buffer_mm, speeds, len(configs),
                                   t0 + time_limit_s, config_time_limit_s, threads, seed,
-                                  None if max_configurations is None else max_configurations - len(configs))
+                                  None if max_configurations is None else max_configurations - len(configs),
+                                  exact_one=exact_one)
         timers["rescue_s"] = time.perf_counter() - tr
         for c in extra:
             pending[_observed(c)] = False
@@ -376,6 +381,8 @@ def sequence_configurations(
         "timers_s": timers,
         "incompatibility": inc.counts(),
     }
+    if engines is not None:
+        stats["engines"] = dict(engines)
     if progress:
         progress(1.0, "done")
     return AllocationResult(tuple(out), tuple(unalloc), stats)
@@ -724,7 +731,8 @@ def _repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, 
 
 def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
-                      n_fill: int = 200, blank_per_arm: int = 16) -> list[Configuration]:
+                      n_fill: int = 200, blank_per_arm: int = 16,
+                      exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
@@ -734,9 +742,14 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
     ``"blank"``: it points at sky already observed) or on ``blank_per_arm`` sampled
     blank-sky locations, and so make room.  Exact per
     configuration like the main loop (same back-end, verified); stops when a configuration
-    takes no leftover target.
+    takes no leftover target.  When a joint configuration takes none, each leftover target
+    is tried alone with ``exact_one`` (the chosen engine's exact solve; default CP-SAT).
     """
-    from solvers.ilp import solve_ilp_cpsat
+    if exact_one is None:
+        from solvers.ilp import solve_ilp_cpsat
+
+        def exact_one(p: ConfigProblem) -> ConfigSolution:
+            return solve_ilp_cpsat(p, minimize_move=False, candidates_per_arm=None)
 
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
@@ -772,8 +785,9 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
         tg = prob.assignments.target[sol.chosen]
         real = tg[(tg >= 0) & (tg < nl)]
         if not len(real):
-            # nothing jointly: one leftover target at a time, by CP-SAT (a node-limited
-            # branch-and-bound wanders in the zero-weight rest placements and may miss it)
+            # nothing jointly: one leftover target at a time, by an exact ILP engine (a
+            # node-limited branch-and-bound wanders in the zero-weight rest placements and
+            # may miss it)
             for i in np.flatnonzero(pend[:nl]):
                 if deadline - time.perf_counter() <= 0.01:
                     break
@@ -782,7 +796,7 @@ def _rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, f
                 av1[nl:] = True
                 p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
                                                                               deadline - time.perf_counter()))
-                s1 = solve_ilp_cpsat(p1, minimize_move=False, candidates_per_arm=None)  # exact, small
+                s1 = exact_one(p1)  # exact, small
                 if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
                         i in p1.assignments.target[s1.chosen]:
                     prob, sol = p1, s1

@@ -34,7 +34,7 @@ def test_contract_names() -> None:
     s = doc["components"]["schemas"]
     alloc = s["AllocationRequest"]["properties"]
     assert alloc["method"]["default"] == "ilp"
-    assert alloc["solver"]["default"] == "highs"
+    assert alloc["solver"]["default"] == "bnb"
     assert alloc["configurations"]["default"] == "one"
     assert set(s["SkyTarget"]["properties"]) == {"id", "ra_deg", "dec_deg", "priority"}
     assert s["SkyTarget"]["properties"]["priority"]["maximum"] == 2**32 - 1

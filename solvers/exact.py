@@ -1,0 +1,368 @@
+"""The staged, presolved exact solve shared by the HiGHS and CP-SAT back-ends (thesis 5.4).
+
+The model is that of :mod:`solvers.ilp` (eqs. 5.13–5.16, 5.18); what this module adds is
+how it is handed to an engine so that the engine can *prove* the optimum on dense fields:
+
+1. **Incumbent** — a start solution: the caller's ``hint`` or a short depth-first dive of
+   :func:`solvers.bnb.solve_bnb_chosen` (a few hundred nodes; its first dive is greedy
+   by weight), on the priority/yield objective.
+2. **Column pruning** (:func:`solvers.bnb.prune_columns`) against that incumbent: every
+   assignment whose probing bound is below the incumbent's priority/yield weight is in no
+   solution at least as good, so the model over the kept columns has the same optimum and
+   the same optimal solutions.  This is a presolve for every engine, not a heuristic.
+3. **Clique rows** (:mod:`solvers.cliques`) on the kept columns: valid inequalities that
+   tighten the LP bound where many arms compete for a small region.
+4. **Lexicographic stages**, each proven by the engine, in the order of the thesis
+   criteria (5.1, 7.3) and of :mod:`solvers.bnb`: (1) priority, then arm yield, in one
+   solve with the safe integer weight ``p * (m + 1) + y``; (2) the longest move (eq. 5.16)
+   with that weight fixed; (3) the optional tie-break among those, on the columns whose
+   move does not exceed the stage-2 optimum.  Stage 1 decides the status (``optimal`` =
+   priority and yield proven); ``stats["move_optimal"]`` and ``stats["tie_optimal"]`` say
+   whether stages 2 and 3 were proven.  Folding the tie-break into the stage-1 weight, as
+   a single weighted sum, makes the proof far harder (many equal-priority solutions differ
+   only in the tie-break) for no gain in the criteria that matter first.
+
+Every stage answer is re-evaluated in exact integers; one that would lose anything against
+the previous stage is rejected.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from solvers.cliques import CliqueOptions, clique_rows, exclusion_matrix
+from solvers.ilp import (
+    ModelArrays,
+    build_model_arrays,
+    chosen_columns,
+    coarse_weights,
+    conflict_adjacency,
+    safe_weights,
+    stage_matrix,
+    validate_problem,
+)
+from solvers.problem import ConfigProblem, ConfigSolution, evaluate
+
+__all__ = ["ExactOptions", "add_clique_rows", "presolve_columns", "relaxation_bound", "solve_staged"]
+
+StageSolver = Callable[..., tuple]
+
+
+@dataclass(frozen=True)
+class ExactOptions:
+    """``presolve``: incumbent + proven column pruning; ``cliques``: add clique rows;
+    ``incumbent_nodes``: node budget of the incumbent dive; ``form``: conflict rows
+    (``aggregated`` or ``pairwise``, see :func:`solvers.ilp.build_model_arrays`);
+    ``move_search``: stage 2 as a bisection over move thresholds (``bisect``, see
+    :func:`_bisect_move`) or as one min-max model (``native``, eq. 5.16 per arm);
+    ``max_columns``: when pruning leaves more columns than this (a weak incumbent, e.g. at a
+    tier transition mid-sequence), the caller's ``large`` solve runs instead (the lazy
+    candidate model of solvers.ilp, which answers within short sequence limits)."""
+
+    presolve: bool = True
+    cliques: bool = True
+    incumbent_nodes: int = 1000
+    form: str = "aggregated"
+    move_search: str = "bisect"
+    max_columns: int = 2000
+    clique_options: CliqueOptions = CliqueOptions()
+
+    def __post_init__(self) -> None:
+        if self.form not in ("aggregated", "pairwise"):
+            raise ValueError(f"form must be 'aggregated' or 'pairwise', got {self.form!r}")
+        if self.move_search not in ("bisect", "native"):
+            raise ValueError(f"move_search must be 'bisect' or 'native', got {self.move_search!r}")
+        if self.incumbent_nodes < 1:
+            raise ValueError("incumbent_nodes must be >= 1")
+
+
+def _coarse_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
+    return sum(int(v) for v in coarse_weights(problem, np.asarray(chosen, np.int64)))
+
+
+def _tie_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
+    """Sum of the tie-break over the real targets of a choice (0 without a tie-break)."""
+    if problem.tie_break is None:
+        return 0
+    t = problem.assignments.target[np.asarray(chosen, np.int64)]
+    return sum(int(v) for v in np.asarray(problem.tie_break, np.int64)[t[t >= 0]])
+
+
+def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int,
+                     deadline: float) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """(kept columns mask, incumbent or None, stats): the incumbent (``hint`` if it is a
+    valid choice, else a short branch-and-bound dive) and the proven column pruning."""
+    from solvers.bnb import prepare_field, prune_columns, solve_bnb_chosen
+
+    t0 = time.perf_counter()
+    f = prepare_field(problem)
+    allowed = problem.allowed()
+    incumbent = None
+    if hint is not None:
+        incumbent = np.asarray(hint, np.int64)
+    else:
+        # with the tie-break, a search cut at its node limit gets one more pass in full-weight
+        # order over the columns that can reach its incumbent (solvers.bnb), which often
+        # finds the better incumbent at a tier transition
+        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=1000,
+                             deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
+        if r["chosen"] is not None:
+            incumbent = np.asarray(r["chosen"], np.int64)
+    stats = {"incumbent_s": time.perf_counter() - t0}
+    if incumbent is None:
+        return allowed, None, stats
+    inc_c = _coarse_total(problem, incumbent)
+    tp = time.perf_counter()
+    cols = prune_columns(problem, inc_c, f) & allowed
+    cols[incumbent] = True
+    stats.update(prune_s=time.perf_counter() - tp, incumbent_coarse=inc_c, columns=int(cols.sum()),
+                 columns_allowed=int(allowed.sum()))
+    return cols, incumbent, stats
+
+
+def add_clique_rows(problem: ConfigProblem, m: ModelArrays, options: CliqueOptions | None = None
+                    ) -> tuple[ModelArrays, int]:
+    """``m`` with clique rows appended to its ``<= 1`` rows (and how many were added)."""
+    options = options or CliqueOptions()
+    a = problem.assignments
+    real = np.flatnonzero(m.var >= 0)
+    if not len(real) or len(real) > options.max_columns:
+        return m, 0
+    cols = m.var[real]
+    ex = exclusion_matrix(conflict_adjacency(problem.incompatibility), cols, m.arm_of[real], a.target[cols])
+    xy = np.column_stack([a.x_mm[cols], a.y_mm[cols]])
+    indptr, indices = clique_rows(ex, xy, options, seed_order=np.argsort(-m.weight[real], kind="stable"))
+    if len(indptr) == 1:
+        return m, 0
+    le_indptr = np.r_[m.le_indptr, m.le_indptr[-1] + indptr[1:]].astype(np.int64)
+    le_indices = np.r_[m.le_indices, real[indices]].astype(np.int64)
+    return dataclasses.replace(m, le_indptr=le_indptr, le_indices=le_indices), len(indptr) - 1
+
+
+def _restrict(m: ModelArrays, keep: np.ndarray) -> ModelArrays:
+    """``m`` on the columns ``keep`` (bool over its columns): eq. 5.13 rows stay one per arm,
+    ``<= 1`` rows keep their surviving members and are dropped below two."""
+    new = np.full(m.n_vars, -1, np.int64)
+    new[keep] = np.arange(int(keep.sum()))
+
+    def csr(indptr, indices, min_len):
+        r = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
+        c = new[indices]
+        ok = c >= 0
+        r, c = r[ok], c[ok]
+        sizes = np.bincount(r, minlength=len(indptr) - 1)
+        row_ok = sizes >= min_len
+        sel = row_ok[r]
+        return np.r_[0, np.cumsum(sizes[row_ok])].astype(np.int64), c[sel].astype(np.int64), row_ok
+
+    eq_indptr, eq_indices, _ = csr(m.eq_indptr, m.eq_indices, 0)
+    le_indptr, le_indices, row_ok = csr(m.le_indptr, m.le_indices, 2)
+    return dataclasses.replace(m, var=m.var[keep], arm_of=m.arm_of[keep], weight=m.weight[keep],
+                               move_s=m.move_s[keep], eq_indptr=eq_indptr, eq_indices=eq_indices,
+                               le_indptr=le_indptr, le_indices=le_indices,
+                               n_target_rows=int(row_ok[:m.n_target_rows].sum()))
+
+
+def _arm_bound(m: ModelArrays) -> int:
+    """Sum over arms of the best weight among the arm's columns: the trivial upper bound."""
+    best = np.zeros(len(m.eq_indptr) - 1, np.int64)
+    np.maximum.at(best, m.arm_of, m.weight)
+    return sum(int(v) for v in best)
+
+
+def build_exact_model(problem: ConfigProblem, columns: np.ndarray, options: ExactOptions,
+                      incumbent_coarse: int | None = None) -> tuple[ModelArrays, dict]:
+    """The stage-1 model over ``columns`` (bool over assignments): safe *coarse* weights,
+    optional clique rows — not when ``incumbent_coarse`` already meets the per-arm bound
+    (the LP bound cannot be tighter than that, and the engine proves it at the root).
+    Returns (model, stats)."""
+    t0 = time.perf_counter()
+    m = build_model_arrays(problem, options.form, np.asarray(columns, bool), wildcards=False)
+    m = dataclasses.replace(m, weight=coarse_weights(problem, m.var))
+    n_cliques = 0
+    if options.cliques and (incumbent_coarse is None or incumbent_coarse < _arm_bound(m)):
+        m, n_cliques = add_clique_rows(problem, m, options.clique_options)
+    return m, {"n_vars": m.n_vars, "n_rows": m.n_rows, "nnz": m.nnz, "clique_rows": n_cliques,
+               "model_build_s": time.perf_counter() - t0}
+
+
+def relaxation_bound(problem: ConfigProblem, m: ModelArrays) -> float:
+    """Optimum of the LP relaxation of the stage-1 model ``m`` (HiGHS simplex): an upper
+    bound on the priority/yield weight; the tighter the rows, the closer to the optimum."""
+    import highspy
+
+    A, lo, hi, cost, _, _ = stage_matrix(m, 1, None)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("random_seed", int(problem.seed))
+    n = len(cost)
+    h.addVars(n, np.zeros(n), np.ones(n))
+    h.changeColsCost(n, np.arange(n, dtype=np.int32), cost)
+    h.addRows(A.shape[0], lo, hi, len(A.data), A.indptr[:-1].astype(np.int32), A.indices.astype(np.int32),
+              A.data.astype(float))
+    h.changeObjectiveSense(highspy.ObjSense.kMaximize)
+    h.run()
+    return float(h.getInfo().objective_function_value)
+
+
+def _valid_hint(problem: ConfigProblem, hint) -> np.ndarray | None:
+    n_arms = len(problem.assignments.arm_start) - 1
+    if hint is None or np.shape(hint) != (n_arms,):
+        return None
+    h = np.asarray(hint, np.int64)
+    if (h < 0).any() or not problem.allowed()[h].all() or not np.array_equal(problem.assignments.arm[h],
+                                                                              np.arange(n_arms)):
+        return None
+    return h
+
+
+def _bisect_move(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray, w1: int, stats: dict) -> np.ndarray:
+    """Stage 2 as a bisection over the distinct move times below the current longest move:
+    a threshold L is feasible iff the priority/yield optimum ``w1`` is still reached with
+    every column of move > L removed.  Each probe first prunes the columns exactly against
+    ``w1`` (:func:`solvers.bnb.prune_columns`; an arm left without a column proves the
+    threshold infeasible with no engine call), then asks the engine for the stage-1 optimum
+    of what is left.  ``stats["move_optimal"]`` is True when every probe was decided."""
+    from solvers.bnb import prepare_field, prune_columns
+
+    f = prepare_field(problem)
+    longest = evaluate(problem, chosen)[2]
+    vals = np.unique(m.move_s[(m.move_s < longest - 1e-9) & (m.var >= 0)])
+    real = m.var >= 0
+    lo, hi = 0, len(vals)  # vals[hi] (or the current longest when hi == len) is feasible
+    proven, probes = True, 0
+    while lo < hi:
+        mid = (lo + hi) // 2
+        probes += 1
+        mask = np.zeros(len(problem.assignments), bool)
+        mask[m.var[real & (m.move_s <= vals[mid] + 1e-9)]] = True
+        mask &= problem.allowed()
+        kept = prune_columns(problem, w1, f, allowed=mask) & mask
+        keep = np.zeros(m.n_vars, bool)
+        keep[real] = kept[m.var[real]]
+        if not np.all(np.bincount(m.arm_of[keep], minlength=len(m.eq_indptr) - 1) > 0):
+            lo = mid + 1
+            continue
+        status, c, _ = run(_restrict(m, keep), 1, None, None, "longest_move")
+        if c is not None and _coarse_total(problem, c) >= w1:
+            chosen = c
+            hi = int(np.searchsorted(vals, evaluate(problem, c)[2] - 1e-9))
+        elif status in ("optimal", "infeasible"):
+            lo = mid + 1
+        else:
+            proven = False
+            break
+    stats.update(move_optimal=proven, move_probes=probes)
+    return chosen
+
+
+def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: str, minimize_move: bool = True,
+                 hint: np.ndarray | None = None, columns: np.ndarray | None = None,
+                 options: ExactOptions = ExactOptions(),
+                 large: Callable[[ConfigProblem, np.ndarray | None], ConfigSolution] | None = None
+                 ) -> ConfigSolution:
+    """Exact lexicographic solve (see module docstring) with an engine's stage solver
+    (:func:`solvers.ilp.highs_stage_solver` / :func:`solvers.ilp.cpsat_stage_solver`).
+
+    ``columns``: a column mask the caller has PROVEN to hold every solution at least as good
+    as ``hint`` (used as given, no further pruning).  ``large``: see ``ExactOptions.max_columns``."""
+    validate_problem(problem)
+    t0 = time.perf_counter()
+    deadline = t0 + problem.time_limit_s
+    n_arms = len(problem.assignments.arm_start) - 1
+    stats: dict = {"backend": backend, "form": options.form, "presolve": options.presolve,
+                   "cliques": options.cliques, "rounds": []}
+    hint = _valid_hint(problem, hint)
+    if columns is not None:
+        cols = np.asarray(columns, bool) & problem.allowed()
+        if hint is not None:
+            cols[hint] = True
+        incumbent = hint
+    elif options.presolve:
+        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline)
+        stats.update(s)
+    else:
+        cols, incumbent = problem.allowed(), hint
+    stats["hint"] = incumbent is not None
+
+    def finish(chosen, status, gap):
+        stats["total_s"] = time.perf_counter() - t0
+        stats.setdefault("move_optimal", False)
+        stats.setdefault("tie_optimal", False)
+        if chosen is None:
+            return ConfigSolution(np.full(n_arms, -1), status, 0, 0, 0.0, None, stats)
+        total, yld, longest = evaluate(problem, chosen)
+        return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
+
+    if large is not None and columns is None and int(cols.sum()) > options.max_columns:
+        rest = deadline - time.perf_counter()
+        if rest > 0.005:
+            sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
+            sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
+            if incumbent is None or ((sol.chosen >= 0).all() and
+                                     _coarse_total(problem, sol.chosen) >= _coarse_total(problem, incumbent)):
+                return sol
+            stats["model"] = "lazy (its answer was below the incumbent)"
+            return finish(incumbent, "feasible", sol.gap)
+
+    m, s = build_exact_model(problem, cols, options,
+                             None if incumbent is None else _coarse_total(problem, incumbent))
+    stats.update(s)
+    if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
+        return finish(None, "infeasible", None)
+
+    def run(model: ModelArrays, stage: int, w1, start, name: str):
+        remaining = deadline - time.perf_counter()
+        if remaining <= 0.005:
+            return "timeout", None, None
+        status, x, gap, r = stage_solver(model, stage, w1, remaining, start)
+        r.update(stage=name, n_vars=model.n_vars, n_rows=model.n_rows, nnz=model.nnz)
+        stats["rounds"].append(r)
+        chosen = None if x is None else model.var[chosen_columns(model, x, n_arms)]
+        return status, chosen, gap
+
+    # stage 1: priority, then yield (the safe coarse weight)
+    status, chosen, gap = run(m, 1, None, incumbent, "priority_yield")
+    if chosen is None or (incumbent is not None and _coarse_total(problem, incumbent) > _coarse_total(problem, chosen)):
+        if status == "infeasible":
+            return finish(None, "infeasible", None)
+        if incumbent is None:
+            return finish(None, "timeout", None)
+        chosen, status = incumbent, "feasible"
+    if status != "optimal":
+        return finish(chosen, "feasible" if status in ("feasible", "optimal", "timeout") else status, gap)
+    w1 = _coarse_total(problem, chosen)
+    # stage 2: the longest move with the coarse weight fixed
+    if minimize_move:
+        if options.move_search == "bisect":
+            chosen = _bisect_move(problem, m, run, chosen, w1, stats)
+        else:
+            s2, c2, _ = run(m, 2, w1, chosen, "longest_move")
+            if c2 is not None and _coarse_total(problem, c2) >= w1 and \
+                    evaluate(problem, c2)[2] <= evaluate(problem, chosen)[2]:
+                chosen = c2
+                stats["move_optimal"] = s2 == "optimal"
+            elif c2 is not None:
+                stats["stage2_rejected"] = True
+    # stage 3: the tie-break among those, on columns no longer than the stage-2 longest move
+    tie = None if problem.tie_break is None else np.asarray(problem.tie_break, np.int64)
+    t_cols = problem.assignments.target[m.var]
+    if tie is not None and (tie[t_cols[t_cols >= 0]] > 0).any():
+        longest = evaluate(problem, chosen)[2]
+        keep = (m.move_s <= longest + 1e-9) if minimize_move else np.ones(m.n_vars, bool)
+        keep |= np.isin(m.var, chosen)
+        m3 = _restrict(m, keep)
+        m3 = dataclasses.replace(m3, weight=safe_weights(problem, m3.var)[0])
+        s3, c3, _ = run(m3, 1, None, chosen, "tie_break")
+        if c3 is not None and _coarse_total(problem, c3) >= w1 and _tie_total(problem, c3) >= _tie_total(problem, chosen) \
+                and (not minimize_move or evaluate(problem, c3)[2] <= longest + 1e-9):
+            chosen = c3
+            stats["tie_optimal"] = s3 == "optimal"
+    else:
+        stats["tie_optimal"] = True
+    return finish(chosen, "optimal", None)

@@ -1,0 +1,210 @@
+"""The staged exact ILP (solvers.exact), its clique rows (solvers.cliques) and the engine
+plumbing of allocate (issue 18): engine agreement, valid inequalities, one-mode limits,
+every stage on the chosen engine."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+import solvers.ilp as ilp
+from models.collision import fcl_clearance_mm
+from models.incompatibility import incompatibility_for_targets
+from models.instrument import default_instrument
+from models.types import PlaneTargets
+from solvers.allocation import allocate
+from solvers.bnb import solve_ilp_bnb
+from solvers.cliques import CliqueOptions, clique_rows, exclusion_matrix
+from solvers.exact import ExactOptions, build_exact_model, presolve_columns, relaxation_bound
+from solvers.problem import ConfigProblem, check_solution
+from solvers.sequencing import hard_to_place, joint_speeds
+
+INS = default_instrument()
+SPEEDS = joint_speeds(INS)
+LIMIT_S = 60.0  # generous: only a PROVEN optimum is accepted below, never a timed-out answer
+
+
+def _field(rng, n: int, sigma_mm: float | None, priorities=(500, 100, 10, 1)) -> tuple[np.ndarray, np.ndarray]:
+    if sigma_mm is None:
+        r, a = 125 * np.sqrt(rng.random(n)), rng.random(n) * 2 * np.pi
+        return r * np.cos(a), r * np.sin(a)
+    xy = rng.normal(0, sigma_mm, (4 * n, 2))
+    xy = xy[np.hypot(xy[:, 0], xy[:, 1]) <= 125][:n]
+    return xy[:, 0], xy[:, 1]
+
+
+def _problem(inc, x, y, pr, avail, tie=True, q=None):
+    xy = np.column_stack([x, y])
+    return ConfigProblem(inc, pr, avail, INS.park_configuration.copy() if q is None else q, SPEEDS,
+                         time_limit_s=LIMIT_S, target_xy_mm=xy,
+                         tie_break=hard_to_place(inc, INS.n_arms, xy, avail) if tie else None)
+
+
+def _agree(prob) -> None:
+    """bnb (as the library runs it), HiGHS and CP-SAT: all prove the same priority and
+    yield, and the same longest move wherever two of them proved it."""
+    sols = {"bnb": solve_ilp_bnb(prob),
+            "highs": ilp.solve_ilp_highs(prob), "cpsat": ilp.solve_ilp_cpsat(prob)}
+    for name, s in sols.items():
+        assert s.status == "optimal", (name, s.status, s.stats.get("rounds"))
+        assert check_solution(INS, prob, s.chosen) == [], name
+    assert len({(s.total_priority, s.arm_yield) for s in sols.values()}) == 1, \
+        {k: (s.total_priority, s.arm_yield) for k, s in sols.items()}
+    moves = [s.longest_move_s for s in sols.values() if s.stats.get("move_optimal")]
+    assert len(moves) >= 2 and max(moves) - min(moves) < 1e-6, moves
+
+
+def test_engines_agree_on_small_random_instances() -> None:
+    """40 instances: 12-40 targets, uniform and clustered, random availability."""
+    rng = np.random.default_rng(18)
+    for i in range(40):
+        n = int(rng.integers(12, 40))
+        x, y = _field(rng, n, [None, 25.0, 50.0][i % 3])
+        pr = rng.choice([500, 100, 10, 1], size=len(x), p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
+        inc = incompatibility_for_targets(INS, x, y)
+        avail = (inc.reachability.arms_per_target > 0) & (rng.random(len(x)) < 0.8)
+        _agree(_problem(inc, x, y, pr, avail, tie=bool(i % 2)))
+
+
+def test_engines_agree_on_dense_instances() -> None:
+    """10 dense fields of 800 targets (Gaussian sigma 40 and 60 mm about the centre, and
+    uniform; thesis priority mix), the first configuration with the driver's tie-break."""
+    for i in range(1, 11):
+        rng = np.random.default_rng(800 + i)
+        x, y = _field(rng, 800, [40.0, 60.0, None][i % 3])
+        assert len(x) == 800
+        pr = rng.choice([500, 100, 10, 1], size=800, p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
+        inc = incompatibility_for_targets(INS, x, y)
+        _agree(_problem(inc, x, y, pr, inc.reachability.arms_per_target > 0))
+
+
+def _crowded(seed: int, n: int = 7, radius_mm: float = 14.0):
+    rng = np.random.default_rng(seed)
+    r, t = radius_mm * np.sqrt(rng.random(n)), rng.random(n) * 2 * np.pi
+    x, y = r * np.cos(t), r * np.sin(t)
+    return x, y, incompatibility_for_targets(INS, x, y)
+
+
+def _feasible_configurations(inc) -> list[tuple[int, ...]]:
+    """Every configuration (one location per arm) that FCL finds collision-free, each
+    target at most once: a brute force independent of the incompatibility table."""
+    a = inc.assignments
+    n = len(a)
+    ok = np.ones((n, n), bool)
+    for i, j in itertools.combinations(range(n), 2):
+        if a.arm[i] == a.arm[j]:
+            continue
+        same = a.target[i] >= 0 and a.target[i] == a.target[j]
+        clear = fcl_clearance_mm(INS, int(a.arm[i]), a.q[i], int(a.arm[j]), a.q[j])
+        ok[i, j] = ok[j, i] = not same and clear >= inc.buffer_mm
+    out: list[tuple[int, ...]] = []
+
+    def dfs(k: int, pick: list[int]) -> None:
+        if k == INS.n_arms:
+            out.append(tuple(pick))
+            return
+        for c in range(a.arm_start[k], a.arm_start[k + 1]):
+            if all(ok[c, p] for p in pick):
+                dfs(k + 1, [*pick, c])
+
+    dfs(0, [])
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_clique_rows_are_valid_inequalities(seed: int) -> None:
+    """No FCL-feasible configuration of a small crowded field has two members of a clique
+    row; the rows exist (crowded: at most one arm fits); the optimum is the same with and
+    without them, and the LP bound never gets looser."""
+    x, y, inc = _crowded(seed)
+    pr = np.array([500, 100, 100, 10, 10, 1, 1][:len(x)], np.int64)
+    prob = _problem(inc, x, y, pr, inc.reachability.arms_per_target > 0, tie=False)
+    a = inc.assignments
+    cols = np.arange(len(a))
+    ex = exclusion_matrix(ilp.conflict_adjacency(inc), cols, a.arm, a.target)
+    indptr, indices = clique_rows(ex, np.column_stack([a.x_mm, a.y_mm]), CliqueOptions(disc_radius_mm=10.0))
+    rows = [indices[indptr[i]:indptr[i + 1]] for i in range(len(indptr) - 1)]
+    assert rows and max(len(r) for r in rows) >= 6
+    feasible = _feasible_configurations(inc)
+    assert len(feasible) > INS.n_arms
+    for conf in feasible:
+        s = set(conf)
+        for r in rows:
+            assert sum(int(c) in s for c in r) <= 1, (conf, r.tolist())
+    on = ilp.solve_ilp_highs(prob, cliques=True)
+    off = ilp.solve_ilp_highs(prob, cliques=False, presolve=False)
+    brute = max(sum(int(pr[t]) for t in a.target[list(c)] if t >= 0) for c in feasible)
+    assert on.status == off.status == "optimal"
+    assert on.total_priority == off.total_priority == brute
+    allowed = prob.allowed()
+    lp_on = relaxation_bound(prob, build_exact_model(prob, allowed, ExactOptions(cliques=True))[0])
+    lp_off = relaxation_bound(prob, build_exact_model(prob, allowed, ExactOptions(cliques=False))[0])
+    opt = on.total_priority * (INS.n_arms + 1) + on.arm_yield
+    assert opt - 1e-6 <= lp_on <= lp_off + 1e-6
+
+
+def test_presolve_keeps_every_optimal_solution() -> None:
+    """The pruned columns contain every optimum the brute force finds (column fixing is
+    exact), and the incumbent is a feasible configuration."""
+    x, y, inc = _crowded(5, n=6, radius_mm=20.0)
+    pr = np.array([500, 500, 100, 10, 10, 1], np.int64)
+    prob = _problem(inc, x, y, pr, inc.reachability.arms_per_target > 0, tie=False)
+    a = inc.assignments
+    cols, incumbent, _ = presolve_columns(prob, None, 300, float("inf"))
+    assert check_solution(INS, prob, incumbent) == []
+    feasible = _feasible_configurations(inc)
+    w = ilp.coarse_weights(prob, np.arange(len(a)))
+    best = max(int(w[list(c)].sum()) for c in feasible)
+    optima = [c for c in feasible if int(w[list(c)].sum()) == best]
+    assert optima and all(cols[list(c)].all() for c in optima)
+
+
+def test_one_mode_gives_the_engine_the_request_limit(monkeypatch) -> None:
+    """configurations="one": a 30 s request hands the engine (nearly) 30 s, not a share."""
+    seen: list[float] = []
+    real = ilp.solve_ilp_highs
+
+    def spy(problem, **kw):
+        seen.append(problem.time_limit_s)
+        return real(problem, **kw)
+
+    monkeypatch.setattr(ilp, "solve_ilp_highs", spy)
+    rng = np.random.default_rng(3)
+    x, y = _field(rng, 100, 40.0)
+    pr = rng.choice([500, 100, 10, 1], size=len(x), p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, pr)
+    r = allocate(INS, t, solver="highs", configurations="one", time_limit_s=30.0)
+    assert len(r.configurations) == 1 and seen
+    assert seen[0] >= 29.0, seen
+    seen.clear()
+    allocate(INS, t, solver="highs", configurations="all", time_limit_s=30.0, max_configurations=2, repack=False)
+    assert seen and max(seen) <= 5.0 + 1e-9  # sequences keep the per-configuration cap and share
+
+
+def test_rescue_on_a_highs_request_uses_highs(monkeypatch) -> None:
+    """Targets on the ring of park tips need the rescue; on a HiGHS request it runs on
+    HiGHS (CP-SAT's single-configuration solve is never called) and the response says which
+    engine did which part."""
+    calls = {"highs": 0}
+    real = ilp.solve_ilp_highs
+
+    def spy(problem, **kw):
+        calls["highs"] += 1
+        return real(problem, **kw)
+
+    def no_cpsat(*_a, **_k):
+        raise AssertionError("solve_ilp_cpsat called on a highs request")
+
+    monkeypatch.setattr(ilp, "solve_ilp_highs", spy)
+    monkeypatch.setattr(ilp, "solve_ilp_cpsat", no_cpsat)
+    rng = np.random.default_rng(0)
+    n = 40
+    r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
+    t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
+    res = allocate(INS, t, solver="highs", configurations="all", time_limit_s=120.0, repack=False, repair=False)
+    assert res.stats["reachable_completeness"] == 1.0
+    assert res.stats["engines"]["rescue"] == "highs" and res.stats["engines"]["configurations"] == "highs"
+    assert any(c.stats.get("rescue") for c in res.configurations)
+    assert calls["highs"] >= len(res.configurations)
