@@ -75,19 +75,25 @@ def segment_distance(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y):
     return d
 
 
+@numba.njit(cache=True, inline="always")
+def _bodies_clearance(sa, ea, ra, i, sb, eb, rb, j):
+    """Min over body pairs of arm a at sample i (``sa``/``ea`` (N, nb, 2)) and arm b at sample j."""
+    m = np.inf
+    for p in range(sa.shape[1]):
+        for q in range(sb.shape[1]):
+            d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
+                                 sb[j, q, 0], sb[j, q, 1], eb[j, q, 0], eb[j, q, 1]) - ra[p] - rb[q]
+            if d < m:
+                m = d
+    return m
+
+
 @numba.njit(cache=True)
 def _clearance_rows(sa, ea, ra, sb, eb, rb):
     n = sa.shape[0]
     out = np.empty(n)
     for i in range(n):
-        m = np.inf
-        for p in range(sa.shape[1]):
-            for q in range(sb.shape[1]):
-                d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
-                                     sb[i, q, 0], sb[i, q, 1], eb[i, q, 0], eb[i, q, 1]) - ra[p] - rb[q]
-                if d < m:
-                    m = d
-        out[i] = m
+        out[i] = _bodies_clearance(sa, ea, ra, i, sb, eb, rb, i)
     return out
 
 
@@ -117,14 +123,7 @@ def _sample_clearance(sa, ea, ra, box_a, i, sb, eb, rb, box_b, j, exact_below):
     gap = max(gx, gy)
     if gap >= exact_below:
         return gap, 0
-    m = np.inf
-    for p in range(sa.shape[1]):
-        for q in range(sb.shape[1]):
-            d = segment_distance(sa[i, p, 0], sa[i, p, 1], ea[i, p, 0], ea[i, p, 1],
-                                 sb[j, q, 0], sb[j, q, 1], eb[j, q, 0], eb[j, q, 1]) - ra[p] - rb[q]
-            if d < m:
-                m = d
-    return m, 1
+    return _bodies_clearance(sa, ea, ra, i, sb, eb, rb, j), 1
 
 
 @numba.njit(cache=True)
@@ -183,16 +182,8 @@ def _to_arms(cs, ce, r, S, E, R):
     out = np.empty((A, n))
     for a in range(A):
         for t in range(n):
-            ci = t if cs.shape[0] > 1 else 0
-            si = t if S.shape[1] > 1 else 0
-            m = np.inf
-            for p in range(cs.shape[1]):
-                for q in range(S.shape[2]):
-                    d = segment_distance(cs[ci, p, 0], cs[ci, p, 1], ce[ci, p, 0], ce[ci, p, 1],
-                                         S[a, si, q, 0], S[a, si, q, 1], E[a, si, q, 0], E[a, si, q, 1]) - r[p] - R[a, q]
-                    if d < m:
-                        m = d
-            out[a, t] = m
+            out[a, t] = _bodies_clearance(cs, ce, r, t if cs.shape[0] > 1 else 0,
+                                          S[a], E[a], R[a], t if S.shape[1] > 1 else 0)
     return out
 
 
