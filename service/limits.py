@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from models.instrument import Instrument
+from service import pipeline
 from service.errors import FieldError
 from service.schemas import ArmState
 from service.settings import Settings
@@ -41,7 +42,20 @@ def check_request(req: Any, settings: Settings, inst: Instrument,
                          "targets that far apart can never share a pointing", "less_than_equal")
     for name in ("start", "goal", "disabled_arms"):
         _check_arms(getattr(req, name, None), inst, (*prefix, name))
+    _check_projection(req, inst, prefix)
     return float(limit if limit is not None else settings.default_time_limit_s)
+
+
+def _check_projection(req: Any, inst: Instrument, prefix: Loc) -> None:
+    """Sky targets of an allocation must project about its pointing (< 90 deg away): the
+    same 422 as the endpoint's, before a job is queued."""
+    pointing = getattr(req, "pointing", None)
+    if not getattr(req, "sky", False) or pointing is None:
+        return
+    try:
+        pipeline.sky_to_focal(req.targets, pointing.ra_deg, pointing.dec_deg, inst, pointing.position_angle_deg)
+    except FieldError as exc:
+        raise FieldError((*prefix, *exc.loc[1:]), exc.bare, exc.type) from exc
 
 
 def _check_arms(states: Sequence[ArmState] | None, inst: Instrument, loc: Loc) -> None:

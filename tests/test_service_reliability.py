@@ -173,6 +173,12 @@ def test_job_submission_is_checked_like_the_endpoint(tmp_path) -> None:
                                              enumerate(SEG["targets"])]}
         assert c.post("/v1/plans", json=many).status_code == 422
         assert c.post("/v1/jobs", json={"kind": "plan", "request": many}).status_code == 422
+        behind = {"targets": [{"id": "a", "ra_deg": 214.75, "dec_deg": -57.13, "priority": 1}],
+                  "pointing": {"ra_deg": 34.75, "dec_deg": 57.13}}  # the antipode of the pointing
+        direct = c.post("/v1/allocations", json=behind)
+        job = c.post("/v1/jobs", json={"kind": "allocation", "request": behind})
+        assert direct.status_code == job.status_code == 422, job.text
+        assert job.json()["detail"][0]["loc"] == ["body", "allocation", "request", *direct.json()["detail"][0]["loc"][1:]]
         assert JobStore(tmp_path / "j.db").count("queued") == 0
 
 
