@@ -15,7 +15,10 @@ from models.errors import InputError
 MAX_PRIORITY = 2**32 - 1  # priorities are 32-bit unsigned integers (thesis 5.1)
 
 AssignmentKind = Literal["target", "park", "blank", "fixed"]
-UnallocatedReason = Literal["unreachable", "conflict", "no_time"]
+# why a target is in no configuration: no arm reaches it; it conflicts with the chosen
+# assignments whatever the sequence; the time ran out; or the request asked for fewer
+# configurations ("one", ``max_configurations``) than observing it needs
+UnallocatedReason = Literal["unreachable", "conflict", "no_time", "not_scheduled"]
 
 
 @dataclass(frozen=True)

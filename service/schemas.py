@@ -415,7 +415,9 @@ class ConfigurationOut(Response):
 
 class Unallocated(Response):
     target_id: str
-    reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', ...; in a plan "
+    reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', 'not_scheduled' "
+                        "(left for configurations the request did not ask for, e.g. with "
+                        "configurations 'one'), ...; in a plan "
                         "also the reason a target was dropped so that every motion leg can be "
                         "executed.")
 

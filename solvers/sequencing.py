@@ -353,8 +353,8 @@ def sequence_configurations(
             if a.target_index is not None:
                 allocated[a.target_index] = True
     reason_left = "no_time" if stop_reason in ("no_time", "solver_timeout") else "conflict"
-    if stop_reason == "max_configurations":
-        reason_left = "conflict"
+    if stop_reason == "max_configurations":  # left for configurations the request did not ask for
+        reason_left = "not_scheduled"
     unalloc = []
     for i in np.flatnonzero(~allocated):
         unalloc.append(Unallocated(int(i), targets.ids[i], "unreachable" if unreachable[i] else reason_left))

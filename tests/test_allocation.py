@@ -65,3 +65,16 @@ def test_semigreedy_fast_path_defaults() -> None:
     with pytest.raises(InputError) as err:
         allocate(INS, T, method="semigreedy", repair_time_limit_s=-1.0)
     assert err.value.field == "repair_time_limit_s"
+
+
+def test_targets_left_by_one_configuration_are_not_scheduled() -> None:
+    """With configurations "one", the reachable targets outside the configuration are left for
+    configurations the request did not ask for ("not_scheduled"), not "conflict"; the whole
+    sequence of the same field observes them all."""
+    far = PlaneTargets.from_lists([*T.ids, "far"], [*T.x_mm, 400.0], [*T.y_mm, 0.0], [*T.priority, 500])
+    one = allocate(INS, far, configurations="one", time_limit_s=60.0)
+    left = {u.target_id: u.reason for u in one.unallocated}
+    assert left.pop("far") == "unreachable"
+    assert len(left) >= len(T) - INS.n_arms and set(left.values()) == {"not_scheduled"}
+    every = allocate(INS, far, configurations="all", time_limit_s=120.0)
+    assert {u.target_id: u.reason for u in every.unallocated} == {"far": "unreachable"}
