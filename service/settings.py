@@ -48,7 +48,7 @@ class Settings(BaseSettings):
         "wait is taken off their time limit); beyond threads + queue a request is refused at "
         "once with 503 and Retry-After."
     )
-    retry_after_s: int = Field(5, ge=1, le=3600, description="Retry-After of a 503 refusal.")
+    retry_after_s: int = Field(5, ge=1, le=3600, description="Retry-After of a 503 or 429 refusal.")
     body_timeout_s: float = Field(
         20.0, gt=0, description="Time a client has to send its whole request body (else 408)."
     )
@@ -68,7 +68,7 @@ class Settings(BaseSettings):
         3, ge=1, description="Interruptions after which a job is failed instead of re-queued."
     )
     max_queued_jobs: int = Field(
-        100, ge=1, description="Jobs that may wait in the queue; more are refused with 503."
+        100, ge=1, description="Jobs that may wait in the queue; more are refused with 429."
     )
     job_retention_s: float = Field(
         7 * 86400.0, gt=0, description="Finished jobs older than this answer 410 Gone."
