@@ -26,6 +26,7 @@ from service.auth import Auth, AuthMiddleware, describe_security, effective_toke
 from service.errors import (
     BodyLimitMiddleware,
     CatchAllMiddleware,
+    FieldError,
     NotFound,
     ServiceError,
     error_body,
@@ -54,7 +55,8 @@ from service.schemas import (
     SegmentationResponse,
     ValidationErrorResponse,
 )
-from service.settings import Settings
+from service.settings import Settings, env_name
+from service.target_lists import TargetListStore, install_target_lists, resolve
 from service.web import install_web
 
 log = logging.getLogger("service")
@@ -95,7 +97,20 @@ class ServiceState:
         )
         self._jobs: JobManager | None = None
         self._heavy: HeavyExecutor | None = None
+        self._lists: TargetListStore | None = None
         self._lock = threading.Lock()
+
+    @property
+    def lists(self) -> TargetListStore:
+        """The stored target lists (a table of the job database)."""
+        with self._lock:
+            if self._lists is None:
+                s = self.settings
+                store = TargetListStore(s.job_db, s.target_list_retention_s,
+                                        s.target_list_retention_count)
+                store.init()
+                self._lists = store
+            return self._lists
 
     @property
     def jobs(self) -> JobManager:
@@ -131,6 +146,31 @@ class ServiceState:
 
 def _state(request: Request) -> ServiceState:
     return request.app.state.mxs
+
+
+def _lists_of(request: Request) -> TargetListStore:
+    return _state(request).lists
+
+
+async def _admit(req: Any, st: ServiceState, prefix: tuple[str | int, ...] = ("body",), *,
+                 job: bool = False) -> tuple[Any, float]:
+    """The request with a stored list's targets in place of its ``target_list_id`` (loaded
+    off the event loop), checked against this server's limits; returns it and the solver
+    time limit. A limit a stored list breaks is a 422 naming ``target_list_id``."""
+    list_id = getattr(req, "target_list_id", None)
+    if list_id is None:
+        return req, check_request(req, st.settings, st.instrument, prefix, job=job)
+    lists = st.lists
+    req = await run_in_threadpool(resolve, req, lists, prefix)
+    try:
+        return req, check_request(req, st.settings, st.instrument, prefix, job=job)
+    except FieldError as exc:
+        if exc.loc[:len(prefix) + 1] != (*prefix, "targets"):
+            raise
+        rest = exc.loc[len(prefix) + 1:]
+        where = f" (row {rest[0] + 1})" if rest and isinstance(rest[0], int) else ""
+        raise FieldError((*prefix, "target_list_id"), f"target list {list_id!r}{where}: "
+                         f"{exc.bare}", exc.type) from exc
 
 
 async def _state_dep(request: Request) -> ServiceState:  # async: resolved on the event loop
@@ -213,6 +253,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         _ = state.jobs  # open the job database now: re-queues jobs whose lease expired
+        _ = state.lists
         await run_in_threadpool(pipeline.warm_up)  # the planner's compiled kernels, before the first request
         heavy = state.heavy
         restore = _on_sigterm(heavy.close)
@@ -235,7 +276,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     describe_security(app, required=effective_token(settings) is not None)
     # outermost last: CORS headers on every answer (401, 413, 503 included); the token is
     # checked before the body is read
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes,
+                       setting=env_name("max_body_bytes"), routes=_body_limits(settings))
     app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s,
                        buffer_bytes=settings.max_body_buffer_bytes,
                        retry_after_s=settings.retry_after_s)
@@ -246,11 +288,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             CORSMiddleware, allow_origins=settings.cors_origin_list, allow_methods=["GET", "POST"],
             allow_headers=["Authorization", "Content-Type"],
         )
-    install_web(app, max_targets=settings.max_targets, auth=Auth, responses=ERRORS)
+    install_web(app)
+    install_target_lists(app, _lists_of, settings, auth=Auth,
+                         responses=ERRORS)
     _service_routes(app)
     _stage_routes(app)
     _job_routes(app)
     return app
+
+
+def _body_limits(settings: Settings) -> dict[str, tuple[int, str]]:
+    """Routes whose body limit is not ``MXS_MAX_BODY_BYTES``: survey-size work."""
+    return {path: (getattr(settings, name), env_name(name)) for path, name in (
+        ("/v1/segmentations", "max_segmentation_body_bytes"),
+        ("/v1/jobs", "max_job_body_bytes"),
+        ("/v1/target-lists", "max_upload_bytes"))}
 
 
 # Cheap routes are ``async``: they run on the event loop, never behind heavy work (which
@@ -297,7 +349,10 @@ def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/segmentations", operation_id="create_segmentation", response_model=SegmentationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def segmentations(req: SegmentationRequest, st: StateDep, request: Request) -> JSONResponse:
-        check_request(req, st.settings, st.instrument)
+        """Pointings covering the targets (thesis ch. 4): the cheap stage, up to
+        `MXS_MAX_SEGMENTATION_TARGETS` targets (default 100,000), inline or as a stored
+        `target_list_id`."""
+        req, _ = await _admit(req, st)
         return await _heavy(request, st, SegmentationResponse,
                             lambda progress, _: pipeline.segmentation(req, st.instrument, progress))
 
@@ -330,7 +385,7 @@ def _stage_routes(app: FastAPI) -> None:
         default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
         """
-        limit = check_request(req, st.settings, st.instrument)
+        req, limit = await _admit(req, st)
         return await _heavy(request, st, PlanResponse, lambda progress, left: pipeline.plan(
             req, st.instrument, progress, time_limit_s=limit,
             budget_s=left(st.settings.plan_budget_s)))
@@ -343,11 +398,10 @@ def _job_routes(app: FastAPI) -> None:
         """Queue a stage request as a job: validated now exactly as its endpoint validates it
         (422 naming `body.request.<field>`), refused with 429 + `Retry-After` when the queue is
         full (`MXS_MAX_QUEUED_JOBS`)."""
-        limit = check_request(job.request, st.settings, st.instrument,
-                              ("body", job.kind, "request"))
+        req, limit = await _admit(job.request, st, ("body", job.kind, "request"), job=True)
 
         def submit() -> str:  # off the event loop: a big request is dumped and stored here
-            request = job.request.model_dump(mode="json", exclude_none=True)
+            request = req.model_dump(mode="json", exclude_none=True)
             return st.jobs.submit(job.kind, request, limit, st.settings.job_budget_s)
 
         job_id = await run_in_threadpool(submit)

@@ -260,19 +260,32 @@ class _BodyTooLarge(Exception):
 
 
 class BodyLimitMiddleware:
-    """Reject request bodies larger than ``max_bytes`` with 413 before the app parses them."""
+    """Reject request bodies larger than the route's limit with 413 before the app parses
+    them: ``routes`` maps a path to its ``(bytes, setting)``, every other path gets
+    ``(max_bytes, setting)``; the 413 names the setting and its value."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int):
+    def __init__(self, app: ASGIApp, max_bytes: int, setting: str = "MXS_MAX_BODY_BYTES",
+                 routes: dict[str, tuple[int, str]] | None = None):
         self.app = app
         self.max_bytes = max_bytes
+        self.setting = setting
+        self.routes = dict(routes or {})
+
+    def limit(self, scope: Scope) -> tuple[int, str]:
+        path = scope.get("path", "")
+        root = scope.get("root_path", "")
+        if root and path.startswith(root):
+            path = path[len(root):]
+        return self.routes.get(path.rstrip("/") or "/", (self.max_bytes, self.setting))
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        max_bytes, setting = self.limit(scope)
         too_large = error_body(
-            "too_large", f"request body exceeds the limit of {self.max_bytes} bytes"
-        )
+            "too_large", f"request body exceeds the limit of {max_bytes} bytes ({setting}="
+            f"{max_bytes} on this server)")
         for name, value in scope.get("headers", []):
             if name == b"content-length":
                 try:
@@ -283,7 +296,7 @@ class BodyLimitMiddleware:
                                     "type": "int_parsing"}],
                         "message": "header.content-length: not an integer"})
                     return
-                if n > self.max_bytes:
+                if n > max_bytes:
                     await _send_json(send, 413, too_large)
                     return
         # also count what actually arrives (chunked bodies carry no Content-Length)
@@ -297,7 +310,7 @@ class BodyLimitMiddleware:
                 return
             body = message.get("body", b"")
             size += len(body)
-            if size > self.max_bytes:
+            if size > max_bytes:
                 await _send_json(send, 413, too_large)
                 return
             chunks.append(body)

@@ -14,21 +14,23 @@ from typing import Any
 from models.instrument import Instrument
 from service import pipeline
 from service.errors import FieldError
-from service.schemas import ArmState
+from service.schemas import AllocationRequest, ArmState, PlanRequest, SegmentationRequest
 from service.settings import Settings
 
 Loc = tuple[str | int, ...]
 
 
+_STAGES: dict[type, str] = {SegmentationRequest: "segmentation",
+                            AllocationRequest: "allocation", PlanRequest: "plan"}
+
+
 def check_request(req: Any, settings: Settings, inst: Instrument,
-                  prefix: Loc = ("body",)) -> float:
+                  prefix: Loc = ("body",), *, job: bool = False) -> float:
     """Raise :class:`FieldError` (422) for what this deployment refuses; return the solver
-    time limit to use (the request's, else the server default)."""
-    targets = getattr(req, "targets", None)
-    if targets is not None and len(targets) > settings.max_targets:
-        raise FieldError((*prefix, "targets"),
-                         f"at most {settings.max_targets} targets per request, got {len(targets)}",
-                         "too_long")
+    time limit to use (the request's, else the server default). ``job``: the request runs as
+    a job (a plan job has its own target limit). A request naming a stored list must have
+    been resolved (:func:`service.target_lists.resolve`) first."""
+    _check_targets(req, settings, prefix, job)
     limit = getattr(req, "time_limit_s", None)
     if limit is not None and limit > settings.max_time_limit_s:
         raise FieldError((*prefix, "time_limit_s"),
@@ -44,6 +46,21 @@ def check_request(req: Any, settings: Settings, inst: Instrument,
         _check_arms(getattr(req, name, None), inst, (*prefix, name))
     _check_projection(req, inst, prefix)
     return float(limit if limit is not None else settings.default_time_limit_s)
+
+
+def _check_targets(req: Any, settings: Settings, prefix: Loc, job: bool) -> None:
+    """The stage's target limit, named with its setting (``MXS_MAX_<STAGE>_TARGETS``)."""
+    targets = getattr(req, "targets", None)
+    stage = _STAGES.get(type(req))
+    if targets is None or stage is None:
+        return
+    stage = "plan-job" if stage == "plan" and job else stage
+    most, setting = settings.target_limit(stage)
+    if len(targets) > most:
+        what = {"plan-job": "plan job", "plan": "synchronous plan (POST /v1/plans; plan "
+                "bigger fields as a job)"}.get(stage, stage)
+        raise FieldError((*prefix, "targets"), f"at most {most} targets per {what} on this "
+                         f"server ({setting}={most}), got {len(targets)}", "too_long")
 
 
 def _check_projection(req: Any, inst: Instrument, prefix: Loc) -> None:

@@ -10,7 +10,15 @@ from __future__ import annotations
 import math
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 
@@ -84,6 +92,28 @@ def _unique_ids(targets: list[Any]) -> list[Any]:
     return targets
 
 
+TargetListId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[0-9A-Za-z_-]+$",
+                                    description="Id of a stored target list "
+                                    "(POST /v1/target-lists).")]
+SKY_TARGETS_DOC = ("Sky targets; or give `target_list_id` instead (exactly one of the two).")
+TARGET_LIST_DOC = ("A stored target list (POST /v1/target-lists) instead of `targets`; the "
+                   "request is then held to the same limits as with the list's targets inline.")
+
+
+def _one_target_source(target_list_id: str | None, info: ValidationInfo) -> str | None:
+    """Exactly one of ``targets`` and ``target_list_id`` (nothing to say when ``targets``
+    itself failed: its own error names it)."""
+    if "targets" not in info.data:
+        return target_list_id
+    given = info.data["targets"] is not None
+    if given and target_list_id is not None:
+        raise ValueError("give either targets or target_list_id, not both")
+    if not given and target_list_id is None:
+        raise ValueError("give targets (an array) or target_list_id (a stored target list, "
+                         "POST /v1/target-lists)")
+    return target_list_id
+
+
 def _unique_arms(states: list[ArmState] | None, field: str) -> list[ArmState] | None:
     if states is None:
         return None
@@ -137,7 +167,9 @@ class TelescopePointing(Request):
 
 
 class SegmentationRequest(Request):
-    targets: list[SkyTarget] = Field(min_length=1)
+    targets: list[SkyTarget] | None = Field(None, min_length=1, description=SKY_TARGETS_DOC)
+    target_list_id: TargetListId | None = Field(None, validate_default=True,
+                                                description=TARGET_LIST_DOC)
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Complete-linkage threshold, mm; default sqrt(3) * FOV radius."
     )
@@ -152,8 +184,13 @@ class SegmentationRequest(Request):
 
     @field_validator("targets")
     @classmethod
-    def _ids_unique(cls, v: list[Any]) -> list[Any]:
-        return _unique_ids(v)
+    def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
+        return None if v is None else _unique_ids(v)
+
+    @field_validator("target_list_id")
+    @classmethod
+    def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
+        return _one_target_source(v, info)
 
 
 class AllocationRequest(Request):
@@ -232,7 +269,9 @@ class MotionPlanRequest(Request):
 
 
 class PlanRequest(Request):
-    targets: list[SkyTarget] = Field(min_length=1)
+    targets: list[SkyTarget] | None = Field(None, min_length=1, description=SKY_TARGETS_DOC)
+    target_list_id: TargetListId | None = Field(None, validate_default=True,
+                                                description=TARGET_LIST_DOC)
     method: Method = "ilp"
     solver: Solver = "bnb"
     position_angle_deg: PositionAngleDeg = 0.0
@@ -251,8 +290,13 @@ class PlanRequest(Request):
 
     @field_validator("targets")
     @classmethod
-    def _ids_unique(cls, v: list[Any]) -> list[Any]:
-        return _unique_ids(v)
+    def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
+        return None if v is None else _unique_ids(v)
+
+    @field_validator("target_list_id")
+    @classmethod
+    def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
+        return _one_target_source(v, info)
 
 
 class SegmentationJob(Request):

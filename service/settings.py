@@ -25,8 +25,33 @@ class Settings(BaseSettings):
         None, description="When set, POST endpoints and GET /v1/jobs/{job_id} require "
         "'Authorization: Bearer <token>'. Empty counts as unset (logged as a warning)."
     )
-    max_targets: int = Field(5000, ge=1, description="Most targets accepted in one request.")
-    max_body_bytes: int = Field(10_000_000, ge=1024, description="Largest request body.")
+    max_segmentation_targets: int = Field(
+        100_000, ge=1, description="Most targets of one segmentation (POST /v1/segmentations "
+        "and segmentation jobs): the cheap stage, survey-size lists.")
+    max_allocation_targets: int = Field(
+        5000, ge=1, description="Most targets of one allocation (POST /v1/allocations and "
+        "allocation jobs): one pointing, an exact solve.")
+    max_plan_targets: int = Field(
+        5000, ge=1, description="Most targets of one synchronous POST /v1/plans (bounded by "
+        "MXS_PLAN_BUDGET_S); bigger fields go to plan jobs.")
+    max_plan_job_targets: int = Field(
+        10_000, ge=1, description="Most targets of one plan job (bounded by MXS_JOB_BUDGET_S; "
+        "its result holds every pointing's trajectories).")
+    max_target_list_targets: int = Field(
+        100_000, ge=1, description="Most targets of one stored target list "
+        "(POST /v1/target-lists).")
+    max_targets: int | None = Field(
+        None, ge=1, description="When set, a cap on every per-stage target limit above (the "
+        "lower wins).")
+    max_body_bytes: int = Field(
+        10_000_000, ge=1024, description="Largest request body of every route not named below.")
+    max_segmentation_body_bytes: int = Field(
+        50_000_000, ge=1024, description="Largest body of POST /v1/segmentations.")
+    max_job_body_bytes: int = Field(
+        50_000_000, ge=1024, description="Largest body of POST /v1/jobs.")
+    max_upload_bytes: int = Field(
+        50_000_000, ge=1024, description="Largest body of POST /v1/target-lists (the uploaded "
+        "file and its multipart framing).")
     default_time_limit_s: float = Field(
         30.0, gt=0, description="Solver time limit when a request gives none."
     )
@@ -76,7 +101,35 @@ class Settings(BaseSettings):
     job_retention_count: int = Field(
         1000, ge=1, description="Finished jobs kept at most (the newest); older answer 410."
     )
+    target_list_retention_s: float = Field(
+        7 * 86400.0, gt=0, description="Stored target lists older than this are deleted.")
+    target_list_retention_count: int = Field(
+        100, ge=1, description="Stored target lists kept at most (the newest); older ones are "
+        "deleted.")
+
+    def target_limit(self, stage: str) -> tuple[int, str]:
+        """The most targets ``stage`` accepts here and the setting that says so (``stage``: a
+        job kind, ``plan-job``, or ``target-list``)."""
+        name = _TARGET_LIMITS[stage]
+        value = getattr(self, name)
+        if self.max_targets is not None and self.max_targets < value:
+            value, name = self.max_targets, "max_targets"
+        return value, env_name(name)
 
     @property
     def cors_origin_list(self) -> list[str]:
         return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
+
+
+_TARGET_LIMITS = {
+    "segmentation": "max_segmentation_targets",
+    "allocation": "max_allocation_targets",
+    "plan": "max_plan_targets",
+    "plan-job": "max_plan_job_targets",
+    "target-list": "max_target_list_targets",
+}
+
+
+def env_name(field: str) -> str:
+    """The environment variable of a setting (``max_body_bytes`` -> ``MXS_MAX_BODY_BYTES``)."""
+    return "MXS_" + field.upper()

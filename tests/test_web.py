@@ -23,7 +23,8 @@ URL_ATTR = re.compile(r"""(?:src|href|url)\s*[:=]\s*["']([^"']+)["']""", re.I)
 
 @pytest.fixture
 def client(tmp_path: Path) -> Iterator[TestClient]:
-    settings = Settings(job_db=tmp_path / "jobs.sqlite3", max_body_bytes=64_000, max_targets=50)
+    settings = Settings(job_db=tmp_path / "jobs.sqlite3", max_upload_bytes=64_000,
+                        max_target_list_targets=50)
     with TestClient(create_app(settings)) as c:
         yield c
 
@@ -105,10 +106,12 @@ def test_upload_errors(client: TestClient) -> None:
     assert err["loc"] == ["body", "file"]
     assert "obs.csv: row 2, line 3, column 'priority'" in err["msg"]
     big = b"id,ra,dec\n" + b"".join(b"t%d,10.0,20.0\n" % i for i in range(6000))
-    assert client.post("/v1/target-lists", files={"file": ("big.csv", big)}).status_code == 413
+    r = client.post("/v1/target-lists", files={"file": ("big.csv", big)})
+    assert r.status_code == 413 and "MXS_MAX_UPLOAD_BYTES=64000" in r.json()["detail"]
     many = b"id,ra,dec\n" + b"".join(b"t%d,10.0,20.0\n" % i for i in range(60))
     r = client.post("/v1/target-lists", files={"file": ("many.csv", many)})
     assert r.status_code == 422 and "at most 50" in r.json()["message"]
+    assert "MXS_MAX_TARGET_LIST_TARGETS=50" in r.json()["message"]
     r = client.post("/v1/target-lists", files={"file": ("../../etc/x.fits", b"not fits")})
     assert r.status_code == 422 and "x.fits: cannot read" in r.json()["message"]
     assert client.post("/v1/target-lists").status_code == 422

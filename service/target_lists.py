@@ -1,0 +1,298 @@
+"""Stored target lists: ``POST /v1/target-lists`` reads an uploaded table with the CLI's reader
+(:mod:`service.tables`) and stores it; segmentation, plan and job requests then name it by
+``target_list_id`` instead of carrying a ``targets`` array, so that a survey-size list is sent
+once, as a file, and never as inline JSON.
+
+A list is stored in the job database (its own table ``target_lists``), so every server on that
+database sees it. The upload is limited in bytes (``MXS_MAX_UPLOAD_BYTES``, 413) and in targets
+(``MXS_MAX_TARGET_LIST_TARGETS``, 422); a request that references a list is then held to its own
+stage's target limit. Lists older than ``MXS_TARGET_LIST_RETENTION_S`` or beyond the newest
+``MXS_TARGET_LIST_RETENTION_COUNT`` are deleted. A job copies the list's targets into its request
+when it is queued, so a list deleted later never breaks a job.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import tempfile
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
+
+from fastapi import FastAPI, File, Query, Request, UploadFile
+from fastapi.params import Depends
+from fastapi.responses import JSONResponse
+from pydantic import BaseModel, Field, TypeAdapter
+from starlette.concurrency import run_in_threadpool
+
+from service.errors import FieldError, NotFound
+from service.schemas import ErrorResponse, SkyTarget
+from service.settings import Settings
+from service.tables import FORMATS, TargetFileError, TargetTable, read_target_table
+
+MAX_FILENAME_CHARS = 200
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS target_lists (
+    list_id    TEXT PRIMARY KEY,
+    filename   TEXT NOT NULL,
+    n_targets  INTEGER NOT NULL,
+    columns    TEXT NOT NULL,
+    notices    TEXT NOT NULL,
+    targets    TEXT NOT NULL,
+    created_at REAL NOT NULL
+)
+"""
+_SKY_TARGETS = TypeAdapter(list[SkyTarget])
+
+
+# --------------------------------------------------------------------------- schemas
+
+
+class ListedTarget(BaseModel):
+    id: str
+    ra_deg: float
+    dec_deg: float
+    priority: int
+    row: int = Field(description="Row of the file (1 = first data row).")
+    line: int | None = Field(description="Line of the file (CSV only; null when unknown).")
+
+
+class TargetList(BaseModel):
+    """A stored target list. ``targets`` (less ``row``/``line``) is a valid ``targets`` array for
+    segmentation, plan and job requests; or pass ``target_list_id`` instead."""
+
+    target_list_id: str = Field(description="Give it as `target_list_id` in segmentation, plan "
+                                "and job requests instead of `targets`.")
+    filename: str
+    n_targets: int = Field(ge=1, description="Targets in the list.")
+    created_at: float = Field(description="Unix time the list was stored.")
+    expires_at: float = Field(description="Unix time after which the list may be deleted "
+                              "(MXS_TARGET_LIST_RETENTION_S; the newest "
+                              "MXS_TARGET_LIST_RETENTION_COUNT are kept).")
+    targets: list[ListedTarget] = Field(description="The targets in file order; empty when "
+                                        "asked with `include_targets=false`.")
+    columns: dict[str, str | None] = Field(
+        description="The file's column read for each field (null: none, defaults used).")
+    notices: list[str] = Field(description="Defaults applied and mixed value forms found.")
+
+
+# --------------------------------------------------------------------------- the store
+
+
+@dataclass(frozen=True)
+class StoredList:
+    """One stored list: its targets as columns (``line`` None when unknown)."""
+
+    list_id: str
+    filename: str
+    created_at: float
+    columns: dict[str, str | None]
+    notices: list[str]
+    ids: list[str]
+    ra_deg: list[float]
+    dec_deg: list[float]
+    priority: list[int]
+    line: list[int | None]
+
+    @property
+    def n_targets(self) -> int:
+        return len(self.ids)
+
+    def request_targets(self) -> list[dict[str, Any]]:
+        return [{"id": i, "ra_deg": r, "dec_deg": d, "priority": p}
+                for i, r, d, p in zip(self.ids, self.ra_deg, self.dec_deg, self.priority,
+                                      strict=True)]
+
+    def listed(self) -> list[dict[str, Any]]:
+        return [{**t, "row": k + 1, "line": ln}
+                for k, (t, ln) in enumerate(zip(self.request_targets(), self.line, strict=True))]
+
+
+def _connect(db_path: Path) -> sqlite3.Connection:
+    con = sqlite3.connect(str(db_path), timeout=30.0, isolation_level=None)
+    con.execute("PRAGMA busy_timeout = 30000")
+    con.execute("PRAGMA synchronous = FULL")
+    return con
+
+
+class TargetListStore:
+    """The SQL of the ``target_lists`` table; one short-lived connection per call."""
+
+    def __init__(self, db_path: str | Path, retention_s: float, retention_count: int):
+        self.db_path = Path(db_path)
+        self.retention_s = retention_s
+        self.retention_count = retention_count
+
+    def init(self) -> None:
+        if self.db_path.parent and not self.db_path.parent.exists():
+            self.db_path.parent.mkdir(parents=True, exist_ok=True)
+        con = _connect(self.db_path)
+        try:
+            con.execute("PRAGMA journal_mode = WAL")
+            con.execute(_SCHEMA)
+        finally:
+            con.close()
+
+    def put(self, table: TargetTable) -> StoredList:
+        """Store a read table (then apply the retention); return it as stored."""
+        now = time.time()
+        t = table.targets
+        stored = StoredList(
+            uuid.uuid4().hex, table.source, now, dict(table.columns), list(table.notices),
+            [r.id for r in t], [r.ra_deg for r in t], [r.dec_deg for r in t],
+            [r.priority for r in t], [r.line for r in t])
+        blob = json.dumps({"id": stored.ids, "ra_deg": stored.ra_deg, "dec_deg": stored.dec_deg,
+                           "priority": stored.priority, "line": stored.line})
+        con = _connect(self.db_path)
+        try:
+            con.execute("INSERT INTO target_lists VALUES (?, ?, ?, ?, ?, ?, ?)",
+                        (stored.list_id, stored.filename, stored.n_targets,
+                         json.dumps(stored.columns), json.dumps(stored.notices), blob, now))
+            self._expire(con, now)
+        finally:
+            con.close()
+        return stored
+
+    def get(self, list_id: str) -> StoredList | None:
+        """The list, or None when there is none (never stored, or deleted by the retention)."""
+        now = time.time()
+        con = _connect(self.db_path)
+        try:
+            row = con.execute(
+                "SELECT filename, created_at, columns, notices, targets FROM target_lists "
+                "WHERE list_id = ? AND created_at >= ?", (list_id, now - self.retention_s),
+            ).fetchone()
+        finally:
+            con.close()
+        if row is None:
+            return None
+        cols = json.loads(row[4])
+        return StoredList(list_id, row[0], row[1], json.loads(row[2]), json.loads(row[3]),
+                          cols["id"], cols["ra_deg"], cols["dec_deg"], cols["priority"],
+                          cols["line"])
+
+    def _expire(self, con: sqlite3.Connection, now: float) -> None:
+        con.execute(
+            "DELETE FROM target_lists WHERE created_at < ? OR list_id NOT IN ("
+            "SELECT list_id FROM target_lists ORDER BY created_at DESC LIMIT ?)",
+            (now - self.retention_s, self.retention_count))
+
+    def expires_at(self, stored: StoredList) -> float:
+        return stored.created_at + self.retention_s
+
+    def kept(self) -> str:
+        return (f"target lists are kept for {self.retention_s:g} s, at most the newest "
+                f"{self.retention_count}")
+
+
+# ----------------------------------------------------------------- reading an upload
+
+
+def _suffix(filename: str) -> str:
+    low = filename.lower()
+    if low.endswith(".fits.gz"):
+        return ".fits.gz"
+    return Path(low).suffix if Path(low).suffix in FORMATS else ".csv"
+
+
+def read_upload(data: bytes, filename: str, settings: Settings) -> TargetTable:
+    """Parse an uploaded table; every problem is a 422 naming the file's row and column."""
+    name = Path(filename or "upload.csv").name[:MAX_FILENAME_CHARS] or "upload.csv"
+    with tempfile.TemporaryDirectory(prefix="mxs-upload-") as tmp:
+        path = Path(tmp) / f"upload{_suffix(name)}"
+        path.write_bytes(data)
+        try:
+            table = read_target_table(path, name=name)
+        except TargetFileError as exc:
+            raise FieldError(("body", "file"), str(exc)) from exc
+    most, setting = settings.target_limit("target-list")
+    if len(table.targets) > most:
+        raise FieldError(("body", "file"), f"{name}: {len(table.targets)} targets; at most "
+                         f"{most} in a target list on this server ({setting}={most})", "too_long")
+    return table
+
+
+def list_out(store: TargetListStore, stored: StoredList, include_targets: bool) -> JSONResponse:
+    body = {"target_list_id": stored.list_id, "filename": stored.filename,
+            "n_targets": stored.n_targets, "created_at": stored.created_at,
+            "expires_at": store.expires_at(stored),
+            "targets": stored.listed() if include_targets else [],
+            "columns": stored.columns, "notices": stored.notices}
+    return JSONResponse(body)
+
+
+# ----------------------------------------------------------- requests naming a list
+
+
+def resolve(req: Any, store: TargetListStore, prefix: tuple[str | int, ...] = ("body",)) -> Any:
+    """``req`` with its ``target_list_id`` replaced by the stored list's ``targets`` (``req``
+    itself when it has none); an unknown id is a 422 naming ``target_list_id``. Call off the
+    event loop: a survey-size list takes a fraction of a second to load."""
+    list_id = getattr(req, "target_list_id", None)
+    if list_id is None:
+        return req
+    stored = store.get(list_id)
+    if stored is None:
+        raise FieldError((*prefix, "target_list_id"), f"no stored target list {list_id!r} "
+                         f"(never uploaded, or deleted: {store.kept()}); upload the table with "
+                         "POST /v1/target-lists", "not_found")
+    targets = _SKY_TARGETS.validate_python(stored.request_targets())
+    return req.model_copy(update={"targets": targets, "target_list_id": None})
+
+
+# --------------------------------------------------------------------------- routes
+
+
+IncludeTargets = Annotated[bool, Query(description="Return the targets (default); false "
+                                       "answers the summary only, for survey-size lists.")]
+
+
+def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListStore],
+                         settings: Settings, *, auth: Depends, responses: dict[Any, Any]) -> None:
+    """Add ``POST /v1/target-lists`` and ``GET /v1/target-lists/{target_list_id}``."""
+
+    @app.post("/v1/target-lists", operation_id="create_target_list", response_model=TargetList,
+              tags=["targets"], dependencies=[auth], responses=responses)
+    async def create_target_list(
+        request: Request,
+        file: Annotated[UploadFile, File(description="Target table: CSV, ECSV, VOTable or FITS "
+                                         "(by the file name's suffix; CSV otherwise).")],
+        include_targets: IncludeTargets = True,
+    ) -> JSONResponse:
+        """Read a target table the way `mxs-planner plan` does and store it: VO UCDs and common
+        column names (VizieR `_RAJ2000`/`_DEJ2000`, Gaia `source_id`/`ra`/`dec`, ...),
+        sexagesimal or decimal values cell by cell, column units, row ids and priority 1 when
+        the file has none (said in `notices`). A bad cell is a 422 naming the file's row (and
+        CSV line) and column; more than `MXS_MAX_TARGET_LIST_TARGETS` targets a 422, a body
+        over `MXS_MAX_UPLOAD_BYTES` a 413. Pass `target_list_id` to a segmentation, plan or
+        job request instead of `targets`."""
+        store = store_of(request)
+        data = await file.read()
+        name = file.filename or "upload.csv"
+
+        def work() -> JSONResponse:  # off the event loop: a survey-size table takes seconds
+            table = read_upload(data, name, settings)
+            return list_out(store, store.put(table), include_targets)
+
+        return await run_in_threadpool(work)
+
+    @app.get("/v1/target-lists/{target_list_id}", operation_id="get_target_list",
+             response_model=TargetList, tags=["targets"], dependencies=[auth],
+             responses={404: {"model": ErrorResponse, "description": "No such target list (never stored, or deleted "
+                                             "by the retention)."}, **responses})
+    async def get_target_list(target_list_id: str, request: Request,
+                              include_targets: IncludeTargets = True) -> JSONResponse:
+        """A stored target list, as `POST /v1/target-lists` answered it."""
+        store = store_of(request)
+
+        def work() -> JSONResponse:
+            stored = store.get(target_list_id)
+            if stored is None:
+                raise NotFound(f"target list {target_list_id!r} not found ({store.kept()})")
+            return list_out(store, stored, include_targets)
+
+        return await run_in_threadpool(work)
