@@ -26,7 +26,7 @@ from typing import Annotated, Any
 from fastapi import FastAPI, File, Query, Request, UploadFile
 from fastapi.params import Depends
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel, Field, TypeAdapter
+from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
 from service.errors import FieldError, NotFound
@@ -46,7 +46,6 @@ CREATE TABLE IF NOT EXISTS target_lists (
     created_at REAL NOT NULL
 )
 """
-_SKY_TARGETS = TypeAdapter(list[SkyTarget])
 
 
 # --------------------------------------------------------------------------- schemas
@@ -240,7 +239,11 @@ def resolve(req: Any, store: TargetListStore, prefix: tuple[str | int, ...] = ("
         raise FieldError((*prefix, "target_list_id"), f"no stored target list {list_id!r} "
                          f"(never uploaded, or deleted: {store.kept()}); upload the table with "
                          "POST /v1/target-lists", "not_found")
-    targets = _SKY_TARGETS.validate_python(stored.request_targets())
+    # a stored list was validated cell by cell when it was read (service.tables checks what
+    # SkyTarget checks: ids, ranges, priorities), so its targets are built without re-validation
+    targets = [SkyTarget.model_construct(id=i, ra_deg=r, dec_deg=d, priority=p)
+               for i, r, d, p in zip(stored.ids, stored.ra_deg, stored.dec_deg, stored.priority,
+                                     strict=True)]
     return req.model_copy(update={"targets": targets, "target_list_id": None})
 
 
