@@ -381,8 +381,8 @@ def _stage_routes(app: FastAPI) -> None:
         The request's `time_limit_s` bounds the whole plan, answered within it + 1 s (default
         and cap: the server's plan budget `MXS_PLAN_BUDGET_S`, default 120 s): pointings
         reached after it ran out report their targets `no_time`.
-        Plan big fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`,
-        default 1 h). A motion leg that still cannot be planned is returned with status "failed",
+        At most `MXS_MAX_PLAN_TARGETS` targets (inline or a stored `target_list_id`). Plan big
+        fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`, default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
         """
         req, limit = await _admit(req, st)
@@ -396,8 +396,10 @@ def _job_routes(app: FastAPI) -> None:
               dependencies=[Auth], responses={**ERRORS, 429: QUEUE_FULL})
     async def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
         """Queue a stage request as a job: validated now exactly as its endpoint validates it
-        (422 naming `body.request.<field>`), refused with 429 + `Retry-After` when the queue is
-        full (`MXS_MAX_QUEUED_JOBS`)."""
+        (422 naming `body.<kind>.request.<field>`; a plan job may hold up to
+        `MXS_MAX_PLAN_JOB_TARGETS` targets), refused with 429 + `Retry-After` when the queue is
+        full (`MXS_MAX_QUEUED_JOBS`). A segmentation or plan request may name a stored list
+        (`target_list_id`): its targets are copied into the job when it is queued."""
         req, limit = await _admit(job.request, st, ("body", job.kind, "request"), job=True)
 
         def submit() -> str:  # off the event loop: a big request is dumped and stored here
