@@ -1,7 +1,7 @@
 """Bearer-token authentication: which requests need the token, and the check itself.
 
-When ``MXS_API_TOKEN`` is set, every route declared with :data:`Auth` (every POST and
-``GET /v1/jobs/{job_id}``) requires ``Authorization: Bearer <token>``; the health, instrument,
+When ``MXS_API_TOKEN`` is set, every route declared with :data:`Auth` (every POST,
+``GET /v1/jobs/{job_id}`` and ``GET /v1/target-lists/{target_list_id}``) requires ``Authorization: Bearer <token>``; the health, instrument,
 page and API-document routes stay open. :class:`AuthMiddleware` checks the header before the
 body is read, so a request without the token is answered 401 whatever its body (malformed,
 too large); the :data:`Auth` dependency declares the scheme in the OpenAPI document and
@@ -34,8 +34,8 @@ UNAUTHORIZED = "a valid 'Authorization: Bearer <token>' header is required"
 
 _bearer = HTTPBearer(
     auto_error=False,
-    description="Required on POST endpoints and GET /v1/jobs/{job_id} when the server has a "
-                "token (MXS_API_TOKEN).",
+    description="Required on POST endpoints, GET /v1/jobs/{job_id} and "
+                "GET /v1/target-lists/{target_list_id} when the server has a token (MXS_API_TOKEN).",
 )
 
 

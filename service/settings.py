@@ -22,8 +22,9 @@ class Settings(BaseSettings):
         "", description="Comma-separated origins allowed by CORS ('*' for any); empty = none."
     )
     api_token: str | None = Field(
-        None, description="When set, POST endpoints and GET /v1/jobs/{job_id} require "
-        "'Authorization: Bearer <token>'. Empty counts as unset (logged as a warning)."
+        None, description="When set, POST endpoints, GET /v1/jobs/{job_id} and GET "
+        "/v1/target-lists/{target_list_id} require 'Authorization: Bearer <token>'. Empty "
+        "counts as unset (logged as a warning)."
     )
     max_segmentation_targets: int = Field(
         100_000, ge=1, description="Most targets of one segmentation (POST /v1/segmentations "

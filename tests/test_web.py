@@ -124,3 +124,6 @@ def test_upload_needs_the_token_when_set(tmp_path: Path) -> None:
         assert c.post("/v1/target-lists", files=f).status_code == 401
         ok = c.post("/v1/target-lists", files=f, headers={"Authorization": "Bearer sesame"})
         assert ok.status_code == 200
+        stored = f"/v1/target-lists/{ok.json()['target_list_id']}"
+        assert c.get(stored).status_code == 401
+        assert c.get(stored, headers={"Authorization": "Bearer sesame"}).status_code == 200
