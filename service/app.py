@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
 from typing import Annotated, Any
@@ -20,6 +20,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 from starlette.concurrency import run_in_threadpool
 
+from models.errors import InputError
 from models.instrument import Instrument
 from service import pipeline
 from service.auth import Auth, AuthMiddleware, describe_security, effective_token, warn_if_empty
@@ -31,6 +32,7 @@ from service.errors import (
     ServiceError,
     error_body,
     install_error_handlers,
+    parse_loc,
 )
 from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
 from service.jobpool import JobManager, PoolOptions
@@ -165,12 +167,36 @@ async def _admit(req: Any, st: ServiceState, prefix: tuple[str | int, ...] = ("b
     try:
         return req, check_request(req, st.settings, st.instrument, prefix, job=job)
     except FieldError as exc:
-        if exc.loc[:len(prefix) + 1] != (*prefix, "targets"):
+        raise _in_list(exc, list_id, prefix) from exc
+
+
+def _in_list(exc: FieldError | InputError, list_id: str,
+             prefix: tuple[str | int, ...] = ("body",)) -> Exception:
+    """An error naming ``targets[i]`` of a request whose targets came from a stored list, as
+    a 422 naming ``target_list_id`` and the list's row (``exc`` itself when it names another
+    field)."""
+    if isinstance(exc, InputError):
+        loc: tuple[Any, ...] = (*prefix, *parse_loc(str(exc.field)))
+        bare, type_ = exc.message, "value_error"
+    else:
+        loc, bare, type_ = exc.loc, exc.bare, exc.type
+    if loc[:len(prefix) + 1] != (*prefix, "targets"):
+        return exc
+    rest = loc[len(prefix) + 1:]
+    where = f" row {rest[0] + 1}" if rest and isinstance(rest[0], int) else ""
+    what = f" ({rest[1]})" if len(rest) > 1 else ""
+    return FieldError((*prefix, "target_list_id"), f"target list {list_id!r}{where}{what}: "
+                      f"{bare}", type_)
+
+
+async def _from_list(list_id: str | None, answer: Awaitable[JSONResponse]) -> JSONResponse:
+    """Await ``answer``; errors naming ``targets[i]`` name the stored list's row instead."""
+    try:
+        return await answer
+    except (FieldError, InputError) as exc:
+        if list_id is None:
             raise
-        rest = exc.loc[len(prefix) + 1:]
-        where = f" (row {rest[0] + 1})" if rest and isinstance(rest[0], int) else ""
-        raise FieldError((*prefix, "target_list_id"), f"target list {list_id!r}{where}: "
-                         f"{exc.bare}", exc.type) from exc
+        raise _in_list(exc, list_id) from exc
 
 
 async def _state_dep(request: Request) -> ServiceState:  # async: resolved on the event loop
@@ -352,9 +378,11 @@ def _stage_routes(app: FastAPI) -> None:
         """Pointings covering the targets (thesis ch. 4): the cheap stage, up to
         `MXS_MAX_SEGMENTATION_TARGETS` targets (default 100,000), inline or as a stored
         `target_list_id`."""
+        list_id = req.target_list_id
         req, _ = await _admit(req, st)
-        return await _heavy(request, st, SegmentationResponse,
-                            lambda progress, _: pipeline.segmentation(req, st.instrument, progress))
+        return await _from_list(list_id, _heavy(
+            request, st, SegmentationResponse,
+            lambda progress, _: pipeline.segmentation(req, st.instrument, progress)))
 
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
@@ -385,10 +413,12 @@ def _stage_routes(app: FastAPI) -> None:
         fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`, default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
         """
+        list_id = req.target_list_id
         req, limit = await _admit(req, st)
-        return await _heavy(request, st, PlanResponse, lambda progress, left: pipeline.plan(
-            req, st.instrument, progress, time_limit_s=limit,
-            budget_s=left(st.settings.plan_budget_s)))
+        return await _from_list(list_id, _heavy(
+            request, st, PlanResponse, lambda progress, left: pipeline.plan(
+                req, st.instrument, progress, time_limit_s=limit,
+                budget_s=left(st.settings.plan_budget_s))))
 
 
 def _job_routes(app: FastAPI) -> None:

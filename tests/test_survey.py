@@ -203,6 +203,20 @@ def test_unknown_target_list_id(client: TestClient) -> None:
     assert r.status_code == 404 and "nosuchlist" in r.json()["detail"]
 
 
+def test_an_error_in_a_stored_list_names_its_row(client: TestClient) -> None:
+    lid = upload(client, "far.csv", b"id,ra,dec\na,0,0\nb,179,0\nc,90,0\n")["target_list_id"]
+    body = {"tangent_point": {"ra_deg": 0, "dec_deg": 0}}
+    inline = client.post("/v1/segmentations", json={**body, "targets": [
+        {"id": i, "ra_deg": ra, "dec_deg": 0, "priority": 1}
+        for i, ra in (("a", 0.0), ("b", 179.0), ("c", 90.0))]})
+    assert inline.status_code == 422
+    assert inline.json()["detail"][0]["loc"] == ["body", "targets", 1, "dec_deg"]
+    r = client.post("/v1/segmentations", json={**body, "target_list_id": lid})
+    assert r.status_code == 422
+    (err,) = r.json()["detail"]
+    assert err["loc"] == ["body", "target_list_id"] and f"{lid!r} row 2 (dec_deg)" in err["msg"]
+
+
 def test_retention_deletes_the_oldest_lists(tmp_path: Path) -> None:
     with limited(tmp_path, target_list_retention_count=2) as c:
         ids = [upload(c, f"{k}.csv", csv_bytes(sky(2, seed=k)))["target_list_id"]
@@ -270,5 +284,7 @@ def test_synchronous_plan_keeps_its_budget_and_the_event_loop_free(tmp_path: Pat
     assert out["wall_s"] <= limit_s + 2.0, out["wall_s"]
     reasons = {u["reason"] for p in body["pointings"] for u in p["unallocated"]}
     assert "no_time" in reasons, "the budget must have cut the plan short"
-    assert len(health_s) >= 5 and max(health_s) < 0.5, health_s
+    # a blocked loop would hold /v1/health for the whole plan (>= the 2 s limit)
+    assert len(health_s) >= 5 and max(health_s) < 1.0, health_s
+    assert float(np.median(health_s)) < 0.2, health_s
     assert max(in_use) == 1  # one request, one slot, whatever it does per pointing
