@@ -2,7 +2,7 @@
 
 Units are in the field names. Every float is finite (NaN and infinities are rejected),
 so invalid input fails validation with HTTP 422 naming the field. Limits that depend on
-the deployment (max targets per request, max time limit) are checked in ``app.py``.
+the deployment (targets per stage, max time limit) are checked in ``service/limits.py``.
 """
 
 from __future__ import annotations
