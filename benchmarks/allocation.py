@@ -21,7 +21,7 @@ from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
 from solvers.allocation import allocate
-from solvers.bounds import (
+from solvers.sequencing.bounds import (
     INNER_DISCS_MM,
     configuration_lp_bound,
     crowding_lower_bound,

@@ -30,9 +30,16 @@ from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
 from solvers.allocation import allocate
-from solvers.bnb import solve_ilp_bnb
-from solvers.exact import ExactOptions, build_exact_model, presolve_columns, relaxation_bound
-from solvers.ilp import coarse_weights, solve_ilp_cpsat, solve_ilp_highs
+from solvers.allocation.bnb import solve_ilp_bnb
+from solvers.allocation.cpsat import solve_ilp_cpsat
+from solvers.allocation.exact import (
+    ExactOptions,
+    build_exact_model,
+    presolve_columns,
+    relaxation_bound,
+)
+from solvers.allocation.highs import solve_ilp_highs
+from solvers.model import coarse_weights
 from solvers.problem import ConfigProblem
 from solvers.sequencing import hard_to_place, joint_speeds
 
@@ -119,7 +126,7 @@ def tier_transition(ins, n: int, seed: int, after: int, time_limit_s: float) -> 
     engines = {e: solve_direct(e, prob) for e in ENGINES}
     best = max(v["total_priority"] * (ins.n_arms + 1) + v["arm_yield"] for v in engines.values())
     allowed = prob.allowed()
-    from solvers.cliques import CliqueOptions
+    from solvers.allocation.cliques import CliqueOptions
 
     wide = ExactOptions(cliques=True, clique_options=CliqueOptions(max_columns=8000, column_seed_max_columns=8000))
     before, _ = build_exact_model(prob, allowed, ExactOptions(cliques=False))

@@ -29,8 +29,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from models.sky import focal_mm_to_sky  # noqa: E402
-from solvers.enclosing_circle import smallest_enclosing_circle  # noqa: E402
 from solvers.segmentation import segment_field, threshold_complete_linkage  # noqa: E402
+from solvers.segmentation.enclosing_circle import smallest_enclosing_circle  # noqa: E402
 
 SCALE = 1.2  # arcsec/mm
 

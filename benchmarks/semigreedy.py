@@ -56,9 +56,16 @@ import numpy as np
 from benchmarks.allocation import make_field
 from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
-from solvers.allocation import allocate
-from solvers.semigreedy import solve_semigreedy
-from solvers.sequencing import sequence_configurations
+from solvers.allocation import (
+    AllocationOptions,
+    PackingOptions,
+    RepairOptions,
+    SemiGreedyOptions,
+    SequenceOptions,
+    allocate,
+)
+from solvers.allocation.semigreedy import solve_semigreedy
+from solvers.sequencing import SequencingOptions, sequence_configurations
 
 INST = default_instrument()
 BLANK_PER_ARM = 16  # blank-sky locations per arm in SGPBTA's structure (Alg. 5 padding)
@@ -81,8 +88,7 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
 
 def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | None = None) -> dict:
     t0 = time.perf_counter()
-    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=field_limit_s or EXACT_FIELD_S,
-                 config_time_limit_s=EXACT_CONFIG_S, seed=seed, repack=repack, repair=repack)
+    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=field_limit_s or EXACT_FIELD_S, seed=seed, options=AllocationOptions(sequence=SequenceOptions(config_time_limit_s=EXACT_CONFIG_S), repair=RepairOptions(enabled=repack), packing=PackingOptions(enabled=repack)))
     return {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
             "before_repack": r.stats["n_configurations_greedy"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"]}
@@ -93,7 +99,7 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
 
     ``tie_break=False`` as in ``allocate(method="semigreedy")``: SGPBTA then uses its own
     crowding weights (25 mm), not the driver's (15 mm)."""
-    from solvers.bnb import solve_ilp_bnb
+    from solvers.allocation.bnb import solve_ilp_bnb
 
     gaps: list[float] = []
     not_optimal = [0]
@@ -102,7 +108,7 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
     n_solved = [0]
 
     def solve(p):
-        sol = solve_semigreedy(p, alpha=alpha)
+        sol = solve_semigreedy(p, SemiGreedyOptions(alpha=alpha))
         n_solved[0] += 1
         if with_gap and (n_solved[0] - 1) % gap_every == 0:
             tg = time.perf_counter()
@@ -115,8 +121,7 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
         return sol
 
     t0 = time.perf_counter()
-    r = sequence_configurations(INST, targets, solve, seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap,
-                                blank_per_arm=BLANK_PER_ARM, repack=False, repair=False, tie_break=False)
+    r = sequence_configurations(INST, targets, solve, SequencingOptions(sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM, tie_break=False), repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)), seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap)
     return {"wall_s": time.perf_counter() - t0 - t_gap[0], "configurations": r.stats["n_configurations"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"],
             "gaps": gaps, "exact_not_optimal": not_optimal[0]}
@@ -180,9 +185,7 @@ def dense(n, fields, repeats, with_exact, with_repair=False):
         for rep in range(repeats):
             for a, repair in variants:
                 t0, c0 = time.perf_counter(), time.process_time()
-                r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i, alpha=a,
-                             blank_per_arm=BLANK_PER_ARM, repack=False, repair=repair,
-                             time_limit_s=DENSE_REPAIR_BUDGET_S if repair else DENSE_BUDGET_S)
+                r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i, time_limit_s=DENSE_REPAIR_BUDGET_S if repair else DENSE_BUDGET_S, options=AllocationOptions(engine=SemiGreedyOptions(alpha=a), sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM), repair=RepairOptions(enabled=repair), packing=PackingOptions(enabled=False)))
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
                 out["runs"].append({"field_seed": 100 + i, "repeat": rep, "alpha": a, "repair": repair,
                                     "wall_s": wall, "cpu_s": cpu, "load": os.getloadavg()[0],
@@ -219,9 +222,9 @@ def dense(n, fields, repeats, with_exact, with_repair=False):
 
 def warm_starts(cases, seeds):
     """CP-SAT on one configuration, cold and hinted with SGPBTA's solution (``warm_start``)."""
-    from solvers.ilp import solve_ilp_cpsat
+    from solvers.allocation.cpsat import solve_ilp_cpsat
+    from solvers.allocation.semigreedy import warm_start
     from solvers.problem import ConfigProblem
-    from solvers.semigreedy import warm_start
     from solvers.sequencing import joint_speeds
 
     rows = []
@@ -233,7 +236,7 @@ def warm_starts(cases, seeds):
                               joint_speeds(INST), target_xy_mm=np.column_stack([t.x_mm, t.y_mm]),
                               time_limit_s=30.0, seed=sd)
             t0 = time.perf_counter()
-            h = warm_start(p, seed=sd)
+            h = warm_start(p, SemiGreedyOptions(seed=sd))
             t_h = time.perf_counter() - t0
             t0 = time.perf_counter()
             cold = solve_ilp_cpsat(p)

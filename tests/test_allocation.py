@@ -8,7 +8,19 @@ import pytest
 from models.errors import InputError
 from models.instrument import default_instrument
 from models.types import PlaneTargets
-from solvers.allocation import allocate
+from solvers.allocation import (
+    AllocationOptions,
+    BnbOptions,
+    CpsatOptions,
+    HighsOptions,
+    PackingOptions,
+    RepairOptions,
+    SemiGreedyOptions,
+    SequenceOptions,
+    allocate,
+    backend_names,
+    get_backend,
+)
 
 INS = default_instrument()
 T = PlaneTargets.from_lists([f"t{i}" for i in range(20)], np.linspace(-80, 80, 20), np.linspace(60, -60, 20),
@@ -19,11 +31,26 @@ T = PlaneTargets.from_lists([f"t{i}" for i in range(20)], np.linspace(-80, 80, 2
     ({"method": "magic"}, "method"), ({"solver": "gurobi"}, "solver"), ({"configurations": "some"}, "configurations"),
     ({"time_limit_s": -1}, "time_limit_s"), ({"collision_buffer_mm": -2.0}, "collision_buffer_mm"),
     ({"start_q": np.zeros((3, 2))}, "start_q"), ({"fixed": {99: (0.0, 0.0)}}, "fixed[99]"),
-    ({"form": "triangular"}, "form"), ({"solver": "highs", "workers": 3}, "options.workers"),
 ])
 def test_invalid_options_name_the_field(kw, field) -> None:
     with pytest.raises(InputError) as e:
         allocate(INS, T, **kw)
+    assert e.value.field == field
+
+
+@pytest.mark.parametrize("make,field", [
+    (lambda: HighsOptions(form="triangular"), "form"), (lambda: CpsatOptions(workers=0), "workers"),
+    (lambda: BnbOptions(node_limit=0), "node_limit"), (lambda: BnbOptions(fallback="gurobi"), "fallback"),
+    (lambda: SequenceOptions(config_time_limit_s=float("nan")), "config_time_limit_s"),
+    (lambda: SequenceOptions(max_configurations=0), "max_configurations"),
+    (lambda: SequenceOptions(tie_break="sometimes"), "tie_break"),
+    (lambda: PackingOptions(lp_bound_time_limit_s=-1.0), "packing.lp_bound_time_limit_s"),
+    (lambda: RepairOptions(time_limit_s=0.0), "repair.time_limit_s"),
+    (lambda: AllocationOptions(engine="bnb"), "options.engine"),
+])
+def test_option_dataclasses_validate_once_naming_the_field(make, field) -> None:
+    with pytest.raises(InputError) as e:
+        make()
     assert e.value.field == field
 
 
@@ -43,12 +70,17 @@ def test_all_configurations_and_position_angle_search() -> None:
     assert len(r.stats["position_angle_search"]) == 2
 
 
-def test_semigreedy_dispatch_is_lazy() -> None:
-    try:
-        import solvers.semigreedy  # noqa: F401
-    except ImportError:
-        with pytest.raises(NotImplementedError):
-            allocate(INS, T, method="semigreedy")
+def test_every_registered_backend_resolves_with_its_own_options() -> None:
+    """Each registry name gives the back-end of that name; a foreign option set is refused
+    naming ``options.engine``; an unknown name is a KeyError naming the known ones."""
+    for name in backend_names():
+        b = get_backend(name)
+        assert b.name == name and b.options_type in {BnbOptions, HighsOptions, CpsatOptions, SemiGreedyOptions}
+    with pytest.raises(KeyError, match="known"):
+        get_backend("gurobi")
+    with pytest.raises(InputError) as e:
+        allocate(INS, T, solver="highs", options=AllocationOptions(engine=CpsatOptions(workers=3)))
+    assert e.value.field == "options.engine"
 
 
 def test_semigreedy_fast_path_defaults() -> None:
@@ -60,11 +92,11 @@ def test_semigreedy_fast_path_defaults() -> None:
     e = allocate(INS, T, configurations="all", time_limit_s=600.0)
     n_exact = e.stats["incompatibility"]["assignments"]
     assert n_sg == n_exact + 16 * INS.n_arms  # 16 blank-sky rests per arm
-    r2 = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0, blank_per_arm=0)
+    r2 = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0, options=AllocationOptions(sequence=SequenceOptions(blank_per_arm=0)))
     assert r2.stats["incompatibility"]["assignments"] == n_exact
     with pytest.raises(InputError) as err:
-        allocate(INS, T, method="semigreedy", repair_time_limit_s=-1.0)
-    assert err.value.field == "repair_time_limit_s"
+        allocate(INS, T, method="semigreedy", options=AllocationOptions(repair=RepairOptions(time_limit_s=-1.0)))
+    assert err.value.field == "repair.time_limit_s"
 
 
 def test_targets_left_by_one_configuration_are_not_scheduled() -> None:

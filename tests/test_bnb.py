@@ -14,15 +14,21 @@ import pytest
 from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
-from solvers.bnb import solve_bnb_chosen, solve_ilp_bnb
-from solvers.ilp import solve_ilp_cpsat, solve_ilp_highs
+from solvers.allocation.bitset import solve_bnb_chosen
+from solvers.allocation.bnb import solve_ilp_bnb
+from solvers.allocation.cpsat import solve_ilp_cpsat
+from solvers.allocation.highs import solve_ilp_highs
 from solvers.problem import ConfigProblem, check_solution
 from solvers.sequencing import (
+    PackingOptions,
+    RescueOptions,
+    SequenceOptions,
+    SequencingOptions,
     hard_to_place,
     joint_speeds,
-    matching_lower_bound,
     sequence_configurations,
 )
+from solvers.sequencing.bounds import matching_lower_bound
 from tests.test_ilp import _field, _oracle, _problem
 
 INS = default_instrument()
@@ -166,8 +172,7 @@ def test_matching_lower_bound_beats_ceil_when_few_arms_reach() -> None:
     n_reach = len(np.unique(a.arm[a.target >= 0]))
     assert lb >= math.ceil(30 / n_reach) > math.ceil(30 / 12)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(30)], x, y, np.ones(30, np.int64))
-    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None), incompatibility=inc,
-                                time_limit_s=600.0, config_time_limit_s=60.0, repack=False, rescue=False)
+    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None), SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0), rescue=RescueOptions(enabled=False), packing=PackingOptions(enabled=False)), incompatibility=inc, time_limit_s=600.0)
     assert r.stats["lower_bound_configurations_flow"] == lb
     if r.stats["reachable_completeness"] == 1.0:
         assert r.stats["n_configurations"] >= lb
@@ -177,7 +182,7 @@ def test_adaptive_limits_never_exceed_the_cap() -> None:
     rng = np.random.default_rng(2)
     x, y = _field(rng, 60)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(60)], x, y, rng.choice([500, 100, 10, 1], size=60))
-    r = sequence_configurations(INS, t, solve_ilp_bnb, time_limit_s=30.0, config_time_limit_s=1.5)
+    r = sequence_configurations(INS, t, solve_ilp_bnb, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=1.5)), time_limit_s=30.0)
     assert r.stats["field_completeness"] == 1.0 or r.unallocated
     assert all(0 < c.stats["time_limit_s"] <= 1.5 for c in r.configurations if "time_limit_s" in c.stats)
 
@@ -185,7 +190,7 @@ def test_adaptive_limits_never_exceed_the_cap() -> None:
 def test_column_fixing_keeps_the_optimum_and_the_longest_move() -> None:
     """prune_columns against a node-limited incumbent: CP-SAT on the kept columns has the
     same priority, yield and minimal longest move as on the full model."""
-    from solvers.bnb import prepare_field, prune_columns
+    from solvers.allocation.bitset import prepare_field, prune_columns
 
     rng = np.random.default_rng(21)
     for _ in range(2):

@@ -27,14 +27,14 @@ from scipy.optimize import linprog
 from models.collision import fcl_clearance_mm
 from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
-from solvers.bounds import (
+from solvers.sequencing import pack_targets
+from solvers.sequencing.bounds import (
     configuration_lp_bound,
     crowding_lower_bound,
     matching_lower_bound,
     max_simultaneous_targets,
     radial_lp_bound,
 )
-from solvers.sequencing import pack_targets
 
 INS = default_instrument()
 # generous limits: every instance below converges in well under a second on one core

@@ -9,15 +9,28 @@ import itertools
 import numpy as np
 import pytest
 
-import solvers.ilp as ilp
+import solvers.allocation.cpsat as cpsat_backend
+import solvers.allocation.highs as highs_backend
+import solvers.model as model
 from models.collision import fcl_clearance_mm
 from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.types import PlaneTargets
-from solvers.allocation import allocate
-from solvers.bnb import solve_ilp_bnb
-from solvers.cliques import CliqueOptions, clique_rows, exclusion_matrix
-from solvers.exact import ExactOptions, build_exact_model, presolve_columns, relaxation_bound
+from solvers.allocation import (
+    AllocationOptions,
+    PackingOptions,
+    RepairOptions,
+    SequenceOptions,
+    allocate,
+)
+from solvers.allocation.bnb import solve_ilp_bnb
+from solvers.allocation.cliques import CliqueOptions, clique_rows, exclusion_matrix
+from solvers.allocation.exact import (
+    ExactOptions,
+    build_exact_model,
+    presolve_columns,
+    relaxation_bound,
+)
 from solvers.problem import ConfigProblem, check_solution
 from solvers.sequencing import hard_to_place, joint_speeds
 
@@ -46,7 +59,7 @@ def _agree(prob) -> None:
     """bnb (as the library runs it), HiGHS and CP-SAT: all prove the same priority and
     yield, and the same longest move wherever two of them proved it."""
     sols = {"bnb": solve_ilp_bnb(prob),
-            "highs": ilp.solve_ilp_highs(prob), "cpsat": ilp.solve_ilp_cpsat(prob)}
+            "highs": highs_backend.solve_ilp_highs(prob), "cpsat": cpsat_backend.solve_ilp_cpsat(prob)}
     for name, s in sols.items():
         assert s.status == "optimal", (name, s.status, s.stats.get("rounds"))
         assert check_solution(INS, prob, s.chosen) == [], name
@@ -123,7 +136,7 @@ def test_clique_rows_are_valid_inequalities(seed: int) -> None:
     prob = _problem(inc, x, y, pr, inc.reachability.arms_per_target > 0, tie=False)
     a = inc.assignments
     cols = np.arange(len(a))
-    ex = exclusion_matrix(ilp.conflict_adjacency(inc), cols, a.arm, a.target)
+    ex = exclusion_matrix(model.conflict_adjacency(inc), cols, a.arm, a.target)
     indptr, indices = clique_rows(ex, np.column_stack([a.x_mm, a.y_mm]), CliqueOptions(disc_radius_mm=10.0))
     rows = [indices[indptr[i]:indptr[i + 1]] for i in range(len(indptr) - 1)]
     assert rows and max(len(r) for r in rows) >= 6
@@ -133,8 +146,8 @@ def test_clique_rows_are_valid_inequalities(seed: int) -> None:
         s = set(conf)
         for r in rows:
             assert sum(int(c) in s for c in r) <= 1, (conf, r.tolist())
-    on = ilp.solve_ilp_highs(prob, cliques=True)
-    off = ilp.solve_ilp_highs(prob, cliques=False, presolve=False)
+    on = highs_backend.solve_ilp_highs(prob, cliques=True)
+    off = highs_backend.solve_ilp_highs(prob, cliques=False, presolve=False)
     brute = max(sum(int(pr[t]) for t in a.target[list(c)] if t >= 0) for c in feasible)
     assert on.status == off.status == "optimal"
     assert on.total_priority == off.total_priority == brute
@@ -155,7 +168,7 @@ def test_presolve_keeps_every_optimal_solution() -> None:
     cols, incumbent, _ = presolve_columns(prob, None, 300, float("inf"))
     assert check_solution(INS, prob, incumbent) == []
     feasible = _feasible_configurations(inc)
-    w = ilp.coarse_weights(prob, np.arange(len(a)))
+    w = model.coarse_weights(prob, np.arange(len(a)))
     best = max(int(w[list(c)].sum()) for c in feasible)
     optima = [c for c in feasible if int(w[list(c)].sum()) == best]
     assert optima and all(cols[list(c)].all() for c in optima)
@@ -164,13 +177,13 @@ def test_presolve_keeps_every_optimal_solution() -> None:
 def test_one_mode_gives_the_engine_the_request_limit(monkeypatch) -> None:
     """configurations="one": a 30 s request hands the engine (nearly) 30 s, not a share."""
     seen: list[float] = []
-    real = ilp.solve_ilp_highs
+    real = highs_backend.solve_ilp_highs
 
     def spy(problem, **kw):
         seen.append(problem.time_limit_s)
         return real(problem, **kw)
 
-    monkeypatch.setattr(ilp, "solve_ilp_highs", spy)
+    monkeypatch.setattr(highs_backend, "solve_ilp_highs", spy)
     rng = np.random.default_rng(3)
     x, y = _field(rng, 100, 40.0)
     pr = rng.choice([500, 100, 10, 1], size=len(x), p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
@@ -179,7 +192,7 @@ def test_one_mode_gives_the_engine_the_request_limit(monkeypatch) -> None:
     assert len(r.configurations) == 1 and seen
     assert seen[0] >= 29.0, seen
     seen.clear()
-    allocate(INS, t, solver="highs", configurations="all", time_limit_s=30.0, max_configurations=2, repack=False)
+    allocate(INS, t, solver="highs", configurations="all", time_limit_s=30.0, options=AllocationOptions(sequence=SequenceOptions(max_configurations=2), packing=PackingOptions(enabled=False)))
     assert seen and max(seen) <= 5.0 + 1e-9  # sequences keep the per-configuration cap and share
 
 
@@ -188,7 +201,7 @@ def test_rescue_on_a_highs_request_uses_highs(monkeypatch) -> None:
     HiGHS (CP-SAT's single-configuration solve is never called) and the response says which
     engine did which part."""
     calls = {"highs": 0}
-    real = ilp.solve_ilp_highs
+    real = highs_backend.solve_ilp_highs
 
     def spy(problem, **kw):
         calls["highs"] += 1
@@ -197,13 +210,13 @@ def test_rescue_on_a_highs_request_uses_highs(monkeypatch) -> None:
     def no_cpsat(*_a, **_k):
         raise AssertionError("solve_ilp_cpsat called on a highs request")
 
-    monkeypatch.setattr(ilp, "solve_ilp_highs", spy)
-    monkeypatch.setattr(ilp, "solve_ilp_cpsat", no_cpsat)
+    monkeypatch.setattr(highs_backend, "solve_ilp_highs", spy)
+    monkeypatch.setattr(cpsat_backend, "solve_ilp_cpsat", no_cpsat)
     rng = np.random.default_rng(0)
     n = 40
     r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
-    res = allocate(INS, t, solver="highs", configurations="all", time_limit_s=120.0, repack=False, repair=False)
+    res = allocate(INS, t, solver="highs", configurations="all", time_limit_s=120.0, options=AllocationOptions(repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)))
     assert res.stats["reachable_completeness"] == 1.0
     assert res.stats["engines"]["rescue"] == "highs" and res.stats["engines"]["configurations"] == "highs"
     assert any(c.stats.get("rescue") for c in res.configurations)

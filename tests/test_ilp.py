@@ -9,7 +9,9 @@ from models.collision import arm_pair_clearance_mm, fcl_configuration_collisions
 from models.incompatibility import build_assignments, incompatibility_for_targets
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
-from solvers.ilp import build_model_arrays, safe_weights, solve_ilp_cpsat, solve_ilp_highs
+from solvers.allocation.cpsat import solve_ilp_cpsat
+from solvers.allocation.highs import solve_ilp_highs
+from solvers.model import build_model_arrays, safe_weights
 from solvers.problem import ConfigProblem, check_solution
 from solvers.sequencing import joint_speeds
 

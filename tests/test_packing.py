@@ -19,8 +19,8 @@ from models.collision import fcl_configuration_collisions
 from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
-from solvers.packing import tabu_pack
 from solvers.sequencing import pack_targets
+from solvers.sequencing.tabu import tabu_pack
 
 INS = default_instrument()
 LONG_S = 120.0  # time limits never reached: the searches below end on iterations

@@ -13,9 +13,9 @@ import math
 
 import numpy as np
 
-from solvers.packing import tabu_pack
-from solvers.packing_cpsat import exact_cover, max_cover, packing_columns
 from solvers.sequencing import complete_partial
+from solvers.sequencing.packing_cpsat import exact_cover, max_cover, packing_columns
+from solvers.sequencing.tabu import tabu_pack
 from tests.test_packing import EASY_FIELDS, INS, _check_packing, _field, _reachable
 
 LONG_S = 120.0

@@ -14,8 +14,8 @@ from models.incompatibility import incompatibility_for_targets
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
 from models.types import PlaneTargets
-from solvers.repair import absorb_configurations
 from solvers.sequencing import pack_targets
+from solvers.sequencing.repair import absorb_configurations
 
 INS = default_instrument()
 
@@ -107,12 +107,18 @@ def test_repair_on_a_greedy_sequence_keeps_every_target_and_validity() -> None:
     """A clustered field's one-at-a-time sequence (repair and repacking off) leaves a
     sparse tail; the repair never adds a configuration, keeps the targets exactly, and on
     this field removes at least one (deterministic: node-limited solves, large budget)."""
-    from solvers.bnb import solve_ilp_bnb
-    from solvers.sequencing import sequence_configurations
+    from solvers.allocation.bnb import solve_ilp_bnb
+    from solvers.sequencing import (
+        PackingOptions,
+        RepairOptions,
+        RescueOptions,
+        SequenceOptions,
+        SequencingOptions,
+        sequence_configurations,
+    )
 
     t, inc = _field(11, 96, sigma_mm=40.0)
-    r = sequence_configurations(INS, t, solve_ilp_bnb, incompatibility=inc, repack=False, repair=False,
-                                rescue=False, time_limit_s=600.0, config_time_limit_s=60.0)
+    r = sequence_configurations(INS, t, solve_ilp_bnb, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0), rescue=RescueOptions(enabled=False), repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)), incompatibility=inc, time_limit_s=600.0)
     a = inc.assignments
     seq = []
     for c in r.configurations:

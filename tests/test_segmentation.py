@@ -14,12 +14,12 @@ from scipy.spatial.distance import pdist
 
 from models.errors import InputError
 from models.sky import focal_mm_to_sky, sky_to_focal_mm
-from solvers.enclosing_circle import smallest_enclosing_circle
 from solvers.segmentation import (
     Segmentation,
     segment_field,
     threshold_complete_linkage,
 )
+from solvers.segmentation.enclosing_circle import smallest_enclosing_circle
 
 R = 125.0
 SCALE = 1.2

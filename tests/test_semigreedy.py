@@ -9,8 +9,9 @@ from scipy.stats import chisquare
 from models.errors import InputError
 from models.incompatibility import BLANK, PARK, incompatibility_for_targets
 from models.instrument import default_instrument
-from solvers import semigreedy as sg
-from solvers.patrolling import (
+from solvers.allocation import semigreedy as sg
+from solvers.allocation.options import SemiGreedyOptions
+from solvers.allocation.semigreedy.patrolling import (
     point_penalties,
     slice_membership,
     slice_of_point,
@@ -19,6 +20,7 @@ from solvers.patrolling import (
     workspace_penalty_matrix,
 )
 from solvers.problem import ConfigProblem, check_solution, evaluate
+from solvers.sequencing import PackingOptions, SequencingOptions
 
 INST = default_instrument()
 
@@ -84,19 +86,19 @@ def test_penalty_matrix_validation(bad, field_name):
     assert e.value.field == field_name
     p = field(10, 0)
     with pytest.raises(InputError):
-        sg.solve_semigreedy(p, penalty_matrix=bad)
+        sg.solve_semigreedy(p, SemiGreedyOptions(penalty_matrix=bad))
 
 
 @pytest.mark.parametrize("opts, name", [({"alpha": 1.5}, "alpha"), ({"gamma": 11}, "gamma"),
                                         ({"n_iter": 0}, "n_iter"), ({"arm_selection": "x"}, "arm_selection"),
-                                        ({"bogus": 1}, "bogus"), ({"crowding": "yes"}, "crowding"),
+                                        ({"crowding": "yes"}, "crowding"),
                                         ({"crowding_radius_mm": 0}, "crowding_radius_mm"),
                                         ({"crowding_radius_mm": float("nan")}, "crowding_radius_mm"),
                                         ({"eject_trials": -1}, "eject_trials"),
                                         ({"eject_trials": 1.5}, "eject_trials")])
 def test_option_validation(opts, name):
     with pytest.raises(InputError) as e:
-        sg.solve_semigreedy(field(5, 0), **opts)
+        sg.solve_semigreedy(field(5, 0), SemiGreedyOptions(**opts))
     assert e.value.field == name
 
 
@@ -105,8 +107,8 @@ def test_option_validation(opts, name):
 
 def test_same_seed_same_result():
     p = field(150, 1)
-    a = sg.solve_semigreedy(p, seed=7, alpha=0.8, early_stop=False)
-    b = sg.solve_semigreedy(p, seed=7, alpha=0.8, early_stop=False)
+    a = sg.solve_semigreedy(p, SemiGreedyOptions(seed=7, alpha=0.8, early_stop=False))
+    b = sg.solve_semigreedy(p, SemiGreedyOptions(seed=7, alpha=0.8, early_stop=False))
     assert np.array_equal(a.chosen, b.chosen) and a.total_priority == b.total_priority
     # different seeds explore differently (construction draws differ)
     st = sg.prepare(p, sg.SemiGreedyOptions(alpha=0.8))
@@ -120,7 +122,7 @@ def test_every_solution_passes_check(seed, kind):
     p = field(80, seed, kind)
     for opts in ({}, {"alpha": 0.8, "arm_selection": "gas"}, {"penalty_matrix": "workspace"},
                  {"local_search": False, "n_iter": 3}):
-        sol = sg.solve_semigreedy(p, seed=seed, **opts)
+        sol = sg.solve_semigreedy(p, SemiGreedyOptions(seed=seed, **opts))
         assert sol.chosen.shape == (12,)
         assert check_solution(INST, p, sol.chosen) == []
         assert (sol.total_priority, sol.arm_yield) == evaluate(p, sol.chosen)[:2]
@@ -140,7 +142,7 @@ def test_sequence_with_current_positions_and_disabled_arm():
     for _ in range(3):
         inc = incompatibility_for_targets(inst, x, y, current=q)
         p = ConfigProblem(inc, pri, avail.copy(), q, _speeds(), target_xy_mm=np.column_stack([x, y]))
-        sol = sg.solve_semigreedy(p, seed=1)
+        sol = sg.solve_semigreedy(p, SemiGreedyOptions(seed=1))
         assert check_solution(inst, p, sol.chosen) == []
         a = inc.assignments
         assert a.target[sol.chosen[4]] < 0  # the disabled arm is on no target
@@ -253,16 +255,16 @@ def test_sop_matrix_restricts_arms():
     for matrix in (thesis_penalty_matrix(), own, no_arm0):
         pen = point_penalties(matrix, xy[:, 0], xy[:, 1])
         for seed in range(3):
-            sol = sg.solve_semigreedy(p, penalty_matrix=matrix, seed=seed, alpha=0.8)
+            sol = sg.solve_semigreedy(p, SemiGreedyOptions(penalty_matrix=matrix, seed=seed, alpha=0.8))
             assert check_solution(INST, p, sol.chosen) == []
             a = p.assignments
             for k, x in enumerate(sol.chosen):
                 t = a.target[x]
                 if t >= 0:
                     assert pen[k, t] >= 0, (k, t)
-    sol = sg.solve_semigreedy(p, penalty_matrix=no_arm0)
+    sol = sg.solve_semigreedy(p, SemiGreedyOptions(penalty_matrix=no_arm0))
     assert p.assignments.target[sol.chosen[0]] < 0
-    sol = sg.solve_semigreedy(p, penalty_matrix=own)
+    sol = sg.solve_semigreedy(p, SemiGreedyOptions(penalty_matrix=own))
     sl = slice_membership(xy[:, 0], xy[:, 1], 12)
     for k, x in enumerate(sol.chosen):
         t = p.assignments.target[x]
@@ -336,10 +338,10 @@ def test_never_beats_and_usually_equals_brute_force():
         kind = "clustered" if seed % 3 == 0 else "uniform"
         p = field(n, 1000 + seed, kind, priorities=rng.integers(1, 50, n))
         opt = _brute_force(p)
-        sol = sg.solve_semigreedy(p, penalty_matrix="workspace", seed=seed)
+        sol = sg.solve_semigreedy(p, SemiGreedyOptions(penalty_matrix="workspace", seed=seed))
         assert check_solution(INST, p, sol.chosen) == []
         assert sol.total_priority <= opt
-        sol_thesis = sg.solve_semigreedy(p, seed=seed)
+        sol_thesis = sg.solve_semigreedy(p, SemiGreedyOptions(seed=seed))
         assert sol_thesis.total_priority <= opt
         equal += sol.total_priority == opt
         cases += 1
@@ -348,7 +350,7 @@ def test_never_beats_and_usually_equals_brute_force():
 
 def test_warm_start_is_a_feasible_choice():
     p = field(60, 8)
-    chosen = sg.warm_start(p, seed=3)
+    chosen = sg.warm_start(p, SemiGreedyOptions(seed=3))
     assert chosen.shape == (12,) and check_solution(INST, p, chosen) == []
     x = sg.warm_start_vector(p, chosen)
     assert x.sum() == 12 and x[chosen].all()
@@ -406,7 +408,7 @@ def test_padding_order_current_park_blank():
 def test_blocked_park_gets_blank_sky_never_a_collision(seed):
     p, x, j = _blocked_park_case(8, seed)
     t = p.assignments.target[x]
-    sol = sg.solve_semigreedy(p, seed=seed, penalty_matrix="workspace")
+    sol = sg.solve_semigreedy(p, SemiGreedyOptions(seed=seed, penalty_matrix="workspace"))
     assert check_solution(INST, p, sol.chosen) == []
     assert sol.arm_yield == 1 and sol.total_priority == 7  # the one target is observed
     a = p.assignments
@@ -434,7 +436,7 @@ def test_dense_field_with_blank_sky_always_verified(seed):
     n_blank = 0
     for _ in range(40):
         p = ConfigProblem(inc, pri, avail.copy(), q, _speeds(), target_xy_mm=np.column_stack([x, y]))
-        sol = sg.solve_semigreedy(p, seed=seed, n_iter=5)
+        sol = sg.solve_semigreedy(p, SemiGreedyOptions(seed=seed, n_iter=5))
         assert check_solution(INST, p, sol.chosen) == []
         t = inc.assignments.target[sol.chosen]
         n_blank += int((t == BLANK).sum())
@@ -509,7 +511,7 @@ def test_zero_priority_targets_are_rest_locations():
     assert sg.pad(st, s)
     assert s.chosen[int(a.arm[x])] == x  # the target stays: arm j rests elsewhere
     assert check_solution(INST, p0, s.chosen) == []
-    sol = sg.solve_semigreedy(p0, penalty_matrix="workspace", seed=1)
+    sol = sg.solve_semigreedy(p0, SemiGreedyOptions(penalty_matrix="workspace", seed=1))
     assert sol.total_priority == 7 and check_solution(INST, p0, sol.chosen) == []
     assert sol.stats["upper_bound_yield"] == 1
 
@@ -519,7 +521,7 @@ def test_rescue_through_semigreedy_needs_no_exact_solver(monkeypatch):
     observed targets, offered at priority 0) completes the field with SGPBTA alone."""
     from functools import partial
 
-    import solvers.ilp
+    import solvers.allocation.cpsat as cpsat_backend
     from models.collision import fcl_configuration_collisions
     from models.types import PlaneTargets
     from solvers.sequencing import sequence_configurations
@@ -527,13 +529,13 @@ def test_rescue_through_semigreedy_needs_no_exact_solver(monkeypatch):
     def no_exact(*args, **kwargs):
         raise AssertionError("the rescue fell back to the exact solver")
 
-    monkeypatch.setattr(solvers.ilp, "solve_ilp_cpsat", no_exact)
+    monkeypatch.setattr(cpsat_backend, "solve_ilp_cpsat", no_exact)
     rng = np.random.default_rng(0)
     n = 40
     r, ang = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(ang), r * np.sin(ang), np.ones(n, np.int64))
-    f = partial(sg.solve_semigreedy, penalty_matrix="workspace")
-    res = sequence_configurations(INST, t, f, repack=False, time_limit_s=60.0)
+    f = partial(sg.solve_semigreedy, options=SemiGreedyOptions(penalty_matrix="workspace"))
+    res = sequence_configurations(INST, t, f, SequencingOptions(packing=PackingOptions(enabled=False)), time_limit_s=60.0)
     assert res.stats["reachable_completeness"] == 1.0 and res.stats["stop_reason"] == "complete"
     assert any(c.stats.get("rescue") for c in res.configurations)  # the rescue did run
     seen = [x.target_index for c in res.configurations for x in c.assignments if x.target_index is not None]
@@ -556,7 +558,7 @@ def test_matching_bound_top_columns_is_exact(seed):
     from scipy.optimize import linear_sum_assignment
 
     r, c = linear_sum_assignment(full, maximize=True)
-    assert sg._matching_bound(arm, col, w, n_arms, m) == int(round(full[r, c].sum()))
+    assert sg.matching_bound(arm, col, w, n_arms, m) == int(round(full[r, c].sum()))
 
 
 @pytest.mark.parametrize("seed", range(4))
@@ -579,7 +581,7 @@ def test_replace_pass_fast_path_misses_no_move(seed):
             for j in ok:
                 dp = int(st.prio[j]) - int(st.prio[c])
                 dh = int(st.hw[j]) - int(st.hw[c])  # the crowding tie-break, after priority
-                if dp > 0 or (dp == 0 and (dh > 0 or (dh == 0 and st.disp[j] < st.disp[c] - sg._DISP_EPS))):
+                if dp > 0 or (dp == 0 and (dh > 0 or (dh == 0 and st.disp[j] < st.disp[c] - sg.DISP_EPS))):
                     improving = True
         made = sg.replace_pass(st, s, rng)
         assert (made > 0) == improving
@@ -588,10 +590,10 @@ def test_replace_pass_fast_path_misses_no_move(seed):
 
 def test_max_stall_ends_the_multistart():
     p = field(300, 3, "gauss")
-    sol = sg.solve_semigreedy(p, n_iter=200, max_stall=4, early_stop=False)
+    sol = sg.solve_semigreedy(p, SemiGreedyOptions(n_iter=200, max_stall=4, early_stop=False))
     st = sol.stats
     assert st["iterations"] == st["best_iteration"] + 5  # 4 without improvement, then stop
-    full = sg.solve_semigreedy(p, n_iter=40, max_stall=None, early_stop=False)
+    full = sg.solve_semigreedy(p, SemiGreedyOptions(n_iter=40, max_stall=None, early_stop=False))
     assert full.stats["iterations"] == 40
     assert sg.SemiGreedyOptions().max_stall == 10 and sg.SemiGreedyOptions().n_iter == 30
 
@@ -612,7 +614,7 @@ def test_tie_break_weights_match_brute_force_and_the_driver(seed):
                       target_xy_mm=p.target_xy_mm)
     radius = [15.0, 25.0, 8.0][seed]
     st = sg.prepare(p, sg.SemiGreedyOptions(crowding_radius_mm=radius))
-    fs = sg._field_static(p, sg._penalty_spec("thesis", 12), 0.0)
+    fs = sg.field_static(p, sg.penalty_spec("thesis", 12), 0.0)
     h = sg.tie_break_weights(p, fs, radius)
     apt = p.incompatibility.reachability.arms_per_target
     xy = p.target_xy_mm
@@ -660,8 +662,8 @@ def test_crowding_prefers_the_crowded_target_among_equal_priorities():
     xy = [(105.0, 8.0), (10.0, 0.0), (10.0, 9.0), (16.0, 4.0), (60.0, -60.0)]
     inst, p = _one_arm_field(xy, [10, 10, 10, 10, 1])
     assert (p.incompatibility.reachability.arms_per_target[:4] == 1).all()
-    plain = sg.solve_semigreedy(p, seed=0, crowding=False)
-    crowd = sg.solve_semigreedy(p, seed=0)
+    plain = sg.solve_semigreedy(p, SemiGreedyOptions(seed=0, crowding=False))
+    crowd = sg.solve_semigreedy(p, SemiGreedyOptions(seed=0))
     t = p.assignments.target
     assert int(t[plain.chosen[0]]) == 0  # shortest move
     assert int(t[crowd.chosen[0]]) in (1, 2, 3)
@@ -670,7 +672,7 @@ def test_crowding_prefers_the_crowded_target_among_equal_priorities():
         assert check_solution(inst, p, sol.chosen) == []
     # a higher priority still beats any crowding
     inst, p = _one_arm_field(xy, [10, 5, 5, 5, 1])
-    assert int(p.assignments.target[sg.solve_semigreedy(p, seed=0).chosen[0]]) == 0
+    assert int(p.assignments.target[sg.solve_semigreedy(p, SemiGreedyOptions(seed=0)).chosen[0]]) == 0
 
 
 def _blocked_from_scratch(st, chosen):

@@ -11,13 +11,21 @@ from models.collision import fcl_configuration_collisions
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
 from models.types import PlaneTargets
-from solvers.ilp import solve_ilp_cpsat
+from solvers.allocation.cpsat import solve_ilp_cpsat
 from solvers.problem import ConfigSolution
-from solvers.sequencing import UnverifiedConfigurationError, sequence_configurations
+from solvers.sequencing import (
+    PackingOptions,
+    RescueOptions,
+    SequenceOptions,
+    SequencingOptions,
+    UnverifiedConfigurationError,
+    sequence_configurations,
+)
 
 INS = default_instrument()
 # generous limits: CI machines are loaded; no assertion below may depend on solver speed
-LIM = {"time_limit_s": 600.0, "config_time_limit_s": 60.0}
+LIM = {"time_limit_s": 600.0}
+CAP = SequenceOptions(config_time_limit_s=60.0)
 
 
 def _targets(rng, n, radius=125.0):
@@ -29,7 +37,7 @@ def _targets(rng, n, radius=125.0):
 
 def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
     t = _targets(np.random.default_rng(0), 40)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP), **LIM)
     seen = set()
     for c in r.configurations:
         q = c.q
@@ -52,7 +60,7 @@ def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
 
 def test_priority_order_of_first_configuration() -> None:
     t = _targets(np.random.default_rng(1), 60)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, repack=False, **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=False)), **LIM)
     tp = [c.total_priority for c in r.configurations]
     if r.configurations[0].status == "optimal":
         assert tp[0] == max(tp)
@@ -60,7 +68,7 @@ def test_priority_order_of_first_configuration() -> None:
 
 def test_unreachable_targets_reported_and_arms_parked() -> None:
     t = PlaneTargets.from_lists(["a", "b"], [500.0, -600.0], [0.0, 0.0], [1, 2])
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP), **LIM)
     assert r.configurations == ()
     assert sorted(u.reason for u in r.unallocated) == ["unreachable", "unreachable"]
 
@@ -88,7 +96,8 @@ def test_unverified_solution_raises() -> None:
 def test_disabled_arms_respected_in_sequence() -> None:
     t = _targets(np.random.default_rng(3), 30)
     fixed = {0: (np.pi, 0.0), 5: (np.pi, 0.0)}
-    r = sequence_configurations(INS, t, partial(solve_ilp_cpsat, minimize_move=False), fixed=fixed, **LIM)
+    r = sequence_configurations(INS, t, partial(solve_ilp_cpsat, minimize_move=False), SequencingOptions(sequence=CAP),
+                                fixed=fixed, **LIM)
     for c in r.configurations:
         for k in fixed:
             assert c.assignments[k].kind == "fixed"
@@ -99,7 +108,7 @@ def test_repacking_never_increases_configurations() -> None:
     run (greedy count vs final count), so CP-SAT's choice among tied optima cannot matter."""
     t = _targets(np.random.default_rng(4), 48, radius=70.0)
     f = partial(solve_ilp_cpsat, minimize_move=False)
-    b = sequence_configurations(INS, t, f, repack=True, **LIM)
+    b = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=True)), **LIM)
     assert b.stats["n_configurations"] <= b.stats["n_configurations_greedy"]
     assert b.stats["field_completeness"] == 1.0
     assert b.stats["n_configurations"] >= b.stats["lower_bound_configurations"]
@@ -110,16 +119,16 @@ def test_rescue_places_targets_on_park_spots() -> None:
     an arm whose park spot blocks them: without the rescue they stay ``conflict``; with it
     idle arms rest on already observed targets (kind "blank") and every target is
     observed exactly once in verified configurations."""
-    from solvers.bnb import solve_ilp_bnb
+    from solvers.allocation.bnb import solve_ilp_bnb
 
     rng = np.random.default_rng(0)
     n = 40
     r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
     f = partial(solve_ilp_bnb, fallback=None)
-    off = sequence_configurations(INS, t, f, rescue=False, repack=False, **LIM)
+    off = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=False), packing=PackingOptions(enabled=False)), **LIM)
     assert any(u.reason == "conflict" for u in off.unallocated)
-    on = sequence_configurations(INS, t, f, rescue=True, repack=False, **LIM)
+    on = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=True), packing=PackingOptions(enabled=False)), **LIM)
     assert on.stats["reachable_completeness"] == 1.0 and on.stats["stop_reason"] == "complete"
     seen = [x.target_index for c in on.configurations for x in c.assignments if x.target_index is not None]
     assert len(seen) == len(set(seen)) == on.stats["n_reachable"]
@@ -189,13 +198,13 @@ def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     and ceil(t / 12) cannot see it; the configuration LP bound must, and the sequence can
     never use fewer configurations than any proven bound."""
     from models.incompatibility import incompatibility_for_targets
-    from solvers.bounds import max_simultaneous_targets
+    from solvers.sequencing.bounds import max_simultaneous_targets
 
     t = _off_centre_cluster(7)
     inc = incompatibility_for_targets(INS, np.asarray(t.x_mm), np.asarray(t.y_mm))
     m, proven = max_simultaneous_targets(inc, np.arange(7), time_limit_s=60.0)
     assert proven and m == 1  # the premise: pairwise exclusive
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=300.0, **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP, packing=PackingOptions(lp_bound_time_limit_s=300.0)), **LIM)
     s = r.stats
     assert s["field_completeness"] == 1.0
     assert s["lower_bound_configurations_crowding"] < 7 and s["lower_bound_configurations"] < 7
@@ -209,7 +218,7 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
     an exclusive cluster of five makes every count below 5 infeasible, so the whole-field
     packing at the cheap floor fails and the repacking tries the same pool, count and hint
     again — with another seed."""
-    import solvers.sequencing as seq
+    import solvers.sequencing.packing as seq
 
     calls: list[tuple] = []
     real = seq.tabu_pack
@@ -221,8 +230,7 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
 
     monkeypatch.setattr(seq, "tabu_pack", recording)
     t = _off_centre_cluster(5)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, lp_bound_time_limit_s=0.0, time_limit_s=40.0,
-                                config_time_limit_s=5.0, repack_time_limit_s=1.0)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=5.0), packing=PackingOptions(lp_bound_time_limit_s=0.0, attempt_time_limit_s=1.0)), time_limit_s=40.0)
     assert r.stats["field_completeness"] == 1.0
     same = [(a, b) for i, a in enumerate(calls) for b in calls[i + 1:] if a[:3] == b[:3]]
     assert same  # the premise: the repacking retried a pool, count and hint

@@ -1,6 +1,8 @@
-"""Exact branch-and-bound for one configuration, specialised to the IPBA structure.
+"""The bitset branch-and-bound search for one configuration, specialised to the IPBA structure.
 
-The integer program of :mod:`solvers.ilp` has a special shape: 12 arms, each takes exactly
+Shared by the ``bnb`` back-end (:mod:`solvers.allocation.bnb`) and by the presolve of the
+HiGHS and CP-SAT back-ends (:mod:`solvers.allocation.exact`: its incumbent dive and its
+proven column pruning).  The integer program of :mod:`solvers.model` has a special shape: 12 arms, each takes exactly
 ONE location (eq. 5.13), and every other constraint (5.14 same target, 5.15 collisions) is
 a *pairwise* conflict between locations of different arms.  That is a weighted CSP with
 12 variables, which a small depth-first branch-and-bound with forward checking solves
@@ -25,7 +27,8 @@ shorter than the incumbent's longest move removed, restarted after each improvem
 
 Exact in Python integers (priorities up to 2^32 - 1).  ``node_limit`` bounds the work;
 when it is hit the caller gets the incumbent with status ``feasible`` and a gap against
-the largest open bound (or falls back to CP-SAT, see :func:`solve_ilp_bnb`).
+the largest open bound (or falls back to CP-SAT, see
+:func:`solvers.allocation.bnb.solve_ilp_bnb`).
 """
 
 from __future__ import annotations
@@ -37,9 +40,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 
-from solvers.problem import ConfigProblem, ConfigSolution, evaluate
+from solvers.model import coarse_weights, conflict_adjacency, safe_weights
+from solvers.problem import ConfigProblem
 
-__all__ = ["BnbField", "prepare_field", "solve_bnb_chosen", "solve_ilp_bnb"]
+__all__ = ["BnbField", "consistent", "prepare_field", "prune_columns", "solve_bnb_chosen"]
 
 
 @dataclass
@@ -89,9 +93,7 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
 
 def _adjacency(inc) -> sparse.csr_matrix:
     # built once per structure, shared with the ILP
-    from solvers.ilp import conflict_adjacency as cached
-
-    return cached(inc)
+    return conflict_adjacency(inc)
 
 
 def prepare_field(problem: ConfigProblem) -> BnbField:
@@ -99,8 +101,6 @@ def prepare_field(problem: ConfigProblem) -> BnbField:
     inc = problem.incompatibility
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
-    from solvers.ilp import coarse_weights
-
     w = coarse_weights(problem, np.arange(len(a)))
     key = w.tobytes()
     hit = _CACHE.get(id(inc))
@@ -178,8 +178,6 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     ``proved`` (stage 1), ``tie_proved``, ``move_proved``, ``bound`` (coarse root bound
     scaled to full weights), ``nodes``.
     """
-    from solvers.ilp import safe_weights
-
     f = field or prepare_field(problem)
     n_arms = f.n_arms
     allowed = problem.allowed()
@@ -291,7 +289,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
     inc_c, sol = -1, None
     if hint is not None:
         hint = np.asarray(hint, int)
-        if _consistent(hint, f, dom0):
+        if consistent(hint, f, dom0):
             inc_c, sol = coarse_w(hint), [int(v) for v in hint]
     root_c = sum(f.coarse[k][(dom0[k] & -dom0[k]).bit_length() - 1] for k in range(n_arms))
     out["bound"] = root_c * tie_mult + n_arms * max_tie
@@ -442,7 +440,7 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
     return out | (allowed & (problem.assignments.target < 0))
 
 
-def _consistent(chosen: np.ndarray, f: BnbField, dom: list[int]) -> bool:
+def consistent(chosen: np.ndarray, f: BnbField, dom: list[int]) -> bool:
     if chosen.shape != (f.n_arms,) or (chosen < 0).any():
         return False
     for k in range(f.n_arms):
@@ -453,87 +451,3 @@ def _consistent(chosen: np.ndarray, f: BnbField, dom: list[int]) -> bool:
             if not (f.nconf[int(chosen[k])][j] >> int(f.pos[chosen[j]])) & 1:
                 return False
     return True
-
-
-def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_move: bool = True,
-                  fallback: str | None = "cpsat", hint: str | None = None, tie_node_limit: int = 2_000,
-                  move_node_limit: int = 5_000, fallback_min_s: float = 2.0) -> ConfigSolution:
-    """Exact allocation of one configuration: bitset branch-and-bound, CP-SAT for hard proofs.
-
-    Lexicographic: priority, then arm yield (stage 1, proven → status ``optimal``), then
-    the longest move (``stats["move_optimal"]``), then the optional tie-break
-    (``stats["tie_optimal"]``) — stages 2 and 3 are exact searches with node budgets.
-    When stage 1 is not proven within ``node_limit`` nodes (tier transitions where
-    collisions decide the optimum and the per-arm bound is weak), ``fallback="cpsat"``
-    solves the problem with CP-SAT on the priority/yield objective (then its exact stage 2
-    for the longest move), hinted with the incumbent; the tie-break is then not applied.  ``fallback=None``:
-    the incumbent is returned as ``feasible`` with a gap against the root bound.
-    ``hint="semigreedy"`` seeds the incumbent with solvers.semigreedy.warm_start.
-    The fallback runs only when the problem's time limit is >= ``fallback_min_s``: on a
-    dense field the CP-SAT model alone takes ~0.5-1.5 s to build (4 M conflict entries), so
-    under a tight per-configuration budget it cannot finish and only starves the later
-    configurations; the node-limited incumbent is then returned as ``feasible`` + gap.
-    """
-    import dataclasses
-
-    from solvers.ilp import exact_weight, validate_problem
-
-    validate_problem(problem)
-    t0 = time.perf_counter()
-    if problem.time_limit_s < fallback_min_s:
-        fallback = None
-    n_arms = len(problem.assignments.arm_start) - 1
-    deadline = t0 + problem.time_limit_s
-    f = prepare_field(problem)
-    stats: dict = {"backend": "bnb", "prepare_s": time.perf_counter() - t0}
-    h = None
-    if hint == "semigreedy":
-        from solvers.semigreedy import warm_start
-
-        h = warm_start(problem)
-    kw = dict(minimize_move=minimize_move, hint=h, field=f, tie_node_limit=tie_node_limit,
-              move_node_limit=move_node_limit)
-    r = solve_bnb_chosen(problem, node_limit=node_limit, deadline=t0 + (0.3 if fallback else 1.0)
-                         * problem.time_limit_s, **kw)
-    stats["nodes"] = r["nodes"]
-    if not r["proved"] and fallback == "cpsat" and deadline - time.perf_counter() > 0.05:
-        from solvers.ilp import solve_ilp_cpsat
-
-        # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
-        cols = None
-        if r["chosen"] is not None:
-            # exact column fixing against the incumbent: the CP-SAT model shrinks to the
-            # assignments that can still reach the incumbent's priority/yield
-            tp = time.perf_counter()
-            inc_c = sum(f.coarse[k][int(f.pos[r["chosen"][k]])] for k in range(n_arms))
-            cols = prune_columns(problem, inc_c, f)
-            cols[np.asarray(r["chosen"], np.int64)] = True
-            stats.update(prune_s=time.perf_counter() - tp, columns=int(cols.sum()),
-                         columns_allowed=int(problem.allowed().sum()))
-        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - time.perf_counter(), 0.05))
-        sol = solve_ilp_cpsat(coarse, minimize_move=minimize_move, hint=r["chosen"], candidates_per_arm=None,
-                              columns=cols)
-        stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
-        if sol.status in ("optimal", "feasible") and (
-                r["chosen"] is None or sol.status == "optimal"
-                or exact_weight(coarse, sol.chosen) > exact_weight(coarse, r["chosen"])):
-            r = {**r, "chosen": sol.chosen, "proved": sol.status == "optimal",
-                 "move_proved": bool(sol.stats.get("move_optimal")), "tie_proved": False}
-        elif sol.status == "infeasible":
-            r = {**r, "chosen": None, "proved": True}
-    if r["chosen"] is None and not r["proved"]:
-        from solvers.ilp import greedy_solution
-
-        g = greedy_solution(problem)  # limit hit before any incumbent: the quick greedy choice
-        if g is not None:
-            r = {**r, "chosen": g}
-            stats["fallback"] = "greedy"
-    stats.update(move_optimal=bool(r["move_proved"]), tie_optimal=bool(r["tie_proved"]),
-                 total_s=time.perf_counter() - t0)
-    if r["chosen"] is None:
-        return ConfigSolution(np.full(n_arms, -1), "infeasible" if r["proved"] else "timeout", 0, 0, 0.0, None, stats)
-    total, yld, longest = evaluate(problem, r["chosen"])
-    if r["proved"]:
-        return ConfigSolution(r["chosen"], "optimal", total, yld, longest, None, stats)
-    w = exact_weight(problem, r["chosen"])
-    return ConfigSolution(r["chosen"], "feasible", total, yld, longest, max(r["bound"] - w, 0) / max(w, 1), stats)

@@ -1,19 +1,19 @@
 """The staged, presolved exact solve shared by the HiGHS and CP-SAT back-ends (thesis 5.4).
 
-The model is that of :mod:`solvers.ilp` (eqs. 5.13–5.16, 5.18); what this module adds is
+The model is that of :mod:`solvers.model` (eqs. 5.13–5.16, 5.18); what this module adds is
 how it is handed to an engine so that the engine can *prove* the optimum on dense fields:
 
 1. **Incumbent** — a start solution: the caller's ``hint`` or a short depth-first dive of
-   :func:`solvers.bnb.solve_bnb_chosen` (a few hundred nodes; its first dive is greedy
+   :func:`solvers.allocation.bitset.solve_bnb_chosen` (a few hundred nodes; its first dive is greedy
    by weight), on the priority/yield objective.
-2. **Column pruning** (:func:`solvers.bnb.prune_columns`) against that incumbent: every
+2. **Column pruning** (:func:`solvers.allocation.bitset.prune_columns`) against that incumbent: every
    assignment whose probing bound is below the incumbent's priority/yield weight is in no
    solution at least as good, so the model over the kept columns has the same optimum and
    the same optimal solutions.  This is a presolve for every engine, not a heuristic.
-3. **Clique rows** (:mod:`solvers.cliques`) on the kept columns: valid inequalities that
+3. **Clique rows** (:mod:`solvers.allocation.cliques`) on the kept columns: valid inequalities that
    tighten the LP bound where many arms compete for a small region.
 4. **Lexicographic stages**, each proven by the engine, in the order of the thesis
-   criteria (5.1, 7.3) and of :mod:`solvers.bnb`: (1) priority, then arm yield, in one
+   criteria (5.1, 7.3) and of :mod:`solvers.allocation.bitset`: (1) priority, then arm yield, in one
    solve with the safe integer weight ``p * (m + 1) + y``; (2) the longest move (eq. 5.16)
    with that weight fixed; (3) the optional tie-break among those, on the columns whose
    move does not exceed the stage-2 optimum.  Stage 1 decides the status (``optimal`` =
@@ -35,8 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solvers.cliques import CliqueOptions, clique_rows, exclusion_matrix
-from solvers.ilp import (
+from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
+from solvers.allocation.cliques import CliqueOptions, clique_rows, exclusion_matrix
+from solvers.model import (
     ModelArrays,
     build_model_arrays,
     chosen_columns,
@@ -57,12 +58,12 @@ StageSolver = Callable[..., tuple]
 class ExactOptions:
     """``presolve``: incumbent + proven column pruning; ``cliques``: add clique rows;
     ``incumbent_nodes``: node budget of the incumbent dive; ``form``: conflict rows
-    (``aggregated`` or ``pairwise``, see :func:`solvers.ilp.build_model_arrays`);
+    (``aggregated`` or ``pairwise``, see :func:`solvers.model.build_model_arrays`);
     ``move_search``: stage 2 as a bisection over move thresholds (``bisect``, see
     :func:`_bisect_move`) or as one min-max model (``native``, eq. 5.16 per arm);
     ``max_columns``: when pruning leaves more columns than this (a weak incumbent, e.g. at a
     tier transition mid-sequence), the caller's ``large`` solve runs instead (the lazy
-    candidate model of solvers.ilp, which answers within short sequence limits)."""
+    candidate model of solvers.allocation.lazy, which answers within short sequence limits)."""
 
     presolve: bool = True
     cliques: bool = True
@@ -97,8 +98,6 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
                      deadline: float) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """(kept columns mask, incumbent or None, stats): the incumbent (``hint`` if it is a
     valid choice, else a short branch-and-bound dive) and the proven column pruning."""
-    from solvers.bnb import prepare_field, prune_columns, solve_bnb_chosen
-
     t0 = time.perf_counter()
     f = prepare_field(problem)
     allowed = problem.allowed()
@@ -107,7 +106,7 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
         incumbent = np.asarray(hint, np.int64)
     else:
         # with the tie-break, a search cut at its node limit gets one more pass in full-weight
-        # order over the columns that can reach its incumbent (solvers.bnb), which often
+        # order over the columns that can reach its incumbent (solvers.allocation.bitset), which often
         # finds the better incumbent at a tier transition
         r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=1000,
                              deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
@@ -225,11 +224,9 @@ def _bisect_move(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray
     """Stage 2 as a bisection over the distinct move times below the current longest move:
     a threshold L is feasible iff the priority/yield optimum ``w1`` is still reached with
     every column of move > L removed.  Each probe first prunes the columns exactly against
-    ``w1`` (:func:`solvers.bnb.prune_columns`; an arm left without a column proves the
+    ``w1`` (:func:`solvers.allocation.bitset.prune_columns`; an arm left without a column proves the
     threshold infeasible with no engine call), then asks the engine for the stage-1 optimum
     of what is left.  ``stats["move_optimal"]`` is True when every probe was decided."""
-    from solvers.bnb import prepare_field, prune_columns
-
     f = prepare_field(problem)
     longest = evaluate(problem, chosen)[2]
     vals = np.unique(m.move_s[(m.move_s < longest - 1e-9) & (m.var >= 0)])
@@ -267,7 +264,8 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
                  large: Callable[[ConfigProblem, np.ndarray | None], ConfigSolution] | None = None
                  ) -> ConfigSolution:
     """Exact lexicographic solve (see module docstring) with an engine's stage solver
-    (:func:`solvers.ilp.highs_stage_solver` / :func:`solvers.ilp.cpsat_stage_solver`).
+    (:func:`solvers.allocation.highs.highs_stage_solver` /
+    :func:`solvers.allocation.cpsat.cpsat_stage_solver`).
 
     ``columns``: a column mask the caller has PROVEN to hold every solution at least as good
     as ``hint`` (used as given, no further pruning).  ``large``: see ``ExactOptions.max_columns``."""

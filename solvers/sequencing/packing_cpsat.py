@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.incompatibility import Incompatibility
-from solvers.ilp import ModelArrays, build_model_arrays
+from solvers.model import ModelArrays, build_model_arrays
 from solvers.problem import ConfigProblem
 
 __all__ = ["PackingOutcome", "exact_cover", "max_cover", "packing_columns"]

@@ -1,6 +1,6 @@
 """Clique inequalities for the single-configuration integer program (thesis 5.4, eq. 5.15).
 
-The rows of :mod:`solvers.ilp` describe the conflicts pair by pair or per arm pair
+The rows of :mod:`solvers.model` describe the conflicts pair by pair or per arm pair
 (aggregated form).  Near the FOV centre the conflict structure is a set of large cliques
 across many arms: only one arm at a time fits into a disc of ~15 mm, so every assignment
 whose tip lies in that disc excludes every other.  Pairwise rows let the LP relaxation

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from models.incompatibility import Incompatibility
-from solvers.ilp import conflict_adjacency
+from solvers.model import conflict_adjacency
 
 __all__ = ["tabu_pack"]
 

@@ -1,0 +1,84 @@
+"""The single-configuration back-ends behind one small interface, and their registry.
+
+A :class:`Backend` solves one :class:`~solvers.problem.ConfigProblem` with its own typed,
+frozen options (:mod:`solvers.allocation.options`).  The registry maps a name to the
+module that defines the back-end's ``BACKEND``; modules are imported on first use, so an
+engine's library (highspy, OR-Tools) is loaded only when that engine is asked for.  A
+back-end that needs another engine (the ``bnb`` fallback to CP-SAT, its semi-greedy
+incumbent) asks the registry, never the other module: no back-end imports another.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from solvers.problem import ConfigProblem, ConfigSolution
+
+__all__ = ["BACKEND_MODULES", "Backend", "backend_names", "get_backend"]
+
+Solve = Callable[..., ConfigSolution]
+
+
+@dataclass(frozen=True)
+class Backend:
+    """One engine: ``solve(problem, options, *, hint=None, columns=None)``.
+
+    ``method``: ``"ilp"`` (exact) or ``"semigreedy"`` (heuristic); ``options_type``: the
+    frozen dataclass of its options; ``exact``: whether ``optimal`` answers are proofs;
+    ``rescue``: the registry name of the exact engine the sequence's conflict rescue uses
+    for one leftover target at a time (its own for HiGHS and CP-SAT; CP-SAT for ``bnb``,
+    whose node-limited search wanders in the zero-weight rest placements of a rescue model,
+    and for the heuristic); ``description``: what ``stats["engines"]["configurations"]`` says.
+    ``hint`` (a feasible choice, one assignment per arm) and ``columns`` (a column mask
+    proven to hold every solution at least as good as the hint) are exact-model inputs;
+    back-ends without them ignore them.
+    """
+
+    name: str
+    method: str
+    options_type: type
+    solve: Solve
+    exact: bool
+    rescue: str
+    description: str
+
+    def solver(self, options: Any) -> Callable[[ConfigProblem], ConfigSolution]:
+        """``problem -> solution`` with ``options`` bound (what the sequencing driver calls)."""
+        if not isinstance(options, self.options_type):
+            raise TypeError(f"back-end {self.name!r} takes {self.options_type.__name__}, "
+                            f"got {type(options).__name__}")
+
+        def solve_one(problem: ConfigProblem, hint: np.ndarray | None = None,
+                      columns: np.ndarray | None = None) -> ConfigSolution:
+            return self.solve(problem, options, hint=hint, columns=columns)
+
+        return solve_one
+
+
+BACKEND_MODULES = {
+    "bnb": "solvers.allocation.bnb",
+    "highs": "solvers.allocation.highs",
+    "cpsat": "solvers.allocation.cpsat",
+    "semigreedy": "solvers.allocation.semigreedy.solve",
+}
+
+
+def backend_names() -> tuple[str, ...]:
+    return tuple(BACKEND_MODULES)
+
+
+def get_backend(name: str) -> Backend:
+    """The registered back-end ``name`` (KeyError naming the known ones otherwise)."""
+    try:
+        module = BACKEND_MODULES[name]
+    except KeyError:
+        raise KeyError(f"unknown back-end {name!r}; known: {sorted(BACKEND_MODULES)}") from None
+    backend = importlib.import_module(module).BACKEND
+    if backend.name != name:
+        raise RuntimeError(f"{module}.BACKEND is named {backend.name!r}, registered as {name!r}")
+    return backend

@@ -1,0 +1,178 @@
+"""The allocation entry point (thesis ch. 5): one configuration or a full sequence.
+
+``allocate`` checks its inputs (``InputError`` naming the field), takes the engine of the
+chosen method from the back-end registry (:mod:`solvers.allocation.backends`: the exact
+model on HiGHS or CP-SAT, the bitset branch-and-bound, or the semi-greedy heuristic) with
+its typed options (:mod:`solvers.allocation.options`), and runs the one sequencing driver,
+:func:`solvers.sequencing.sequence_configurations`.  ``position_angles_deg`` adds the
+position-angle search of thesis 7.3: the field is rotated about the FOV centre by each
+angle, every rotation is sequenced in parallel threads (the solvers release the GIL) and
+the rotation with the fewest configurations, then highest priority completeness, wins.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from models.errors import InputError, TimeLimitExceeded
+from models.incompatibility import build_assignments, incompatibility_for_targets
+from models.instrument import Instrument
+from models.types import AllocationResult, PlaneTargets, Unallocated
+from solvers.allocation.backends import Backend, get_backend
+from solvers.allocation.options import (
+    CONFIG_MODES,
+    DEFAULT_SOLVER,
+    ENGINE_OPTIONS,
+    AllocationOptions,
+    backend_name,
+)
+from solvers.problem import ConfigProblem, ConfigSolution
+from solvers.sequencing import Progress, sequence_configurations
+
+__all__ = ["allocate", "rotate_targets", "stage_engines", "timed_out_result"]
+
+MAX_ANGLE_THREADS = 4
+
+
+def stage_engines(backend: Backend) -> tuple[Callable[[ConfigProblem], ConfigSolution], dict[str, str]]:
+    """The rescue's exact one-target solve for the chosen engine, and which engine does
+    which part of a sequence (returned as ``stats["engines"]``).
+
+    HiGHS and CP-SAT requests rescue with their own engine; ``bnb`` and the semi-greedy
+    heuristic with CP-SAT (``Backend.rescue``).  Repacking and the configuration lower
+    bounds are multi-configuration CP-SAT / LP models whatever the engine.
+    """
+    rescue = get_backend(backend.rescue)
+    exact_one = rescue.solver(ENGINE_OPTIONS[rescue.name](minimize_move=False))
+    engines = {"configurations": backend.description, "rescue": rescue.name,
+               "repair": "ejection chains (no engine)", "repacking": "cpsat + tabu search",
+               "lower_bounds": "max-flow, cpsat, LP (highs via scipy)"}
+    return exact_one, engines
+
+
+def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
+    """The field rotated by ``angle_deg`` about the FOV centre (a change of position angle)."""
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    x, y = np.asarray(targets.x_mm, float), np.asarray(targets.y_mm, float)
+    return PlaneTargets(targets.ids, c * x - s * y, s * x + c * y, targets.priority)
+
+
+def timed_out_result(instrument: Instrument, targets: PlaneTargets,
+                     fixed: dict[int, tuple[float, float]] | None, elapsed_s: float) -> AllocationResult:
+    """The partial answer of a call whose time ran out while the incompatibility structure
+    was built: no configuration; each target ``unreachable`` (no enabled arm reaches it,
+    cheap to know) or ``no_time``; ``stats["stop_reason"] == "no_time"``."""
+    reach = build_assignments(instrument, targets.x_mm, targets.y_mm, fixed=fixed)
+    unreachable = set(reach.unreachable.tolist())
+    n = len(targets)
+    unalloc = tuple(Unallocated(i, targets.ids[i], "unreachable" if i in unreachable else "no_time")
+                    for i in range(n))
+    stats = {"n_targets": n, "n_reachable": n - len(unreachable), "n_configurations": 0,
+             "field_completeness": 0.0 if n else 1.0, "reachable_completeness": 0.0 if n else 1.0,
+             "priority_completeness": 0.0 if n else 1.0, "stop_reason": "no_time",
+             "timed_out_in": "incompatibility", "timers_s": {"incompatibility_s": elapsed_s}}
+    return AllocationResult((), unalloc, stats)
+
+
+def _check_inputs(instrument: Instrument, configurations: str, time_limit_s, seed, collision_buffer_mm,
+                  start_q, fixed) -> np.ndarray | None:
+    """The call's own inputs, each checked once (``InputError`` naming the field); returns
+    ``start_q`` as an array."""
+    if configurations not in CONFIG_MODES:
+        raise InputError("configurations", f"must be one of {CONFIG_MODES}, got {configurations!r}")
+    if not (isinstance(time_limit_s, int | float) and math.isfinite(time_limit_s) and time_limit_s > 0):
+        raise InputError("time_limit_s", "must be a positive finite number of seconds")
+    if not isinstance(seed, int | np.integer) or isinstance(seed, bool):
+        raise InputError("seed", "must be an integer")
+    if collision_buffer_mm is not None and not (math.isfinite(collision_buffer_mm) and collision_buffer_mm >= 0):
+        raise InputError("collision_buffer_mm", "must be a finite number >= 0")
+    if start_q is not None:
+        start_q = np.asarray(start_q, float)
+        if start_q.shape != (instrument.n_arms, 2) or not np.isfinite(start_q).all():
+            raise InputError("start_q", f"must be {instrument.n_arms} finite (theta1_rad, theta2_rad) pairs")
+    for k, q in (fixed or {}).items():
+        if not (isinstance(k, int | np.integer) and 0 <= k < instrument.n_arms):
+            raise InputError(f"fixed[{k}]", f"arm index must be in 0..{instrument.n_arms - 1}")
+        if len(q) != 2 or not all(math.isfinite(v) for v in q):
+            raise InputError(f"fixed[{k}]", "must be a finite (theta1_rad, theta2_rad) pair")
+    return start_q
+
+
+def _best_angle(angles: list[float], results: list[AllocationResult]) -> AllocationResult:
+    """The rotation with the fewest configurations at the highest completeness (thesis 7.3)."""
+    def key(i: int):
+        s = results[i].stats
+        return (-s["field_completeness"], s["n_configurations"], -s["priority_completeness"])
+
+    best = min(range(len(angles)), key=key)
+    r = results[best]
+    stats = dict(r.stats, position_angle_deg=angles[best],
+                 position_angle_search=[{"angle_deg": a, "n_configurations": x.stats["n_configurations"],
+                                         "priority_completeness": x.stats["priority_completeness"]}
+                                        for a, x in zip(angles, results, strict=True)])
+    return AllocationResult(r.configurations, r.unallocated, stats)
+
+
+def allocate(
+    instrument: Instrument,
+    targets: PlaneTargets,
+    *,
+    method: str = "ilp",
+    solver: str = DEFAULT_SOLVER,
+    configurations: str = "one",
+    time_limit_s: float = 10.0,
+    seed: int = 0,
+    collision_buffer_mm: float | None = None,
+    start_q: np.ndarray | None = None,
+    fixed: dict[int, tuple[float, float]] | None = None,
+    progress: Progress | None = None,
+    position_angles_deg: tuple[float, ...] | None = None,
+    options: AllocationOptions | None = None,
+) -> AllocationResult:
+    """Allocate arms to targets: ``configurations="one"`` (best single configuration) or
+    ``"all"`` (sequence to full completeness).  ``time_limit_s`` bounds the whole call.
+
+    ``method``: "ilp" (exact, engine ``solver``: "bnb", "highs" or "cpsat") or
+    "semigreedy" (SGPBTA).  ``options``: the typed options of the engine and of the
+    sequence (:class:`~solvers.allocation.options.AllocationOptions`; default: every
+    default).  With ``position_angles_deg`` the returned stats hold ``position_angle_deg``:
+    the returned x/y of assignments are in the rotated frame of that angle.
+    """
+    name = backend_name(method, solver)
+    start_q = _check_inputs(instrument, configurations, time_limit_s, seed, collision_buffer_mm, start_q, fixed)
+    opts = AllocationOptions() if options is None else options
+    if not isinstance(opts, AllocationOptions):
+        raise InputError("options", f"must be an AllocationOptions, got {type(opts).__name__}")
+    backend = get_backend(name)
+    solve_one = backend.solver(opts.engine_for(name))
+    sequencing = opts.sequencing(method, configurations, float(time_limit_s))
+    exact_one, engines = stage_engines(backend)
+
+    def run(tgts: PlaneTargets) -> AllocationResult:
+        # the structure build counts against the call's limit: it gets the same deadline
+        # and the sequence only what is left
+        t0 = time.perf_counter()
+        try:
+            inc = incompatibility_for_targets(
+                instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
+                blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
+                deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s)
+        except TimeLimitExceeded:
+            return timed_out_result(instrument, tgts, fixed, time.perf_counter() - t0)
+        left_s = max(time_limit_s - (time.perf_counter() - t0), 1e-3)
+        return sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
+                                       buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),
+                                       progress=progress, incompatibility=inc, exact_one=exact_one,
+                                       engines=engines)
+
+    if not position_angles_deg:
+        return run(targets)
+    angles = [float(a) for a in position_angles_deg]
+    with ThreadPoolExecutor(max_workers=min(len(angles), MAX_ANGLE_THREADS)) as ex:
+        results = list(ex.map(lambda a: run(rotate_targets(targets, a)), angles))
+    return _best_angle(angles, results)
