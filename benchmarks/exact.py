@@ -8,7 +8,7 @@ Prints one JSON document:
   total priority, arm yield, longest move, engine time and the wall time of
   ``allocate(configurations="one")``; per field the LP bound of the priority/yield model
   before (all allowed columns, aggregated rows of eq. 5.15) and after (pruned columns +
-  clique rows, solvers.exact) against the optimum.
+  clique rows, solvers.allocation.exact) against the optimum.
 * ``tier_transition``: the same LP bounds mid-sequence, where they are not trivially tight.
 * ``sequences``: whole dense sequences (``configurations="all"``, sigma 40 / 60): field
   completeness, number of configurations, lower bound, wall, what was left and why.

@@ -96,7 +96,8 @@ def case_motion(dt_s: float, dt_col_s: float, limit_s: float) -> dict:
     ins = default_instrument()
     rng = np.random.default_rng(0)
     t = _targets(rng.normal(0, 35.0, 40), rng.normal(0, 35.0, 40))
-    res = allocate(ins, t, configurations="all", time_limit_s=10.0, options=AllocationOptions(sequence=SequenceOptions(max_configurations=3)))
+    res = allocate(ins, t, configurations="all", time_limit_s=10.0,
+                   options=AllocationOptions(sequence=SequenceOptions(max_configurations=3)))
     qs = [ins.park_configuration] + [c.q for c in res.configurations]
     legs = []
     for a, b in zip(qs[:-1], qs[1:], strict=True):

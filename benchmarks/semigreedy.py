@@ -34,7 +34,7 @@ Sections:
   SGPBTA defaults (only alpha set), ``blank_per_arm=BLANK_PER_ARM``, ``repack=False``:
   ``sg<alpha>`` SGPBTA alone (``repair=False``, ``time_limit_s=DENSE_BUDGET_S``);
   ``sg<alpha>+repair`` (``--dense-repair``) with the driver's ejection repair of the
-  whole sequence (solvers.repair, no geometry, no CP-SAT) inside a call budget of
+  whole sequence (solvers.sequencing.repair, no geometry, no CP-SAT) inside a call budget of
   ``time_limit_s=DENSE_REPAIR_BUDGET_S``, which also bounds the repair;
   wall time INCLUDING the incompatibility structure, medians over fields x repeats.
   ``--dense-exact`` also runs the exact allocator on the same fields (20 s budget).
@@ -88,7 +88,11 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
 
 def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | None = None) -> dict:
     t0 = time.perf_counter()
-    r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=field_limit_s or EXACT_FIELD_S, seed=seed, options=AllocationOptions(sequence=SequenceOptions(config_time_limit_s=EXACT_CONFIG_S), repair=RepairOptions(enabled=repack), packing=PackingOptions(enabled=repack)))
+    r = allocate(INST, targets, method="ilp", configurations="all",
+                 time_limit_s=field_limit_s or EXACT_FIELD_S, seed=seed,
+                 options=AllocationOptions(sequence=SequenceOptions(config_time_limit_s=EXACT_CONFIG_S),
+                                           repair=RepairOptions(enabled=repack),
+                                           packing=PackingOptions(enabled=repack)))
     return {"wall_s": time.perf_counter() - t0, "configurations": r.stats["n_configurations"],
             "before_repack": r.stats["n_configurations_greedy"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"]}
@@ -121,7 +125,12 @@ def run_sg(targets, alpha: float, seed: int, with_gap: bool, gap_every: int = 1)
         return sol
 
     t0 = time.perf_counter()
-    r = sequence_configurations(INST, targets, solve, SequencingOptions(sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM, tie_break=False), repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)), seed=seed, time_limit_s=EXACT_FIELD_S + 100 * with_gap)
+    r = sequence_configurations(INST, targets, solve,
+                                SequencingOptions(sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM,
+                                                                           tie_break=False),
+                                                  repair=RepairOptions(enabled=False),
+                                                  packing=PackingOptions(enabled=False)), seed=seed,
+                                time_limit_s=EXACT_FIELD_S + 100 * with_gap)
     return {"wall_s": time.perf_counter() - t0 - t_gap[0], "configurations": r.stats["n_configurations"],
             "complete": r.stats["field_completeness"], "stop": r.stats["stop_reason"],
             "gaps": gaps, "exact_not_optimal": not_optimal[0]}
@@ -185,7 +194,12 @@ def dense(n, fields, repeats, with_exact, with_repair=False):
         for rep in range(repeats):
             for a, repair in variants:
                 t0, c0 = time.perf_counter(), time.process_time()
-                r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i, time_limit_s=DENSE_REPAIR_BUDGET_S if repair else DENSE_BUDGET_S, options=AllocationOptions(engine=SemiGreedyOptions(alpha=a), sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM), repair=RepairOptions(enabled=repair), packing=PackingOptions(enabled=False)))
+                r = allocate(INST, targets, method="semigreedy", configurations="all", seed=i,
+                             time_limit_s=DENSE_REPAIR_BUDGET_S if repair else DENSE_BUDGET_S,
+                             options=AllocationOptions(engine=SemiGreedyOptions(alpha=a),
+                                                       sequence=SequenceOptions(blank_per_arm=BLANK_PER_ARM),
+                                                       repair=RepairOptions(enabled=repair),
+                                                       packing=PackingOptions(enabled=False)))
                 wall, cpu = time.perf_counter() - t0, time.process_time() - c0
                 out["runs"].append({"field_seed": 100 + i, "repeat": rep, "alpha": a, "repair": repair,
                                     "wall_s": wall, "cpu_s": cpu, "load": os.getloadavg()[0],

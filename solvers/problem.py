@@ -42,7 +42,7 @@ class ConfigProblem:
     target_xy_mm: np.ndarray | None = None  # (n_targets, 2), for the independent tip re-check
     # optional (n_targets,) small non-negative ints: a tie-break among equal-priority,
     # equal-yield solutions (e.g. "hard to place"); exact back-ends use it with weights that
-    # cannot trade away priority or yield (solvers.ilp.safe_weights); others may ignore it
+    # cannot trade away priority or yield (solvers.model.safe_weights); others may ignore it
     tie_break: np.ndarray | None = None
 
     @property

@@ -92,7 +92,8 @@ def test_semigreedy_fast_path_defaults() -> None:
     e = allocate(INS, T, configurations="all", time_limit_s=600.0)
     n_exact = e.stats["incompatibility"]["assignments"]
     assert n_sg == n_exact + 16 * INS.n_arms  # 16 blank-sky rests per arm
-    r2 = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0, options=AllocationOptions(sequence=SequenceOptions(blank_per_arm=0)))
+    r2 = allocate(INS, T, method="semigreedy", configurations="all", time_limit_s=600.0,
+                  options=AllocationOptions(sequence=SequenceOptions(blank_per_arm=0)))
     assert r2.stats["incompatibility"]["assignments"] == n_exact
     with pytest.raises(InputError) as err:
         allocate(INS, T, method="semigreedy", options=AllocationOptions(repair=RepairOptions(time_limit_s=-1.0)))
@@ -110,3 +111,20 @@ def test_targets_left_by_one_configuration_are_not_scheduled() -> None:
     assert len(left) >= len(T) - INS.n_arms and set(left.values()) == {"not_scheduled"}
     every = allocate(INS, far, configurations="all", time_limit_s=120.0)
     assert {u.target_id: u.reason for u in every.unallocated} == {"far": "unreachable"}
+
+
+def test_sequencing_defaults_resolve_by_method_and_mode() -> None:
+    """The "one" mode is exactly one configuration with the call's whole limit and no adaptive
+    share; the semi-greedy fast path fills only what the caller left unset; a sequence caps
+    each solve at min(call limit, 5 s)."""
+    one = AllocationOptions().sequencing("ilp", "one", 30.0)
+    assert (one.sequence.max_configurations, one.sequence.config_time_limit_s, one.sequence.adaptive_limits) \
+        == (1, 30.0, False)
+    assert one.packing.enabled is True and one.repair.time_limit_s == 5.0 and one.sequence.blank_per_arm == 0
+    seq = AllocationOptions(sequence=SequenceOptions(max_configurations=4)).sequencing("ilp", "all", 3.0)
+    assert (seq.sequence.max_configurations, seq.sequence.config_time_limit_s, seq.sequence.adaptive_limits) \
+        == (4, 3.0, True)
+    sg = AllocationOptions(packing=PackingOptions(enabled=True)).sequencing("semigreedy", "all", 60.0)
+    assert sg.packing.enabled is True  # the caller's choice wins over the fast path
+    assert (sg.sequence.tie_break, sg.sequence.blank_per_arm, sg.repair.time_limit_s) == (False, 16, 0.5)
+    assert sg.sequence.config_time_limit_s == 5.0

@@ -1,4 +1,4 @@
-"""Bitset branch-and-bound allocator (solvers.bnb): oracle, CP-SAT cross-check, hints,
+"""Bitset branch-and-bound allocator (solvers.allocation.bnb, solvers.allocation.bitset): oracle, CP-SAT cross-check, hints,
 limits, and the max-flow lower bound on the number of configurations."""
 
 from __future__ import annotations
@@ -172,7 +172,11 @@ def test_matching_lower_bound_beats_ceil_when_few_arms_reach() -> None:
     n_reach = len(np.unique(a.arm[a.target >= 0]))
     assert lb >= math.ceil(30 / n_reach) > math.ceil(30 / 12)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(30)], x, y, np.ones(30, np.int64))
-    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None), SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0), rescue=RescueOptions(enabled=False), packing=PackingOptions(enabled=False)), incompatibility=inc, time_limit_s=600.0)
+    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None),
+                                SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0),
+                                                  rescue=RescueOptions(enabled=False),
+                                                  packing=PackingOptions(enabled=False)), incompatibility=inc,
+                                time_limit_s=600.0)
     assert r.stats["lower_bound_configurations_flow"] == lb
     if r.stats["reachable_completeness"] == 1.0:
         assert r.stats["n_configurations"] >= lb
@@ -182,7 +186,9 @@ def test_adaptive_limits_never_exceed_the_cap() -> None:
     rng = np.random.default_rng(2)
     x, y = _field(rng, 60)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(60)], x, y, rng.choice([500, 100, 10, 1], size=60))
-    r = sequence_configurations(INS, t, solve_ilp_bnb, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=1.5)), time_limit_s=30.0)
+    r = sequence_configurations(INS, t, solve_ilp_bnb,
+                                SequencingOptions(sequence=SequenceOptions(config_time_limit_s=1.5)),
+                                time_limit_s=30.0)
     assert r.stats["field_completeness"] == 1.0 or r.unallocated
     assert all(0 < c.stats["time_limit_s"] <= 1.5 for c in r.configurations if "time_limit_s" in c.stats)
 

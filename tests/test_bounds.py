@@ -69,7 +69,10 @@ def test_crowding_bound_is_informative_and_never_beaten() -> None:
     assert lb > math.ceil(40 / 12)
     assert any(r["proven"] and r["lower_bound"] == lb for r in rows)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(40)], x, y, np.ones(40, np.int64))
-    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None), SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0), packing=PackingOptions(enabled=False)), incompatibility=inc, time_limit_s=600.0)
+    r = sequence_configurations(INS, t, partial(solve_ilp_bnb, fallback=None),
+                                SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0),
+                                                  packing=PackingOptions(enabled=False)), incompatibility=inc,
+                                time_limit_s=600.0)
     assert r.stats["field_completeness"] == 1.0
     assert r.stats["n_configurations"] >= lb
     # every configuration observes at most max_at_once targets of each disc

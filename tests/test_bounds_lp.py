@@ -1,4 +1,4 @@
-"""Set-partitioning LP bound on the configuration count (solvers.bounds.configuration_lp_bound).
+"""Set-partitioning LP bound on the configuration count (solvers.sequencing.bounds.configuration_lp_bound).
 
 Oracles, all independent of the column generation:
 

@@ -1,4 +1,4 @@
-"""The staged exact ILP (solvers.exact), its clique rows (solvers.cliques) and the engine
+"""The staged exact ILP (solvers.allocation.exact), its clique rows (solvers.allocation.cliques) and the engine
 plumbing of allocate (issue 18): engine agreement, valid inequalities, one-mode limits,
 every stage on the chosen engine."""
 
@@ -192,7 +192,9 @@ def test_one_mode_gives_the_engine_the_request_limit(monkeypatch) -> None:
     assert len(r.configurations) == 1 and seen
     assert seen[0] >= 29.0, seen
     seen.clear()
-    allocate(INS, t, solver="highs", configurations="all", time_limit_s=30.0, options=AllocationOptions(sequence=SequenceOptions(max_configurations=2), packing=PackingOptions(enabled=False)))
+    allocate(INS, t, solver="highs", configurations="all", time_limit_s=30.0,
+             options=AllocationOptions(sequence=SequenceOptions(max_configurations=2),
+                                       packing=PackingOptions(enabled=False)))
     assert seen and max(seen) <= 5.0 + 1e-9  # sequences keep the per-configuration cap and share
 
 
@@ -216,7 +218,9 @@ def test_rescue_on_a_highs_request_uses_highs(monkeypatch) -> None:
     n = 40
     r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
-    res = allocate(INS, t, solver="highs", configurations="all", time_limit_s=120.0, options=AllocationOptions(repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)))
+    res = allocate(INS, t, solver="highs", configurations="all", time_limit_s=120.0,
+                   options=AllocationOptions(repair=RepairOptions(enabled=False),
+                                             packing=PackingOptions(enabled=False)))
     assert res.stats["reachable_completeness"] == 1.0
     assert res.stats["engines"]["rescue"] == "highs" and res.stats["engines"]["configurations"] == "highs"
     assert any(c.stats.get("rescue") for c in res.configurations)

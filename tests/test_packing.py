@@ -1,4 +1,4 @@
-"""Tabu search packing targets into n configurations (solvers.packing.tabu_pack).
+"""Tabu search packing targets into n configurations (solvers.sequencing.tabu.tabu_pack).
 
 Oracles, independent of the search: FCL on every returned configuration (the search only
 reads the incompatibility structure), the tip-on-target check, the multiset of observed

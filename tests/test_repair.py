@@ -1,4 +1,4 @@
-"""Ejection-chain repair of a configuration sequence (solvers/repair.py).
+"""Ejection-chain repair of a configuration sequence (solvers/sequencing/repair.py).
 
 Oracles: FCL on every returned configuration (the repair itself only reads the
 incompatibility structure), the tip-on-target check, the multiset of observed targets, and
@@ -118,7 +118,12 @@ def test_repair_on_a_greedy_sequence_keeps_every_target_and_validity() -> None:
     )
 
     t, inc = _field(11, 96, sigma_mm=40.0)
-    r = sequence_configurations(INS, t, solve_ilp_bnb, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0), rescue=RescueOptions(enabled=False), repair=RepairOptions(enabled=False), packing=PackingOptions(enabled=False)), incompatibility=inc, time_limit_s=600.0)
+    r = sequence_configurations(INS, t, solve_ilp_bnb,
+                                SequencingOptions(sequence=SequenceOptions(config_time_limit_s=60.0),
+                                                  rescue=RescueOptions(enabled=False),
+                                                  repair=RepairOptions(enabled=False),
+                                                  packing=PackingOptions(enabled=False)), incompatibility=inc,
+                                time_limit_s=600.0)
     a = inc.assignments
     seq = []
     for c in r.configurations:

@@ -1,4 +1,4 @@
-"""Field segmentation (solvers.segmentation, solvers.enclosing_circle) -- issue 3 tests."""
+"""Field segmentation (solvers.segmentation) -- issue 3 tests."""
 
 from __future__ import annotations
 

@@ -535,7 +535,8 @@ def test_rescue_through_semigreedy_needs_no_exact_solver(monkeypatch):
     r, ang = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(ang), r * np.sin(ang), np.ones(n, np.int64))
     f = partial(sg.solve_semigreedy, options=SemiGreedyOptions(penalty_matrix="workspace"))
-    res = sequence_configurations(INST, t, f, SequencingOptions(packing=PackingOptions(enabled=False)), time_limit_s=60.0)
+    res = sequence_configurations(INST, t, f, SequencingOptions(packing=PackingOptions(enabled=False)),
+                                  time_limit_s=60.0)
     assert res.stats["reachable_completeness"] == 1.0 and res.stats["stop_reason"] == "complete"
     assert any(c.stats.get("rescue") for c in res.configurations)  # the rescue did run
     seen = [x.target_index for c in res.configurations for x in c.assignments if x.target_index is not None]

@@ -60,7 +60,8 @@ def test_sequence_completes_field_and_every_configuration_is_valid() -> None:
 
 def test_priority_order_of_first_configuration() -> None:
     t = _targets(np.random.default_rng(1), 60)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=False)), **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat,
+                                SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=False)), **LIM)
     tp = [c.total_priority for c in r.configurations]
     if r.configurations[0].status == "optimal":
         assert tp[0] == max(tp)
@@ -108,7 +109,8 @@ def test_repacking_never_increases_configurations() -> None:
     run (greedy count vs final count), so CP-SAT's choice among tied optima cannot matter."""
     t = _targets(np.random.default_rng(4), 48, radius=70.0)
     f = partial(solve_ilp_cpsat, minimize_move=False)
-    b = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=True)), **LIM)
+    b = sequence_configurations(INS, t, f,
+                                SequencingOptions(sequence=CAP, packing=PackingOptions(enabled=True)), **LIM)
     assert b.stats["n_configurations"] <= b.stats["n_configurations_greedy"]
     assert b.stats["field_completeness"] == 1.0
     assert b.stats["n_configurations"] >= b.stats["lower_bound_configurations"]
@@ -126,9 +128,13 @@ def test_rescue_places_targets_on_park_spots() -> None:
     r, a = 118 + 8 * rng.random(n), rng.random(n) * 2 * np.pi
     t = PlaneTargets.from_lists([f"t{i}" for i in range(n)], r * np.cos(a), r * np.sin(a), np.ones(n, np.int64))
     f = partial(solve_ilp_bnb, fallback=None)
-    off = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=False), packing=PackingOptions(enabled=False)), **LIM)
+    off = sequence_configurations(INS, t, f,
+                                  SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=False),
+                                                    packing=PackingOptions(enabled=False)), **LIM)
     assert any(u.reason == "conflict" for u in off.unallocated)
-    on = sequence_configurations(INS, t, f, SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=True), packing=PackingOptions(enabled=False)), **LIM)
+    on = sequence_configurations(INS, t, f,
+                                 SequencingOptions(sequence=CAP, rescue=RescueOptions(enabled=True),
+                                                   packing=PackingOptions(enabled=False)), **LIM)
     assert on.stats["reachable_completeness"] == 1.0 and on.stats["stop_reason"] == "complete"
     seen = [x.target_index for c in on.configurations for x in c.assignments if x.target_index is not None]
     assert len(seen) == len(set(seen)) == on.stats["n_reachable"]
@@ -204,7 +210,9 @@ def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     inc = incompatibility_for_targets(INS, np.asarray(t.x_mm), np.asarray(t.y_mm))
     m, proven = max_simultaneous_targets(inc, np.arange(7), time_limit_s=60.0)
     assert proven and m == 1  # the premise: pairwise exclusive
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=CAP, packing=PackingOptions(lp_bound_time_limit_s=300.0)), **LIM)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat,
+                                SequencingOptions(sequence=CAP,
+                                                  packing=PackingOptions(lp_bound_time_limit_s=300.0)), **LIM)
     s = r.stats
     assert s["field_completeness"] == 1.0
     assert s["lower_bound_configurations_crowding"] < 7 and s["lower_bound_configurations"] < 7
@@ -230,7 +238,11 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
 
     monkeypatch.setattr(seq, "tabu_pack", recording)
     t = _off_centre_cluster(5)
-    r = sequence_configurations(INS, t, solve_ilp_cpsat, SequencingOptions(sequence=SequenceOptions(config_time_limit_s=5.0), packing=PackingOptions(lp_bound_time_limit_s=0.0, attempt_time_limit_s=1.0)), time_limit_s=40.0)
+    r = sequence_configurations(INS, t, solve_ilp_cpsat,
+                                SequencingOptions(sequence=SequenceOptions(config_time_limit_s=5.0),
+                                                  packing=PackingOptions(lp_bound_time_limit_s=0.0,
+                                                                         attempt_time_limit_s=1.0)),
+                                time_limit_s=40.0)
     assert r.stats["field_completeness"] == 1.0
     same = [(a, b) for i, a in enumerate(calls) for b in calls[i + 1:] if a[:3] == b[:3]]
     assert same  # the premise: the repacking retried a pool, count and hint

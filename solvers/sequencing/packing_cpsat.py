@@ -1,6 +1,6 @@
 """CP-SAT models for packing targets into a fixed number of configurations.
 
-The same question as :mod:`solvers.packing` (can these targets be observed in ``n``
+The same question as :mod:`solvers.sequencing.tabu` (can these targets be observed in ``n``
 configurations, each obeying eqs. 5.13–5.15?), asked two ways because CP-SAT is good at
 different halves of it:
 

@@ -210,7 +210,7 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
             pool = np.concatenate(per[h:])
             st: dict = {}
             ts = time.perf_counter()
-            n_attempts += 1  # a seed per attempt, as in _pack_fewest
+            n_attempts += 1  # a seed per attempt, as in pack_fewest
             packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s),
                                   seed=seed + BUDGET.prefix_seed_offset + BUDGET.attempt_seed_stride * n_attempts, threads=threads,
                                   hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)

@@ -96,7 +96,7 @@ def hard_to_place(incompatibility: Incompatibility, n_arms: int, xy_mm: np.ndarr
     ``xy_mm``, the number of other still ``pending`` (default: reachable) targets within
     ``crowding_radius_mm`` — near the FOV centre arms converging on one spot collide, so a
     crowded neighbourhood can only be observed about one target per configuration and must
-    be started early (see solvers.bounds.crowding_lower_bound); 0 if unreachable."""
+    be started early (see solvers.sequencing.bounds.crowding_lower_bound); 0 if unreachable."""
     apt = incompatibility.reachability.arms_per_target
     h = np.where(apt > 0, n_arms - apt, 0).astype(np.int64)
     if xy_mm is not None and len(h):

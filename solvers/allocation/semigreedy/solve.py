@@ -6,7 +6,7 @@ A GRASP-style multistart heuristic for one observational configuration. Each ite
    pool of candidates (LPC) of the targets with the greatest benefit
    ``eta_i = p_i + gamma * r_i / n`` (eq. 5.4), those with ``eta_i >= q(alpha)``
    (eq. 5.5), one drawn at random; then an arm for it, ordered by the patrolling penalty
-   matrix (:mod:`solvers.patrolling`) -- greedy (GAS) or shuffled per penalty level
+   matrix (:mod:`solvers.allocation.semigreedy.patrolling`) -- greedy (GAS) or shuffled per penalty level
    (PBAS) -- taking the first one compatible with the assignments already made;
 2. **pads** the arms left without a target (thesis Algorithm 5): current position, then
    park, then the blank-sky locations sampled in the free area in front of the arm (when
