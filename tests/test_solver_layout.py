@@ -13,9 +13,8 @@ from solvers.allocation.backends import BACKEND_MODULES
 ROOT = Path(__file__).resolve().parents[1]
 SOLVERS = ROOT / "solvers"
 MAX_MODULE_LINES = 600
-# each back-end is one module or one package (every module under it)
-BACKEND_UNITS = {name: module.rsplit(".", 1)[0] if module.endswith(".solve") else module
-                 for name, module in BACKEND_MODULES.items()}
+# each back-end is the module or package the registry names (every module under it)
+BACKEND_UNITS = dict(BACKEND_MODULES)
 
 
 def module_name(path: Path) -> str:

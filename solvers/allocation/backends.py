@@ -2,7 +2,8 @@
 
 A :class:`Backend` solves one :class:`~solvers.problem.ConfigProblem` with its own typed,
 frozen options (:mod:`solvers.allocation.options`).  The registry maps a name to the
-module that defines the back-end's ``BACKEND``; modules are imported on first use, so an
+module or package that exports the back-end's ``BACKEND`` (everything under that name is
+the back-end's own code); modules are imported on first use, so an
 engine's library (highspy, OR-Tools) is loaded only when that engine is asked for.  A
 back-end that needs another engine (the ``bnb`` fallback to CP-SAT, its semi-greedy
 incumbent) asks the registry, never the other module: no back-end imports another.
@@ -64,7 +65,7 @@ BACKEND_MODULES = {
     "bnb": "solvers.allocation.bnb",
     "highs": "solvers.allocation.highs",
     "cpsat": "solvers.allocation.cpsat",
-    "semigreedy": "solvers.allocation.semigreedy.solve",
+    "semigreedy": "solvers.allocation.semigreedy",
 }
 
 

@@ -20,8 +20,13 @@ from solvers.allocation.semigreedy.prepare import (
     prepare,
     tie_break_weights,
 )
-from solvers.allocation.semigreedy.solve import solve_semigreedy, warm_start, warm_start_vector
+from solvers.allocation.semigreedy.solve import (
+    BACKEND,
+    solve_semigreedy,
+    warm_start,
+    warm_start_vector,
+)
 
-__all__ = ["DISP_EPS", "Prepared", "SemiGreedyOptions", "State", "construct", "eject_pass", "field_static",
+__all__ = ["BACKEND", "DISP_EPS", "Prepared", "SemiGreedyOptions", "State", "construct", "eject_pass", "field_static",
            "local_search", "lpc", "matching_bound", "pad", "penalty_spec", "prepare", "replace_pass",
            "solve_semigreedy", "swap_pass", "tie_break_weights", "warm_start", "warm_start_vector"]
