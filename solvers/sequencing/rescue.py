@@ -29,7 +29,7 @@ def default_exact_one() -> Callable[[ConfigProblem], ConfigSolution]:
 def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
                       n_fill: int = BUDGET.rescue_fill_targets,
-                     blank_per_arm: int = BUDGET.rescue_blank_per_arm,
+                      blank_per_arm: int = BUDGET.rescue_blank_per_arm,
                       exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
@@ -83,35 +83,51 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
             # nothing jointly: one leftover target at a time, by an exact ILP engine (a
             # node-limited branch-and-bound wanders in the zero-weight rest placements and
             # may miss it)
-            for i in np.flatnonzero(pend[:nl]):
-                if deadline - time.perf_counter() <= BUDGET.min_solve_s:
-                    break
-                av1 = np.zeros(len(sub), bool)
-                av1[i] = True
-                av1[nl:] = True
-                p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
-                                                                              deadline - time.perf_counter()))
-                s1 = exact_one(p1)  # exact, small
-                if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
-                        i in p1.assignments.target[s1.chosen]:
-                    prob, sol = p1, s1
-                    verify(instrument, prob, sol.chosen)
-                    tg = prob.assignments.target[sol.chosen]
-                    real = tg[(tg >= 0) & (tg < nl)]
-                    break
-            if not len(real):
+            one = _one_target_at_a_time(instrument, prob, pend, nl, deadline, config_time_limit_s, exact_one)
+            if one is None:
                 break
+            prob, sol, real = one
         pend[real] = False
         c = make_configuration(first_index + len(out), prob, sol.chosen, sub_targets, sol.status,
                                {"solve_s": dt, "status": sol.status, "gap": sol.gap,
                                 "longest_move_s": sol.longest_move_s, "rescue": True})
-        assigns = []
-        for a_ in c.assignments:
-            if a_.target_index is not None and a_.target_index >= nl:  # resting on an observed target
-                a_ = dataclasses.replace(a_, kind="blank", target_index=None, target_id=None)
-            elif a_.target_index is not None:
-                a_ = dataclasses.replace(a_, target_index=int(sub[a_.target_index]))
-            assigns.append(a_)
-        out.append(dataclasses.replace(c, assignments=tuple(assigns), arm_yield=len(real)))
+        out.append(_in_field_indices(c, sub, nl, len(real)))
         q = prob.assignments.q[sol.chosen]
     return out
+
+
+def _one_target_at_a_time(instrument, prob: ConfigProblem, pend: np.ndarray, nl: int, deadline: float,
+                          config_time_limit_s: float, exact_one: Callable[[ConfigProblem], ConfigSolution]):
+    """The first leftover target (of the ``nl`` leading ones still ``pend``-ing) that an exact
+    solve can place alone: (problem, solution, leftover targets observed), or None."""
+    for i in np.flatnonzero(pend[:nl]):
+        if deadline - time.perf_counter() <= BUDGET.min_solve_s:
+            break
+        av1 = np.zeros(len(pend), bool)
+        av1[i] = True
+        av1[nl:] = True
+        p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
+                                                                      deadline - time.perf_counter()))
+        s1 = exact_one(p1)  # exact, small
+        if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
+                i in p1.assignments.target[s1.chosen]:
+            verify(instrument, p1, s1.chosen)
+            tg = p1.assignments.target[s1.chosen]
+            real = tg[(tg >= 0) & (tg < nl)]
+            if len(real):
+                return p1, s1, real
+            return None
+    return None
+
+
+def _in_field_indices(c: Configuration, sub: np.ndarray, nl: int, n_real: int) -> Configuration:
+    """A rescue configuration in the field's target indices: an arm resting on an already
+    observed target (index >= ``nl`` in the rescue structure) is kind ``"blank"``."""
+    assigns = []
+    for a_ in c.assignments:
+        if a_.target_index is not None and a_.target_index >= nl:  # resting on an observed target
+            a_ = dataclasses.replace(a_, kind="blank", target_index=None, target_id=None)
+        elif a_.target_index is not None:
+            a_ = dataclasses.replace(a_, target_index=int(sub[a_.target_index]))
+        assigns.append(a_)
+    return dataclasses.replace(c, assignments=tuple(assigns), arm_yield=n_real)
