@@ -93,6 +93,75 @@ def test_engines_agree_on_dense_instances() -> None:
         _agree(_problem(inc, x, y, pr, inc.reachability.arms_per_target > 0))
 
 
+def test_engines_prove_every_tier_without_the_presolve() -> None:
+    """With the presolve off (no incumbent, so neither the per-arm bound nor the dive can
+    settle a tier) HiGHS and CP-SAT prove every tier themselves, and agree with bnb."""
+    rng = np.random.default_rng(21)
+    for i in range(8):
+        x, y = _field(rng, int(rng.integers(15, 40)), [None, 30.0][i % 2])
+        pr = rng.choice([500, 100, 10, 1], size=len(x), p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
+        inc = incompatibility_for_targets(INS, x, y)
+        prob = _problem(inc, x, y, pr, inc.reachability.arms_per_target > 0)
+        ref = solve_ilp_bnb(prob)
+        for s in (highs_backend.solve_ilp_highs(prob, presolve=False), cpsat_backend.solve_ilp_cpsat(prob, presolve=False)):
+            assert s.status == "optimal" and s.stats["move_optimal"], s.stats
+            assert "proof" not in s.stats["rounds"][0] and "move_proof" not in s.stats
+            assert (s.total_priority, s.arm_yield) == (ref.total_priority, ref.arm_yield)
+            if ref.stats.get("move_optimal"):
+                assert abs(s.longest_move_s - ref.longest_move_s) < 1e-6
+
+
+def test_exact_arguments_settle_easy_tiers_and_are_reported() -> None:
+    """A sparse field where every arm can take its best target: the dive's incumbent reaches
+    the per-arm bound (stage 1 needs no engine) and its completed longest-move search is the
+    stage-2 optimum; both are reported, and the answer equals the engine-only one."""
+    rng = np.random.default_rng(4)
+    x, y = _field(rng, 60, None)
+    pr = np.full(len(x), 100, np.int64)
+    inc = incompatibility_for_targets(INS, x, y)
+    prob = _problem(inc, x, y, pr, inc.reachability.arms_per_target > 0)
+    for solve in (highs_backend.solve_ilp_highs, cpsat_backend.solve_ilp_cpsat):
+        fast, engine = solve(prob), solve(prob, presolve=False)
+        assert fast.stats["rounds"][0] == {"stage": "priority_yield", "proof": "per-arm bound", "solve_s": 0.0}
+        assert fast.stats["move_proof"] == "branch-and-bound" and fast.stats["move_optimal"]
+        assert fast.status == engine.status == "optimal" and engine.stats["move_optimal"]
+        assert (fast.total_priority, fast.arm_yield) == (engine.total_priority, engine.arm_yield)
+        assert abs(fast.longest_move_s - engine.longest_move_s) < 1e-6
+        assert check_solution(INS, prob, fast.chosen) == []
+
+
+def test_highs_is_interrupted_at_its_deadline() -> None:
+    """HiGHS checks its own time_limit only between phases; the interrupt callbacks stop a
+    hard MIP (a 40-row multidimensional knapsack) inside its search at the wall-clock deadline."""
+    import time
+
+    import highspy
+
+    rng = np.random.default_rng(0)
+    n, m = 300, 40
+    a = rng.integers(1, 30, (m, n)).astype(float)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    h.setOptionValue("time_limit", 1000.0)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = n, m
+    lp.col_cost_ = rng.integers(1, 100, n).astype(float)
+    lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
+    lp.row_lower_, lp.row_upper_ = np.full(m, -highspy.kHighsInf), a.sum(axis=1) / 3
+    lp.sense_ = highspy.ObjSense.kMaximize
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = np.arange(0, m * n + 1, n).astype(np.int32)
+    lp.a_matrix_.index_ = np.tile(np.arange(n), m).astype(np.int32)
+    lp.a_matrix_.value_ = a.ravel()
+    lp.integrality_ = [highspy.HighsVarType.kInteger] * n
+    h.passModel(lp)
+    t0 = time.perf_counter()
+    fired = highs_backend.interrupt_at(h, t0 + 0.3)
+    h.run()
+    assert fired == [True] and h.getModelStatus() == highspy.HighsModelStatus.kInterrupt
+    assert time.perf_counter() - t0 < 3.0
+
+
 def _crowded(seed: int, n: int = 7, radius_mm: float = 14.0):
     rng = np.random.default_rng(seed)
     r, t = radius_mm * np.sqrt(rng.random(n)), rng.random(n) * 2 * np.pi

@@ -4,15 +4,17 @@ The model is that of :mod:`solvers.model` (eqs. 5.13–5.16, 5.18); what this mo
 how it is handed to an engine so that the engine can *prove* the optimum on dense fields:
 
 1. **Incumbent** — a start solution: the caller's ``hint`` or a short depth-first dive of
-   :func:`solvers.allocation.bitset.solve_bnb_chosen` (a few hundred nodes; its first dive is greedy
-   by weight), on the priority/yield objective.
+   :func:`solvers.allocation.bitset.solve_bnb_chosen` (a thousand nodes; its first dive is
+   greedy by weight) on the priority/yield objective, then its exact longest-move search
+   among the solutions of that weight (``INCUMBENT_MOVE_NODES`` nodes).
 2. **Column pruning** (:func:`solvers.allocation.bitset.prune_columns`) against that incumbent: every
    assignment whose probing bound is below the incumbent's priority/yield weight is in no
    solution at least as good, so the model over the kept columns has the same optimum and
    the same optimal solutions.  This is a presolve for every engine, not a heuristic.
 3. **Clique rows** (:mod:`solvers.allocation.cliques`) on the kept columns: valid inequalities that
    tighten the LP bound where many arms compete for a small region.
-4. **Lexicographic stages**, each proven by the engine, in the order of the thesis
+4. **Lexicographic stages**, each proven by the engine unless an exact argument settles it
+   first, in the order of the thesis
    criteria (5.1, 7.3) and of :mod:`solvers.allocation.bitset`: (1) priority, then arm yield, in one
    solve with the safe integer weight ``p * (m + 1) + y``; (2) the longest move (eq. 5.16)
    with that weight fixed; (3) the optional tie-break among those, on the columns whose
@@ -21,6 +23,12 @@ how it is handed to an engine so that the engine can *prove* the optimum on dens
    whether stages 2 and 3 were proven.  Folding the tie-break into the stage-1 weight, as
    a single weighted sum, makes the proof far harder (many equal-priority solutions differ
    only in the tie-break) for no gain in the criteria that matter first.
+   Two exact arguments spare the engine a stage: an incumbent that reaches the per-arm
+   bound (the sum over arms of their best kept column) is the stage-1 optimum, and when it
+   is, the dive's completed longest-move search is the stage-2 optimum
+   (``stats["rounds"]`` and ``stats["move_proof"]`` say so).  The later stages get a share
+   of the time left (``LATER_TIER_SHARE``), so that in a sequence a tie-break that cannot
+   be proven (many equal solutions) does not take the time of the next configurations.
 
 Every stage answer is re-evaluated in exact integers; one that would lose anything against
 the previous stage is rejected.
@@ -52,6 +60,13 @@ from solvers.problem import ConfigProblem, ConfigSolution, evaluate
 __all__ = ["ExactOptions", "add_clique_rows", "presolve_columns", "relaxation_bound", "solve_staged"]
 
 StageSolver = Callable[..., tuple]
+
+# the part of the time left that the longest-move and tie-break tiers may use (each probe of
+# the move bisection counts from what is left when it starts): a hard later tier cannot take
+# the whole limit, and a best-effort tie-break leaves time for the configurations after it
+LATER_TIER_SHARE = {"longest_move": 0.5, "tie_break": 0.5}
+# node budget of the incumbent dive's exact longest-move search
+INCUMBENT_MOVE_NODES = 5000
 
 
 @dataclass(frozen=True)
@@ -95,32 +110,45 @@ def _tie_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
 
 
 def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int,
-                     deadline: float) -> tuple[np.ndarray, np.ndarray | None, dict]:
+                     deadline: float, defer: bool = False) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """(kept columns mask, incumbent or None, stats): the incumbent (``hint`` if it is a
-    valid choice, else a short branch-and-bound dive) and the proven column pruning."""
+    valid choice, else a short branch-and-bound dive) and the proven column pruning.
+
+    ``defer``: when the incumbent reaches the per-arm bound of the allowed columns (so stage
+    1 needs no model), the pruning is left to the caller (``stats["pruned"]`` False, every
+    allowed column returned): most configurations of a dense sequence then need no model
+    of their stage 1 or 2 at all."""
     t0 = time.perf_counter()
     f = prepare_field(problem)
     allowed = problem.allowed()
     incumbent = None
+    move_proved = False
     if hint is not None:
         incumbent = np.asarray(hint, np.int64)
     else:
         # with the tie-break, a search cut at its node limit gets one more pass in full-weight
         # order over the columns that can reach its incumbent (solvers.allocation.bitset), which often
         # finds the better incumbent at a tier transition
-        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=False, field=f, tie_node_limit=1000,
+        r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=True, field=f, tie_node_limit=1000,
+                             move_node_limit=INCUMBENT_MOVE_NODES,
                              deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
         if r["chosen"] is not None:
             incumbent = np.asarray(r["chosen"], np.int64)
-    stats = {"incumbent_s": time.perf_counter() - t0}
+            # when the dive's exact longest-move search completed, its longest move is the
+            # minimum among the solutions of its coarse weight (solvers.allocation.bitset)
+            move_proved = bool(r["move_proved"])
+    stats = {"incumbent_s": time.perf_counter() - t0, "incumbent_move_proved": move_proved}
     if incumbent is None:
         return allowed, None, stats
     inc_c = _coarse_total(problem, incumbent)
+    stats.update(incumbent_coarse=inc_c, columns_allowed=int(allowed.sum()), pruned=True)
+    if defer and inc_c >= _kept_arm_bound(problem, allowed):
+        stats.update(pruned=False, columns=int(allowed.sum()))
+        return allowed, incumbent, stats
     tp = time.perf_counter()
     cols = prune_columns(problem, inc_c, f) & allowed
     cols[incumbent] = True
-    stats.update(prune_s=time.perf_counter() - tp, incumbent_coarse=inc_c, columns=int(cols.sum()),
-                 columns_allowed=int(allowed.sum()))
+    stats.update(prune_s=time.perf_counter() - tp, columns=int(cols.sum()))
     return cols, incumbent, stats
 
 
@@ -258,6 +286,72 @@ def _bisect_move(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray
     return chosen
 
 
+def _kept_arm_bound(problem: ConfigProblem, cols: np.ndarray) -> int:
+    """Sum over arms of the best coarse weight among the kept columns ``cols`` (bool over
+    assignments): the trivial upper bound of stage 1 (:func:`_arm_bound` without a model)."""
+    idx = np.flatnonzero(cols)
+    w = np.asarray(coarse_weights(problem, idx), np.int64)
+    best = np.zeros(len(problem.assignments.arm_start) - 1, np.int64)
+    np.maximum.at(best, problem.assignments.arm[idx], w)
+    return sum(int(v) for v in best)
+
+
+class _StageModels:
+    """The stage models of one solve, built when a stage first needs the engine: the stage-1
+    model over the kept columns (:func:`build_exact_model`) and the tie-break model over the
+    columns no longer than the stage-2 longest move.  When the exact arguments of stages 1
+    and 2 spare the engine, the tie-break model is built from the columns directly (fewer
+    columns, no clique rows) and the full model never is."""
+
+    def __init__(self, problem: ConfigProblem, cols: np.ndarray, options: ExactOptions,
+                 incumbent_coarse: int | None, stats: dict) -> None:
+        self.problem, self.cols, self.options = problem, cols, options
+        self.incumbent_coarse, self.stats = incumbent_coarse, stats
+        self._full: ModelArrays | None = None
+
+    def full(self) -> ModelArrays:
+        if self._full is None:
+            if not self.stats.get("pruned", True):  # deferred by presolve_columns: prune now
+                tp = time.perf_counter()
+                self.cols = self.cols & prune_columns(self.problem, self.incumbent_coarse, prepare_field(self.problem))
+                self.stats.update(pruned=True, prune_s=time.perf_counter() - tp, columns=int(self.cols.sum()))
+            self._full, s = build_exact_model(self.problem, self.cols, self.options, self.incumbent_coarse)
+            self.stats.update(s)
+        return self._full
+
+    def tie_break(self, chosen: np.ndarray, w1: int, longest_s: float | None) -> ModelArrays:
+        """The stage-3 model (full safe weights) on the kept columns with move <= ``longest_s``
+        (None: every kept column) that can reach the stage-1 optimum ``w1``, ``chosen`` included."""
+        p = self.problem
+        if self._full is not None:
+            m = self._full
+            keep = (m.move_s <= longest_s + 1e-9) if longest_s is not None else np.ones(m.n_vars, bool)
+            m3 = _restrict(m, keep | np.isin(m.var, chosen))
+        else:
+            cols = self.cols & p.allowed()
+            if longest_s is not None:
+                cols &= p.move_time_s() <= longest_s + 1e-9
+            if not self.stats.get("pruned", True):
+                cols &= prune_columns(p, w1, prepare_field(p), allowed=cols)
+            cols[chosen] = True
+            m3 = build_model_arrays(p, self.options.form, cols, wildcards=False)
+        return dataclasses.replace(m3, weight=safe_weights(p, m3.var)[0])
+
+
+def _stage2(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray, w1: int, options: ExactOptions,
+            stats: dict) -> np.ndarray:
+    """Stage 2 with the engine: the move bisection (:func:`_bisect_move`) or one min-max model."""
+    if options.move_search == "bisect":
+        return _bisect_move(problem, m, run, chosen, w1, stats)
+    s2, c2, _ = run(m, 2, w1, chosen, "longest_move")
+    if c2 is not None and _coarse_total(problem, c2) >= w1 and evaluate(problem, c2)[2] <= evaluate(problem, chosen)[2]:
+        stats["move_optimal"] = s2 == "optimal"
+        return c2
+    if c2 is not None:
+        stats["stage2_rejected"] = True
+    return chosen
+
+
 def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: str, minimize_move: bool = True,
                  hint: np.ndarray | None = None, columns: np.ndarray | None = None,
                  options: ExactOptions = ExactOptions(),
@@ -282,7 +376,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             cols[hint] = True
         incumbent = hint
     elif options.presolve:
-        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline)
+        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline, defer=True)
         stats.update(s)
     else:
         cols, incumbent = problem.allowed(), hint
@@ -297,7 +391,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         total, yld, longest = evaluate(problem, chosen)
         return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
 
-    if large is not None and columns is None and int(cols.sum()) > options.max_columns:
+    if large is not None and columns is None and stats.get("pruned", True) and int(cols.sum()) > options.max_columns:
         rest = deadline - time.perf_counter()
         if rest > 0.005:
             sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
@@ -308,14 +402,13 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             stats["model"] = "lazy (its answer was below the incumbent)"
             return finish(incumbent, "feasible", sol.gap)
 
-    m, s = build_exact_model(problem, cols, options,
-                             None if incumbent is None else _coarse_total(problem, incumbent))
-    stats.update(s)
-    if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
+    if not np.all(np.bincount(problem.assignments.arm[cols], minlength=n_arms) > 0):
         return finish(None, "infeasible", None)
+    model = _StageModels(problem, cols, options, None if incumbent is None else _coarse_total(problem, incumbent),
+                         stats)
 
     def run(model: ModelArrays, stage: int, w1, start, name: str):
-        remaining = deadline - time.perf_counter()
+        remaining = (deadline - time.perf_counter()) * LATER_TIER_SHARE.get(name, 1.0)
         if remaining <= 0.005:
             return "timeout", None, None
         status, x, gap, r = stage_solver(model, stage, w1, remaining, start)
@@ -324,8 +417,14 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         chosen = None if x is None else model.var[chosen_columns(model, x, n_arms)]
         return status, chosen, gap
 
-    # stage 1: priority, then yield (the safe coarse weight)
-    status, chosen, gap = run(m, 1, None, incumbent, "priority_yield")
+    # stage 1: priority, then yield (the safe coarse weight); an incumbent that meets the
+    # per-arm bound of the kept columns is optimal by that bound alone (the engine's root LP
+    # would only confirm it, and on dense fields that LP has ~700,000 non-zeros)
+    if incumbent is not None and _coarse_total(problem, incumbent) >= _kept_arm_bound(problem, cols):
+        status, chosen, gap = "optimal", incumbent, 0.0
+        stats["rounds"].append({"stage": "priority_yield", "proof": "per-arm bound", "solve_s": 0.0})
+    else:
+        status, chosen, gap = run(model.full(), 1, None, incumbent, "priority_yield")
     if chosen is None or (incumbent is not None and _coarse_total(problem, incumbent) > _coarse_total(problem, chosen)):
         if status == "infeasible":
             return finish(None, "infeasible", None)
@@ -335,27 +434,19 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     if status != "optimal":
         return finish(chosen, "feasible" if status in ("feasible", "optimal", "timeout") else status, gap)
     w1 = _coarse_total(problem, chosen)
-    # stage 2: the longest move with the coarse weight fixed
-    if minimize_move:
-        if options.move_search == "bisect":
-            chosen = _bisect_move(problem, m, run, chosen, w1, stats)
-        else:
-            s2, c2, _ = run(m, 2, w1, chosen, "longest_move")
-            if c2 is not None and _coarse_total(problem, c2) >= w1 and \
-                    evaluate(problem, c2)[2] <= evaluate(problem, chosen)[2]:
-                chosen = c2
-                stats["move_optimal"] = s2 == "optimal"
-            elif c2 is not None:
-                stats["stage2_rejected"] = True
+    # stage 2: the longest move with the coarse weight fixed; an incumbent with the proven
+    # coarse optimum whose dive proved its longest move minimal for that weight is the answer
+    if minimize_move and stats.get("incumbent_move_proved") and _coarse_total(problem, incumbent) == w1:
+        chosen = incumbent
+        stats.update(move_optimal=True, move_proof="branch-and-bound")
+    elif minimize_move:
+        chosen = _stage2(problem, model.full(), run, chosen, w1, options, stats)
     # stage 3: the tie-break among those, on columns no longer than the stage-2 longest move
     tie = None if problem.tie_break is None else np.asarray(problem.tie_break, np.int64)
-    t_cols = problem.assignments.target[m.var]
+    t_cols = problem.assignments.target[np.flatnonzero(cols)]
     if tie is not None and (tie[t_cols[t_cols >= 0]] > 0).any():
         longest = evaluate(problem, chosen)[2]
-        keep = (m.move_s <= longest + 1e-9) if minimize_move else np.ones(m.n_vars, bool)
-        keep |= np.isin(m.var, chosen)
-        m3 = _restrict(m, keep)
-        m3 = dataclasses.replace(m3, weight=safe_weights(problem, m3.var)[0])
+        m3 = model.tie_break(chosen, w1, longest if minimize_move else None)
         s3, c3, _ = run(m3, 1, None, chosen, "tie_break")
         if c3 is not None and _coarse_total(problem, c3) >= w1 and _tie_total(problem, c3) >= _tie_total(problem, chosen) \
                 and (not minimize_move or evaluate(problem, c3)[2] <= longest + 1e-9):

@@ -21,17 +21,17 @@ from solvers.allocation.options import HighsOptions
 from solvers.model import ModelArrays, hint_vector, stage_matrix
 from solvers.problem import ConfigProblem, ConfigSolution
 
-__all__ = ["BACKEND", "HIGHS_PRESOLVE_NNZ", "highs_stage_solver", "solve_ilp_highs"]
-
-HIGHS_PRESOLVE_NNZ = 150_000
+__all__ = ["BACKEND", "highs_stage_solver", "interrupt_at", "solve_ilp_highs"]
 
 
 def highs_stage_solver(problem: ConfigProblem, interface: str, highs_presolve: str = "choose"):
     """A stage solver over HiGHS: ``solve(model, stage, w1, time_limit_s, hint)`` returning
     ``(status, x, gap, stats)``.  ``highs_presolve``: HiGHS' own presolve ("choose", "off"
-    or "auto": off up to ``HIGHS_PRESOLVE_NNZ`` non-zeros — after the column pruning and
-    clique rows of solvers.allocation.exact it mostly costs time there — on above, where the root LP
-    without it can overrun the time limit several times over)."""
+    or "auto" = "off").  Off by default: after the column pruning and clique rows of
+    solvers.allocation.exact it mostly costs time, and it polls neither ``time_limit`` nor the
+    interrupt callbacks, so on dense models (~700,000 non-zeros, mid-sequence at 1,200
+    targets) it ran tens of seconds past a 5 s limit; without it the root LP and the search
+    stop at the deadline (:func:`interrupt_at`)."""
     def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
         A, row_lo, row_hi, cost, integer, sense_max = stage_matrix(m, stage, w1)
         col_hi = np.where(integer, 1.0, np.inf)
@@ -40,7 +40,7 @@ def highs_stage_solver(problem: ConfigProblem, interface: str, highs_presolve: s
         start = hint_vector(m, hint)
         if start is not None and stage == 2:
             start = np.r_[start, float(np.max(m.move_s[start > 0.5], initial=0.0))]
-        pre = highs_presolve if highs_presolve != "auto" else ("off" if A.nnz <= HIGHS_PRESOLVE_NNZ else "choose")
+        pre = "off" if highs_presolve == "auto" else highs_presolve
         return _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s, start, pre)
     return solve
 
@@ -78,6 +78,7 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
         sol.value_valid = True
         h.setSolution(sol)
     t0 = time.perf_counter()
+    interrupted = interrupt_at(h, t0 + float(time_limit_s))
     h.run()
     solve_s = time.perf_counter() - t0
     ms = h.getModelStatus()
@@ -91,7 +92,28 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
         status = "infeasible"
     else:
         status = "feasible" if has_sol else "timeout"
-    return status, x, gap, {"solve_s": solve_s, "solver_status": str(ms), "nodes": int(info.mip_node_count)}
+    return status, x, gap, {"solve_s": solve_s, "solver_status": str(ms), "nodes": int(info.mip_node_count),
+                            "interrupted": bool(interrupted[0])}
+
+
+def interrupt_at(h, deadline: float) -> list[bool]:
+    """Stop the HiGHS instance ``h`` at the wall-clock ``deadline`` inside its simplex, IPM and
+    MIP loops (their interrupt callbacks), not only where HiGHS checks its own ``time_limit``.
+    Returns a one-element flag, set when the callback stopped the run."""
+    import highspy
+
+    fired = [False]
+
+    def callback(callback_type, message, data_out, data_in, user_data):
+        if data_in is not None and time.perf_counter() > deadline:
+            data_in.user_interrupt = True
+            fired[0] = True
+
+    h.setCallback(callback, None)
+    kinds = highspy.cb.HighsCallbackType
+    for kind in (kinds.kCallbackSimplexInterrupt, kinds.kCallbackIpmInterrupt, kinds.kCallbackMipInterrupt):
+        h.startCallback(kind)
+    return fired
 
 
 def _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s):
@@ -179,7 +201,7 @@ def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interfa
         raise ValueError(f"highs_presolve must be 'off', 'choose' or 'auto', got {highs_presolve!r}")
     if staged:
         def large(p: ConfigProblem, start) -> ConfigSolution:
-            return lazy_solve(p, highs_stage_solver(p, interface, "choose"), form=form, minimize_move=minimize_move,
+            return lazy_solve(p, highs_stage_solver(p, interface, highs_presolve), form=form, minimize_move=minimize_move,
                                candidates_per_arm=candidates_per_arm, backend=f"highs/{interface}", hint=start)
 
         return solve_staged(problem, highs_stage_solver(problem, interface, highs_presolve), backend=f"highs/{interface}",
