@@ -36,10 +36,11 @@ from service.errors import (
 )
 from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
 from service.jobpool import JobManager, PoolOptions
-from service.jobs import EXPIRED
+from service.jobs import CANCELLED, EXPIRED
 from service.limits import check_request
 from service.middleware import BodyTimeoutMiddleware
 from service.schemas import (
+    JOB_STATUS,
     AllocationRequest,
     AllocationResponse,
     ErrorResponse,
@@ -448,6 +449,29 @@ def _job_routes(app: FastAPI) -> None:
     async def get_job(job_id: str, st: StateDep) -> JSONResponse:
         return await run_in_threadpool(_job_answer, st, job_id)
 
+    @app.post("/v1/jobs/{job_id}/cancel", operation_id="cancel_job", response_model=JobStatus,
+              tags=["jobs"], dependencies=[Auth], responses={
+                  404: {"model": ErrorResponse, "description": "No such job."},
+                  409: {"model": ErrorResponse, "description": "The job has already finished "
+                        "(done, failed or cancelled); it is left as it is."},
+                  410: {"model": ErrorResponse, "description": "The job has expired."},
+                  **ERRORS})
+    async def cancel_job(job_id: str, st: StateDep) -> JSONResponse:
+        """Cancel a queued or running job: it ends at once with status `cancelled` (a queued
+        job is never started; the worker of a running one stops within a couple of seconds
+        and its result is never recorded). Answers the job's new state. The job stays
+        readable with `GET /v1/jobs/{job_id}`, so cancelling is a state change (POST), not a
+        deletion."""
+        return await run_in_threadpool(_cancel_answer, st, job_id)
+
+
+def _cancel_answer(st: ServiceState, job_id: str) -> JSONResponse:
+    before = st.jobs.cancel(job_id)
+    if before in ("done", "failed", CANCELLED):
+        raise ServiceError(f"job {job_id!r} has already finished ({before}); only queued or "
+                           "running jobs can be cancelled", status_code=409, code="conflict")
+    return _job_answer(st, job_id)
+
 
 def _job_answer(st: ServiceState, job_id: str) -> JSONResponse:
     """A job's state, read, validated and rendered in a thread (results can be large)."""
@@ -459,7 +483,8 @@ def _job_answer(st: ServiceState, job_id: str) -> JSONResponse:
     if job["status"] == EXPIRED:
         raise ServiceError(f"job {job_id!r} has expired and its result was deleted ({kept})",
                            status_code=410, code="gone")
-    return JSONResponse(JobStatus.model_validate(job).model_dump(mode="json", by_alias=True))
+    return JSONResponse(JOB_STATUS.dump_python(JOB_STATUS.validate_python(job), mode="json",
+                                               by_alias=True))
 
 
 app = create_app()

@@ -9,7 +9,8 @@ watchdog thread that exits as soon as the parent pid changes (any platform, and 
 before ``prctl`` took effect).
 
 The supervisor thread starts the workers (on the first submission, or at once when jobs
-wait), restarts a worker that died and re-queues its job, renews the leases of its live
+wait), restarts a worker that died and re-queues its job, kills a worker that has not
+stopped a cancelled job within :data:`CANCEL_GRACE_S`, renews the leases of its live
 workers' jobs (a second heartbeat, independent of the worker's own), sweeps expired leases of
 any server and applies the retention rules. :meth:`JobManager.shutdown` stops the workers within a
 couple of seconds and hands this server's running jobs back to the queue.
@@ -35,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from service.executor import Overloaded, QueueLimit
-from service.jobs import JobStore, QueueFull, run_job
+from service.jobs import CANCELLED, JobStore, QueueFull, run_job
 
 log = logging.getLogger("service.jobs")
 
@@ -87,14 +88,27 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="mxs-parent-watchdog", daemon=True).start()
 
 
+CANCEL_POLL_S = 0.25  # how often the worker of a running job reads whether it was cancelled
+CANCEL_GRACE_S = 2.0  # then a job that has not stopped at a progress report is killed
+
+
 @contextlib.contextmanager
-def _heartbeat(store: JobStore, job_id: str, owner: str, lease_s: float) -> Iterator[None]:
+def _watch(store: JobStore, job_id: str, owner: str, lease_s: float,
+           cancelled: threading.Event) -> Iterator[None]:
+    """While a job runs: renew its lease every third of it, and read its status every
+    :data:`CANCEL_POLL_S`; once it is ``cancelled``, set ``cancelled`` (the job then stops at
+    its next progress report)."""
     stop = threading.Event()
 
     def beat() -> None:
-        while not stop.wait(lease_s / 3):
+        next_renewal = time.monotonic() + lease_s / 3
+        while not cancelled.is_set() and not stop.wait(CANCEL_POLL_S):
             try:
-                store.renew(job_id, owner, lease_s)
+                if store.status(job_id) == CANCELLED:
+                    cancelled.set()
+                elif time.monotonic() >= next_renewal:
+                    store.renew(job_id, owner, lease_s)
+                    next_renewal = time.monotonic() + lease_s / 3
             except Exception:  # noqa: BLE001 - a missed beat is retried; the lease is long
                 log.exception("lease renewal of job %s failed", job_id)
 
@@ -105,6 +119,8 @@ def _heartbeat(store: JobStore, job_id: str, owner: str, lease_s: float) -> Iter
     finally:
         stop.set()
         t.join(timeout=5)
+        if cancelled.is_set():
+            store.stopped(job_id, owner)
 
 
 def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: str | None,
@@ -125,9 +141,10 @@ def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: s
         if job is None:
             time.sleep(poll_s)
             continue
-        with _heartbeat(store, job.job_id, owner, lease_s):
+        cancelled = threading.Event()
+        with _watch(store, job.job_id, owner, lease_s, cancelled):
             run_job(db_path, job.job_id, job.kind, job.request, instrument_file,
-                    job.time_limit_s, job.budget_s)
+                    job.time_limit_s, job.budget_s, cancelled)
 
 
 # --------------------------------------------------------------------- server side
@@ -174,6 +191,11 @@ class JobManager:
     def get(self, job_id: str) -> dict[str, Any] | None:
         return self.store.get(job_id)
 
+    def cancel(self, job_id: str) -> str | None:
+        """Cancel an open job (its worker stops within :data:`CANCEL_GRACE_S` and about a
+        second); the status it had before, None when there is no such job."""
+        return self.store.cancel(job_id, CANCEL_GRACE_S)
+
     def worker_pids(self) -> list[int]:
         return [p.pid for p in list(self._procs) if p.pid is not None and p.is_alive()]
 
@@ -205,6 +227,7 @@ class JobManager:
         while not self._stop.is_set():
             try:
                 if self._want.is_set():
+                    self._kill_cancelled()
                     self._keep_workers()
                 if time.monotonic() >= next_sweep:
                     self._sweep()
@@ -226,6 +249,17 @@ class JobManager:
         while len(alive) < self.options.workers and not self._stop.is_set():
             alive.append(self._spawn())
         self._procs = alive
+
+    def _kill_cancelled(self) -> None:
+        """Kill the workers still running a job cancelled more than the grace period ago (a
+        long solver call reports no progress); :meth:`_keep_workers` starts new ones."""
+        for job_id, owner in self.store.overdue_cancelled(self.instance):
+            for p in self._procs:
+                if f"{self.instance}/{p.pid}" == owner and p.is_alive():
+                    log.warning("job %s was cancelled and did not stop: killing its worker %s",
+                                job_id, p.pid)
+                    p.kill()
+                    p.join(timeout=2.0)
 
     def _sweep(self) -> None:
         o = self.options

@@ -1,6 +1,6 @@
 """Background jobs: a SQLite job table shared by every server, worked off under leases.
 
-A job is inserted ``queued`` (refused with 503 + ``Retry-After`` when ``MXS_MAX_QUEUED_JOBS``
+A job is inserted ``queued`` (refused with 429 + ``Retry-After`` when ``MXS_MAX_QUEUED_JOBS``
 are already waiting). Worker processes (:mod:`service.worker`) of any server on the same
 database claim the oldest queued job atomically, marking it ``running`` with an owner
 (``<server instance>/<pid>``) and a lease (``MXS_JOB_LEASE_S``) that a heartbeat renews while
@@ -14,6 +14,12 @@ reason once it has been interrupted ``MXS_JOB_MAX_ATTEMPTS`` times. A server tha
 normally hands its own running jobs back to the queue at once; queued jobs stay in the shared
 table for the next server. Finished jobs are kept for ``MXS_JOB_RETENTION_S`` and at most the
 newest ``MXS_JOB_RETENTION_COUNT``; older ones are reduced to a tombstone that answers 410.
+
+Cancelling (:meth:`JobStore.cancel`) finishes an open job at once as ``cancelled``: a queued job
+is never claimed; the worker of a running one sees the status change within a fraction of a
+second and stops at the stage's next progress report, or is ended by its server after a grace
+period (:mod:`service.jobpool`). Whatever it computes after the cancellation is never
+recorded, since only open jobs are updated.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from __future__ import annotations
 import json
 import logging
 import sqlite3
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -33,8 +40,10 @@ log = logging.getLogger("service.jobs")
 
 INTERRUPTED = "interrupted by server restart"
 EXPIRED = "expired"
+CANCELLED = "cancelled"
+CANCELLED_ERROR = "cancelled by request"
 OPEN = "('queued', 'running')"
-FINISHED = "('done', 'failed')"
+FINISHED = "('done', 'failed', 'cancelled')"
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
     job_id     TEXT PRIMARY KEY,
@@ -146,6 +155,58 @@ class JobStore:
         job = dict(zip(_PUBLIC, row, strict=True))
         job["result"] = json.loads(job["result"]) if job["result"] else None
         return job
+
+    def status(self, job_id: str) -> str | None:
+        """A job's status only (a cheap read, polled by the worker running it), or None."""
+        with _closing(connect(self.db_path)) as con:
+            row = con.execute("SELECT status FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def cancel(self, job_id: str, grace_s: float = 2.0) -> str | None:
+        """Finish an open job as ``cancelled``; returns the status it had before (None: no
+        such job). A finished (or expired) job is left as it is. A running job keeps its
+        owner until the worker says it stopped (:meth:`stopped`); one that has not within
+        ``grace_s`` is listed by :meth:`overdue_cancelled`."""
+        with _closing(connect(self.db_path)) as con:
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                row = con.execute("SELECT status FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+                now = time.time()
+                con.execute(
+                    f"UPDATE jobs SET status='{CANCELLED}', error=?, lease_until=?, updated_at=? "
+                    f"WHERE job_id = ? AND status IN {OPEN}",
+                    (CANCELLED_ERROR, now + grace_s, now, job_id))
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+        return None if row is None else str(row[0])
+
+    def stopped(self, job_id: str, owner: str) -> None:
+        """``owner`` has stopped working on its cancelled job."""
+        with _closing(connect(self.db_path)) as con:
+            con.execute(f"UPDATE jobs SET owner=NULL, lease_until=NULL WHERE job_id=? AND "
+                        f"status='{CANCELLED}' AND owner=?", (job_id, owner))
+
+    def overdue_cancelled(self, instance: str) -> list[tuple[str, str]]:
+        """(job id, owner) of the cancelled jobs that workers of server ``instance`` have not
+        stopped within the grace period; each is handed over (its owner cleared)."""
+        query = (f"SELECT job_id, owner FROM jobs WHERE status='{CANCELLED}' AND owner LIKE ? "
+                 "AND lease_until < ?")
+        args = (f"{instance}/%", time.time())
+        with _closing(connect(self.db_path)) as con:
+            if not con.execute(query, args).fetchone():
+                return []  # the common case: no write lock taken
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                rows = con.execute(query, args).fetchall()
+                con.executemany("UPDATE jobs SET owner=NULL, lease_until=NULL WHERE job_id=?",
+                                [(r[0],) for r in rows])
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+        return [(str(r[0]), str(r[1])) for r in rows]
 
     def count(self, status: str) -> int:
         with _closing(connect(self.db_path)) as con:
@@ -286,17 +347,23 @@ class _closing:
 
 def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
             instrument_file: str | None, time_limit_s: float,
-            budget_s: float | None = None) -> str:
-    """Run one claimed job's stage and persist its outcome. Never raises an ``Exception``."""
+            budget_s: float | None = None, cancelled: threading.Event | None = None) -> str:
+    """Run one claimed job's stage and persist its outcome. Never raises an ``Exception``.
+
+    Once ``cancelled`` is set (the job was cancelled), the stage stops at its next progress
+    report (:class:`~service.executor.Cancelled`) and ``"cancelled"`` is returned."""
     from models.instrument import InstrumentError
     from service import pipeline
     from service.errors import ServiceError
+    from service.executor import Cancelled
 
     store = JobStore(db_path)
     try:
         last = [0.0, time.monotonic()]
 
         def progress(p: float) -> None:
+            if cancelled is not None and cancelled.is_set():
+                raise Cancelled()
             now = time.monotonic()
             if p >= 1.0 or p - last[0] >= 0.01 and now - last[1] >= 0.2:
                 last[:] = [p, now]
@@ -307,6 +374,8 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
                               budget_s=budget_s)
         store.set_done(job_id, result)
         return "done"
+    except Cancelled:
+        return CANCELLED
     except (ServiceError, InstrumentError) as exc:
         store.set_failed(job_id, str(exc))
     except ValueError as exc:  # domain input errors (InputError) and pydantic ValidationError

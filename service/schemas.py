@@ -15,6 +15,7 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    TypeAdapter,
     ValidationInfo,
     field_validator,
     model_validator,
@@ -323,7 +324,7 @@ JobRequest = Annotated[
     SegmentationJob | AllocationJob | MotionPlanJob | PlanJob, Field(discriminator="kind")
 ]
 JobKind = Literal["segmentation", "allocation", "motion-plan", "plan"]
-JobState = Literal["queued", "running", "done", "failed"]
+JobState = Literal["queued", "running", "done", "failed", "cancelled"]
 
 # ------------------------------------------------------------------------ responses
 
@@ -560,15 +561,44 @@ class JobCreated(Response):
     status: JobState
 
 
-class JobStatus(Response):
+class JobStatusBase(Response):
     job_id: str
     kind: JobKind
-    status: JobState
+    status: JobState = Field(description="'queued', 'running', then 'done' (with `result`), "
+                             "'failed' (with `error`) or 'cancelled' (POST "
+                             "/v1/jobs/{job_id}/cancel).")
     progress: float = Field(ge=0.0, le=1.0)
-    result: dict[str, Any] | None = None
-    error: str | None = None
+    result: Response | None = None
+    error: str | None = Field(None, description="Why the job failed or was cancelled.")
     created_at: float = Field(description="Unix time the job was accepted.")
     updated_at: float = Field(description="Unix time of the last state change.")
+
+
+class SegmentationJobStatus(JobStatusBase):
+    kind: Literal["segmentation"]
+    result: SegmentationResponse | None = Field(None, description="Set when `status` is 'done'.")
+
+
+class AllocationJobStatus(JobStatusBase):
+    kind: Literal["allocation"]
+    result: AllocationResponse | None = Field(None, description="Set when `status` is 'done'.")
+
+
+class MotionPlanJobStatus(JobStatusBase):
+    kind: Literal["motion-plan"]
+    result: MotionPlanResponse | None = Field(None, description="Set when `status` is 'done'.")
+
+
+class PlanJobStatus(JobStatusBase):
+    kind: Literal["plan"]
+    result: PlanResponse | None = Field(None, description="Set when `status` is 'done'.")
+
+
+JobStatus = Annotated[
+    SegmentationJobStatus | AllocationJobStatus | MotionPlanJobStatus | PlanJobStatus,
+    Field(discriminator="kind"),
+]
+JOB_STATUS: TypeAdapter[Any] = TypeAdapter(JobStatus)
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

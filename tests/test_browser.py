@@ -119,7 +119,7 @@ def _example_csv(path: Path) -> Path:
 def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     page.goto(server + "/")
     page.set_input_files("#file", str(_example_csv(tmp_path / "m13.csv")))
-    page.fill("#time-limit", "2")
+    page.fill("#time-limit", "10")  # legs get planned on a loaded machine too
     page.fill("#pa", "30")  # the page's projection must rotate as the server's does
     page.select_option("#segmentation", "balanced")
     page.click("#go")
@@ -196,20 +196,25 @@ def _not_executable_is_flagged(page, result) -> None:
 
 
 def _play_first_leg(page, result) -> None:
-    """The leg park -> c1 plays as an animation and ends on the configuration's arm tips."""
-    sec = page.locator(".pointing").first
-    sec.locator(".stepper button").first.click()
-    page.evaluate("""() => { const svg = document.querySelector('.pointing svg[data-configuration]');
+    """The first planned leg into a configuration plays as an animation and ends on the
+    configuration's arm tips."""
+    legs = [(i, k) for i, p in enumerate(result["pointings"]) for k in range(len(p["configurations"]))
+            if p["motions"][k]["status"] == "ok" and p["motions"][k]["makespan_s"] > 0]
+    assert legs, "no motion leg into a configuration was planned"
+    i, k = legs[0]
+    sec = page.locator(".pointing").nth(i)
+    sec.locator(".stepper button").nth(k).click()
+    page.evaluate("""(i) => { const svg = document.querySelectorAll('.pointing')[i].querySelector('svg[data-configuration]');
         window.frames_seen = 0;
-        new MutationObserver(() => { window.frames_seen += 1; }).observe(svg, {childList: true, subtree: true}); }""")
+        new MutationObserver(() => { window.frames_seen += 1; }).observe(svg, {childList: true, subtree: true}); }""", i)
     sec.locator("button.play").click()
     page.wait_for_function("window.frames_seen > 3")
-    page.wait_for_function("!document.querySelector('.pointing svg[data-configuration]')"
-                           "?.dataset.playing", timeout=15_000)
-    first = result["pointings"][0]
+    page.wait_for_function("(i) => !document.querySelectorAll('.pointing')[i].querySelector('svg[data-configuration]')"
+                           "?.dataset.playing", arg=i, timeout=15_000)
+    p = result["pointings"][i]
     # the motion's last waypoints are the configuration's joint angles
-    end = page.evaluate("""(p) => [...mxs.anglesAt(p.motions[0], 1e9).entries()]""", first)
-    goal = {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in first["configurations"][0]["assignments"]}
+    end = page.evaluate("""([p, k]) => [...mxs.anglesAt(p.motions[k], 1e9).entries()]""", [p, k])
+    goal = {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in p["configurations"][k]["assignments"]}
     assert {arm for arm, _ in end} == set(goal)
     for arm, (t1, t2) in end:
         assert abs(t1 - goal[arm][0]) < 1e-6
@@ -266,3 +271,27 @@ def test_docs_render_offline(page, server) -> None:
     page.wait_for_selector(".swagger-ui .info .title", timeout=20_000)
     assert "MXS planner" in page.inner_text(".swagger-ui .info .title")
     assert page.locator(".opblock").count() >= 5
+
+
+def test_cancel_a_running_plan(page, server) -> None:
+    """Last in this module: the job's worker may be restarted to stop it."""
+    import numpy as np
+
+    page.goto(server + "/")
+    assert page.is_disabled("#cancel")  # no job runs
+    rng = np.random.default_rng(3)
+    rows = [f"t{i},{250.42 + rng.normal(0, 0.006):.6f},{36.46 + rng.normal(0, 0.006):.6f},{1 + i % 5}"
+            for i in range(300)]  # one crowded pointing: minutes of work
+    page.fill("#targets", "id,ra,dec,priority\n" + "\n".join(rows) + "\n")
+    page.click("#go")
+    page.wait_for_function("document.querySelector('#status').textContent.includes('running')",
+                           timeout=60_000)
+    assert not page.is_disabled("#cancel")
+    job_id = page.evaluate("mxs.state.jobId")
+    page.click("#cancel")
+    page.wait_for_function("document.querySelector('#status').textContent.includes('cancelled')",
+                           timeout=20_000)
+    assert page.is_disabled("#cancel") and not page.is_disabled("#go")
+    assert page.is_hidden("#result") and page.is_hidden("#error")
+    job = httpx.get(f"{server}/v1/jobs/{job_id}", timeout=10).json()
+    assert (job["status"], job["result"]) == ("cancelled", None)

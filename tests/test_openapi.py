@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 import subprocess
 import sys
@@ -15,6 +16,8 @@ from hypothesis import HealthCheck, settings
 from service.app import create_app
 from service.export_openapi import DEFAULT_PATH, openapi_document, render
 from service.settings import Settings
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_committed_openapi_matches_app() -> None:
@@ -80,16 +83,24 @@ def test_schemathesis(case) -> None:
 # --------------------------------------------------------------- generated client
 
 
+def readme_client_command() -> list[str]:
+    """The client generation command of the README, as a user would copy it."""
+    lines = [ln.strip() for ln in (ROOT / "README.md").read_text().splitlines()
+             if ln.strip().startswith("openapi-python-client generate")]
+    assert len(lines) == 1, lines
+    return shlex.split(lines[0])
+
+
 def test_generated_client_round_trip(tmp_path: Path, live_server) -> None:
-    exe = shutil.which("openapi-python-client")
-    if exe is None:
-        pytest.skip("openapi-python-client is not installed")
-    out = tmp_path / "mxs_client"
-    subprocess.run(
-        [exe, "generate", "--path", str(DEFAULT_PATH), "--output-path", str(out), "--meta", "none",
-         "--overwrite"],
-        check=True, capture_output=True, timeout=120,
-    )
+    """The README's command on a copy of the committed document, then the client it writes
+    against a live server: stages, a typed job result, the typed 409 and 422 bodies."""
+    command = readme_client_command()
+    assert shutil.which(command[0]), "openapi-python-client (dev extra) is not installed"
+    (tmp_path / "openapi").mkdir()
+    shutil.copy(DEFAULT_PATH, tmp_path / "openapi" / "openapi.json")
+    subprocess.run(command, cwd=tmp_path, check=True, capture_output=True, timeout=120)
+    out = tmp_path / command[command.index("--output-path") + 1]
+    assert (out / "__init__.py").exists()
     code = CLIENT_SCRIPT.format(pkg=out.name, url=live_server.url)
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
                        timeout=120)
@@ -101,14 +112,20 @@ def test_generated_client_round_trip(tmp_path: Path, live_server) -> None:
     assert report["allocation"] == "ok"
     assert report["allocated"] >= 1 and report["kinds"] <= {"target", "park", "blank", "fixed"}
     assert report["motion"] in ("ok", "failed")
+    assert report["job"] == ["SegmentationJobStatus", "SegmentationResponse", "done"]
+    assert report["job_targets"] == ["s0", "s1", "s2"]
+    assert report["cancel_done"] == [409, "ErrorResponse", "conflict"]
+    assert report["bad"] == [422, "ValidationErrorResponse", ["body", "targets", 0, "dec_deg"]]
 
 
 CLIENT_SCRIPT = r'''
-import json, math
+import json, math, time
 from {pkg} import Client
 from {pkg}.api.service import get_instrument, health
-from {pkg}.api.stages import create_allocation, create_motion_plan
-from {pkg}.models import AllocationRequest, ArmState, MotionPlanRequest, PlaneTarget
+from {pkg}.api.jobs import cancel_job, create_job, get_job
+from {pkg}.api.stages import create_allocation, create_motion_plan, create_segmentation
+from {pkg}.models import (AllocationRequest, ArmState, MotionPlanRequest, PlaneTarget,
+                          SegmentationJob, SegmentationRequest, SkyTarget)
 
 client = Client(base_url="{url}", raise_on_unexpected_status=False, timeout=120)
 report = {{}}
@@ -139,5 +156,21 @@ m = create_motion_plan.sync_detailed(
 assert m.status_code == 200, (m.status_code, m.content)
 report["motion"] = m.parsed.status.value if hasattr(m.parsed.status, "value") else str(m.parsed.status)
 assert len(m.parsed.trajectories) == (12 if report["motion"] == "ok" else len(m.parsed.trajectories))
+sky = [SkyTarget(id=f"s{{i}}", ra_deg=34.75 + 0.002 * i, dec_deg=57.13, priority=1) for i in range(3)]
+created = create_job.sync(client=client, body=SegmentationJob(
+    kind="segmentation", request=SegmentationRequest(targets=sky)))
+for _ in range(600):
+    job = get_job.sync(client=client, job_id=created.job_id)
+    if str(getattr(job.status, "value", job.status)) in ("done", "failed"):
+        break
+    time.sleep(0.1)
+status = str(getattr(job.status, "value", job.status))
+report["job"] = [type(job).__name__, type(job.result).__name__, status]
+report["job_targets"] = sorted(t for p in job.result.pointings for t in p.target_ids)
+c = cancel_job.sync_detailed(client=client, job_id=created.job_id)
+report["cancel_done"] = [c.status_code, type(c.parsed).__name__, c.parsed.error]
+bad = create_segmentation.sync_detailed(client=client, body=SegmentationRequest(
+    targets=[SkyTarget(id="x", ra_deg=10.0, dec_deg=95.0, priority=1)]))
+report["bad"] = [bad.status_code, type(bad.parsed).__name__, bad.parsed.detail[0].loc]
 print(json.dumps(report))
 '''

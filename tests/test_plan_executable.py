@@ -23,7 +23,7 @@ from planner.sequence import PlanChange, SequenceOptions, SequencePlan
 from service import jobs, pipeline
 from service.app import create_app
 from service.cli import EXIT_NOT_EXECUTABLE, build_parser, main
-from service.schemas import JobStatus, PlanResponse
+from service.schemas import PlanJobStatus, PlanResponse
 from service.settings import Settings
 
 TOKEN = "t0ken"
@@ -159,9 +159,9 @@ def test_plan_job_result_carries_executable(tmp_path: Path, monkeypatch) -> None
         assert jobs.run_job(str(db), job_id, "plan", request, None, 3.0, 60.0) == "done"
         r = c.get(f"/v1/jobs/{job_id}")
     assert r.status_code == 200, r.text
-    job = JobStatus.model_validate(r.json())
-    assert job.status == "done" and job.result is not None
-    check_failed(job.result)
+    job = PlanJobStatus.model_validate(r.json())
+    assert job.status == "done" and isinstance(job.result, PlanResponse)
+    check_failed(r.json()["result"])
 
 
 # ------------------------------------------------------------------------- CLI

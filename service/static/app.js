@@ -8,7 +8,7 @@ const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation
   solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
   targets: "targets", threshold_mm: "segmentation threshold" };
 
-const state = { instrument: null, list: null, result: null, request: null, running: false };
+const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null };
 
 // ------------------------------------------------------------------------ HTTP helpers
 
@@ -141,15 +141,36 @@ function setStatus(text, progress) {
 }
 
 async function followJob(jobId) {
-  for (;;) {
-    const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId), { headers: authHeaders() });
-    if (r.status !== 200) throw new Error(`job ${jobId}: ${errorText(r.status, r.body)}`);
-    const job = r.body;
-    setStatus(`job ${job.job_id}: ${job.status} ${(100 * job.progress).toFixed(0)} %`, job.progress);
-    if (job.status === "done") { showResult(job.result, state.request, state.list); return; }
-    if (job.status === "failed") throw new Error(`job ${job.job_id} failed: ${job.error}`);
-    await new Promise((res) => setTimeout(res, 500));
+  setJob(jobId);
+  try {
+    for (;;) {
+      const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId), { headers: authHeaders() });
+      if (r.status !== 200) throw new Error(`job ${jobId}: ${errorText(r.status, r.body)}`);
+      const job = r.body;
+      setStatus(`job ${job.job_id}: ${job.status} ${(100 * job.progress).toFixed(0)} %`, job.progress);
+      if (job.status === "done") { showResult(job.result, state.request, state.list); return; }
+      if (job.status === "failed") throw new Error(`job ${job.job_id} failed: ${job.error}`);
+      if (job.status === "cancelled") { setStatus(`job ${job.job_id}: cancelled`, null); return; }
+      await new Promise((res) => setTimeout(res, 500));
+    }
+  } finally {
+    setJob(null);
   }
+}
+
+// The job being followed (null: none); the Cancel button works only while there is one.
+function setJob(jobId) {
+  state.jobId = jobId;
+  $("cancel").disabled = jobId === null;
+}
+
+// POST v1/jobs/{id}/cancel: the job ends as "cancelled" (409 when it has just finished).
+async function cancelJob() {
+  const jobId = state.jobId;
+  if (!jobId) return;
+  $("cancel").disabled = true;
+  const r = await fetchJson(`v1/jobs/${encodeURIComponent(jobId)}/cancel`, { method: "POST", headers: authHeaders() });
+  if (r.status !== 200 && r.status !== 409) showError(`cancel job ${jobId}: ${errorText(r.status, r.body)}`);
 }
 
 // ------------------------------------------------------------------------ the plan
@@ -282,6 +303,7 @@ function commandsCsv(result) {
 
 async function start() {
   $("go").onclick = runPlan;
+  $("cancel").onclick = cancelJob;
   $("clear-file").onclick = () => { $("file").value = ""; $("table-info").hidden = true; };
   $("file").onchange = previewTable;
   $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
