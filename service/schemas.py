@@ -16,7 +16,9 @@ from pydantic import (
     ConfigDict,
     Field,
     TypeAdapter,
+    ValidationError,
     ValidationInfo,
+    ValidatorFunctionWrapHandler,
     field_validator,
     model_validator,
 )
@@ -126,6 +128,23 @@ def _unique_arms(states: list[ArmState] | None, field: str) -> list[ArmState] | 
     return states
 
 
+def _branch_errors(exc: ValidationError, v: Any) -> ValidationError:
+    """``exc`` of the ``list[PlaneTarget] | list[SkyTarget]`` union reduced to the branch the
+    input is meant for, with the branch's name taken out of each ``loc``."""
+    first = v[0] if isinstance(v, list) and v else None
+    sky = isinstance(first, dict) and ("ra_deg" in first or "dec_deg" in first)
+    branch = "list[SkyTarget]" if sky else "list[PlaneTarget]"
+    errors = [e for e in exc.errors() if e["loc"] and e["loc"][0] == branch]
+    if not errors:
+        return exc
+    try:
+        return ValidationError.from_exception_data(exc.title, [
+            {"type": e["type"], "loc": e["loc"][1:], "input": e.get("input"),
+             **({"ctx": e["ctx"]} if "ctx" in e else {})} for e in errors])
+    except (TypeError, KeyError, ValueError):  # an error type that cannot be rebuilt
+        return exc
+
+
 # ------------------------------------------------------------------------ shared parts
 
 
@@ -214,6 +233,17 @@ class AllocationRequest(Request):
     disabled_arms: list[ArmState] | None = Field(
         None, max_length=N_ARMS, description="Arms out of service, fixed at these angles."
     )
+
+    @field_validator("targets", mode="wrap")
+    @classmethod
+    def _one_branch(cls, v: Any, handler: ValidatorFunctionWrapHandler) -> Any:
+        """Errors of the kind of targets given only: sky targets when the first item has
+        ``ra_deg`` or ``dec_deg``, focal-plane targets otherwise (named ``targets[i].field``,
+        without the other kind's irrelevant complaints)."""
+        try:
+            return handler(v)
+        except ValidationError as exc:
+            raise _branch_errors(exc, v) from None
 
     @field_validator("targets")
     @classmethod

@@ -387,6 +387,27 @@ BAD: list[tuple[str, str, Any, list[Any]]] = [
      ["body", "plan", "request", "targets", 0, "dec_deg"]),
     ("not json", "/v1/plans", "{targets", ["body"]),
 ]
+POINTING = {"ra_deg": 10.0, "dec_deg": 20.0}
+
+
+@pytest.mark.parametrize("path,body,loc", [
+    ("/v1/allocations", {"targets": [{"id": "a", "ra_deg": 10.0, "dec_deg": 20.0, "priority": 1},
+                                     {"id": "b", "ra_deg": 10.0, "dec_deg": 95.0, "priority": 1}],
+                         "pointing": POINTING}, ["body", "targets", 1, "dec_deg"]),
+    ("/v1/allocations", {"targets": [{"id": "a", "x_mm": 0.0, "y_mm": "far", "priority": 1}]},
+     ["body", "targets", 0, "y_mm"]),
+    ("/v1/jobs", {"kind": "allocation", "request": {"targets": [
+        {"id": "a", "ra_deg": 10.0, "dec_deg": 95.0, "priority": 1}], "pointing": POINTING}},
+     ["body", "allocation", "request", "targets", 0, "dec_deg"]),
+], ids=["sky", "plane", "job"])
+def test_allocation_targets_422_names_only_the_kind_given(live_server, path, body, loc) -> None:
+    """Sky or focal-plane targets: the answer is about the kind of target given, not the
+    other branch of the union (no 'x_mm: Field required' for a sky target)."""
+    r = httpx.post(live_server.url + path, json=body, timeout=30)
+    assert r.status_code == 422, r.text
+    out = r.json()
+    assert [e["loc"] for e in out["detail"]] == [loc]
+    assert "SkyTarget" not in out["message"] and "PlaneTarget" not in out["message"]
 
 
 @pytest.mark.parametrize("name,path,body,loc", BAD, ids=[b[0] for b in BAD])
