@@ -369,6 +369,19 @@ def pointing_plan_out(pp: PointingPlan, ids: Sequence[str], inst: Instrument) ->
             "executable": seq["executable"], "reasons": seq["reasons"], "stats": stats}
 
 
+def _completeness(fp: FieldPlan, out: list[dict[str, Any]], n_targets: int) -> dict[str, float]:
+    """Completeness of the plan as returned (after the motion planner's changes), over every
+    target of the request."""
+    observed = {a["target_id"] for p in out for c in p["configurations"] for a in c["assignments"]
+                if a["target_id"] is not None}
+    priority = {t: int(q) for pp in fp.pointings for t, q in zip(pp.targets.ids, pp.targets.priority,
+                                                                    strict=True)}
+    total = sum(priority.values())
+    return {"field_completeness": len(observed) / n_targets if n_targets else 1.0,
+            "priority_completeness": sum(priority.get(t, 0) for t in observed) / total
+            if total else 1.0}
+
+
 def plan_out(fp: FieldPlan, ids: Sequence[str], inst: Instrument) -> dict[str, Any]:
     """A :class:`FieldPlan` as a PlanResponse dict (``ids`` of the request's targets)."""
     out = [pointing_plan_out(pp, ids, inst) for pp in fp.pointings]
@@ -388,6 +401,7 @@ def plan_out(fp: FieldPlan, ids: Sequence[str], inst: Instrument) -> dict[str, A
             "configurations": sum(len(p["configurations"]) for p in out),
             "allocated_targets": sum(1 for p in out for c in p["configurations"]
                                      for a in c["assignments"] if a["target_id"] is not None),
+            **_completeness(fp, out, len(ids)),
             "unallocated_by_reason": reasons,
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),

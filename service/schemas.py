@@ -497,10 +497,19 @@ class Unallocated(Response):
                         "executed.")
 
 
+COMPLETENESS = (
+    "`n_targets` (every target of the request), `n_reachable` / `n_unreachable` (targets some "
+    "enabled arm reaches / none does), `n_allocated` (targets in a configuration); "
+    "`field_completeness` = n_allocated / n_targets and `priority_completeness` = allocated "
+    "priority / the priority of every target: an unreachable target counts as not observed, "
+    "so neither is 1 while a target is unreachable. `stop_reason`, lower bounds on the "
+    "number of configurations, timers.")
+
+
 class AllocationResponse(Response):
     configurations: list[ConfigurationOut]
     unallocated: list[Unallocated]
-    stats: Stats = Field(default_factory=dict)
+    stats: Stats = Field(default_factory=dict, description=COMPLETENESS)
 
 
 class Waypoint(Response):
@@ -569,7 +578,9 @@ class PlanPointing(PointingOut):
     reasons: list[str] = Field(description="One line per failed motion leg: which leg, which "
                                "arms, why. Empty when `executable`.")
     stats: Stats = Field(default_factory=dict, description="Allocation and motion statistics "
-                         "of this pointing; `motion` holds legs, leg_budget_s, compute_s, "
+                         "of this pointing; `allocation` is the allocator's (its completeness "
+                         "before the motion planner's changes, over the pointing's targets); "
+                         "`motion` holds legs, leg_budget_s, compute_s, "
                          "failed_legs, targets_moved, legs_via_park, configurations_added, "
                          "targets_dropped.")
 
@@ -583,7 +594,10 @@ class PlanResponse(Response):
                                "`reasons`, each prefixed with 'pointing <id>: '.")
     stats: Stats = Field(default_factory=dict, description="Counts over the whole plan, "
                          "including targets_moved, legs_via_park, configurations_added and "
-                         "targets_dropped.")
+                         "targets_dropped; `allocated_targets` (targets in a configuration "
+                         "as returned), `field_completeness` = allocated_targets / targets "
+                         "(every target of the request) and `priority_completeness` (their "
+                         "priority over the priority of every target).")
 
 
 class JobCreated(Response):

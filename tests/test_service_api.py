@@ -333,6 +333,11 @@ def test_plan_endpoint(live_server) -> None:
     s = out["stats"]
     assert s["pointings"] == len(out["pointings"]) and s["targets"] == len(by_id)
     assert s["allocated_targets"] == len(by_id)  # a one-pointing field within the FOV
+    observed = {a["target_id"] for p in out["pointings"] for c in p["configurations"]
+                for a in c["assignments"] if a["target_id"] is not None}
+    assert s["field_completeness"] == pytest.approx(len(observed) / len(by_id))
+    assert s["priority_completeness"] == pytest.approx(
+        sum(by_id[t]["priority"] for t in observed) / sum(t["priority"] for t in by_id.values()))
     assert s["motion_plans"] == sum(len(p["motions"]) for p in out["pointings"])
     assert s["motion_plans_failed"] == s["motion_plans"] - n_ok
     assert n_ok >= 1
@@ -525,3 +530,25 @@ def test_lone_surrogate_is_422_not_5xx(live_server) -> None:
                        headers={"Content-Type": "application/json"}, timeout=30)
         assert r.status_code == 422, (path, r.status_code, r.text)
         assert "targets" in r.json()["message"]
+
+
+def test_completeness_counts_unreachable_targets_as_not_observed(live_server) -> None:
+    """A target out of every arm's reach: completeness over every target stays below 1 and
+    the counts say why (denominators: all targets; n_allocated from the configurations)."""
+    targets = [{"id": f"t{i}", "x_mm": 20.0 * i - 40, "y_mm": 5.0 * i, "priority": 1 + i}
+               for i in range(5)] + [{"id": "far", "x_mm": 1000.0, "y_mm": 0.0, "priority": 7}]
+    r = httpx.post(live_server.url + "/v1/allocations", timeout=60, json={
+        "targets": targets, "configurations": "all", "time_limit_s": 5, "seed": 1})
+    assert r.status_code == 200, r.text
+    out = r.json()
+    observed = {a["target_id"] for c in out["configurations"] for a in c["assignments"]
+                if a["target_id"] is not None}
+    assert "far" not in observed and {"target_id": "far", "reason": "unreachable"} in out["unallocated"]
+    s = out["stats"]
+    assert "reachable_completeness" not in s
+    assert (s["n_targets"], s["n_unreachable"], s["n_reachable"]) == (6, 1, 5)
+    assert s["n_allocated"] == len(observed)
+    assert s["field_completeness"] == pytest.approx(len(observed) / 6) and s["field_completeness"] < 1
+    prio = {t["id"]: t["priority"] for t in targets}
+    assert s["priority_completeness"] == pytest.approx(
+        sum(prio[t] for t in observed) / sum(prio.values()))

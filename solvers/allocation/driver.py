@@ -73,8 +73,8 @@ def timed_out_result(instrument: Instrument, targets: PlaneTargets,
     unalloc = tuple(Unallocated(i, targets.ids[i], "unreachable" if i in unreachable else "no_time")
                     for i in range(n))
     stats = {"n_targets": n, "n_reachable": n - len(unreachable), "n_configurations": 0,
-             "field_completeness": 0.0 if n else 1.0, "reachable_completeness": 0.0 if n else 1.0,
-             "priority_completeness": 0.0 if n else 1.0, "stop_reason": "no_time",
+             "n_allocated": 0, "n_unreachable": len(unreachable),
+             "field_completeness": 0.0 if n else 1.0, "priority_completeness": 0.0 if n else 1.0, "stop_reason": "no_time",
              "timed_out_in": "incompatibility", "timers_s": {"incompatibility_s": elapsed_s}}
     return AllocationResult((), unalloc, stats)
 

@@ -155,8 +155,11 @@ def _result(s: SequenceState, t0: float, engines: dict[str, str] | None) -> Allo
                                                  s.floor_proof),
         "lower_bound_configurations_crowding": s.crowd_bound,
         "lower_bound_configurations_lp": s.lp_bound,
+        # completeness over every target of the request: an unreachable target counts as
+        # not observed (n_allocated == n_reachable says the allocator took all it could)
+        "n_allocated": int(allocated.sum()),
+        "n_unreachable": n - s.n_reachable,
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
-        "reachable_completeness": float(allocated.sum() / s.n_reachable) if s.n_reachable else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
         "stop_reason": s.stop_reason,
         "per_configuration": [{"total_priority": c.total_priority, "arm_yield": c.arm_yield, "status": c.status,
