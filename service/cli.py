@@ -129,6 +129,8 @@ def changes_summary(stats: dict[str, Any]) -> str:
 
 def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
                    quiet: bool = False) -> list[Path]:
+    """One PNG per configuration, ``pointing<id>_c<k>.png``: configurations are c1 ... cn
+    (``index`` + 1), as on the page and in the motion legs' reasons."""
     from tqdm import tqdm
 
     from service import pipeline
@@ -143,12 +145,12 @@ def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
                                      req.position_angle_deg)
         paths.append(plot_configuration(
             inst, {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in c["assignments"]},
-            out / f"pointing{p['id']}_config{c['index']}.png",
+            out / f"pointing{p['id']}_c{c['index'] + 1}.png",
             target_x_mm=x, target_y_mm=y, target_priority=[t.priority for t in members],
             target_status=sequence_states(p["configurations"], c, [t.id for t in members]),
             target_ids=[t.id for t in members], position_angle_deg=req.position_angle_deg,
             title=f"pointing {p['id']} (RA {p['ra_deg']:.5f}, Dec {p['dec_deg']:.5f}) - "
-                  f"configuration {c['index']}: {c['arm_yield']} arms, "
+                  f"configuration c{c['index'] + 1}: {c['arm_yield']} arms, "
                   f"priority {c['total_priority']}",
         ))
     return paths

@@ -121,6 +121,9 @@ def test_cli_plan(tmp_path: Path, capsys) -> None:
         assert all(m["status"] in ("ok", "failed") for m in p["motions"])
     pngs = sorted(out.glob("*.png"))
     assert len(pngs) == n_cfg
+    # configurations c1 ... cn, as the page and the legs' reasons count them
+    assert {p.name for p in pngs} == {f"pointing{p['id']}_c{k}.png" for p in result["pointings"]
+                                      for k in range(1, len(p["configurations"]) + 1)}
     assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in pngs)
 
 
