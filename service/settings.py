@@ -17,7 +17,8 @@ class Settings(BaseSettings):
         None, description="Instrument TOML file; unset = the packaged default geometry."
     )
     workers: int = Field(2, ge=1, le=64, description="Processes in the job pool.")
-    job_db: Path = Field(Path("mxs-jobs.sqlite3"), description="SQLite file holding jobs.")
+    job_db: Path = Field(Path("data/mxs-jobs.sqlite3"), description="SQLite file holding "
+                         "jobs; its directory is created (the default `data/` is git-ignored).")
     cors_origins: str = Field(
         "", description="Comma-separated origins allowed by CORS ('*' for any); empty = none."
     )

@@ -128,3 +128,15 @@ def test_allocation_and_plan_jobs_over_http(live_server) -> None:
         assert len(q["motions"]) == len(q["configurations"]) + 1
         assert q["executable"] == all(m["status"] == "ok" for m in q["motions"])
     assert out["executable"] == all(q["executable"] for q in out["pointings"])
+
+
+def test_default_job_database_is_under_an_ignored_data_directory(tmp_path: Path,
+                                                                  monkeypatch) -> None:
+    monkeypatch.delenv("MXS_JOB_DB", raising=False)
+    default = Settings().job_db
+    assert not default.is_absolute() and default.parts[0] == "data"
+    ignored = (Path(__file__).resolve().parents[1] / ".gitignore").read_text().splitlines()
+    assert "/data/" in ignored
+    monkeypatch.chdir(tmp_path)
+    JobStore(default).init()  # the directory is created
+    assert (tmp_path / default).is_file()
