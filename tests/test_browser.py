@@ -135,6 +135,17 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert ("NOT executable" in banner) == (not result["executable"])
     summary = page.inner_text("#summary")
     assert "Targets observed per priority" in summary
+    # every target: where the server put it, or why not
+    where = {a["target_id"]: (p["id"], f"c{c['index'] + 1}", str(a["arm"]))
+             for p in result["pointings"] for c in p["configurations"] for a in c["assignments"]
+             if a["target_id"]}
+    why = {u["target_id"]: u["reason"] for p in result["pointings"] for u in p["unallocated"]}
+    rows = page.evaluate("""() => [...document.querySelectorAll('.every-target tbody tr')]
+        .map((tr) => [...tr.children].map((td) => td.textContent))""")
+    assert len(rows) == N_EXAMPLE
+    for target, _prio, pointing, conf, arm, reason in rows:
+        assert ((pointing, conf, arm) == where[target] and reason == "") if target in where \
+            else (conf == "" and reason == why[target])
     n_conf = sum(len(p["configurations"]) for p in result["pointings"])
     # one picture per pointing; the first configuration shows all 12 arms to scale
     svg = page.locator(".pointing svg[data-configuration]").first
@@ -192,6 +203,7 @@ def _not_executable_is_flagged(page, result) -> None:
     assert "NOT executable" in banner and reason in banner
     sec = page.locator(".pointing.not-executable")
     assert sec.count() == 1 and "NOT planned (arms 5)" in sec.inner_text()
+    assert "failed" in sec.locator(".stepper button").first.get_attribute("class")
     assert page.locator("svg.sky circle.pointing-fov[stroke='#c62828']").count() == 1
 
 

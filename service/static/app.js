@@ -257,7 +257,21 @@ function showSummary(result, request, fate) {
   $("summary").replaceChildren(
     table(["", "value"], rows),
     el("h3", {}, "Targets observed per priority"),
-    table(["priority", "targets", "observed", "completeness"], tierRows, []));
+    table(["priority", "targets", "observed", "completeness"], tierRows, []),
+    everyTarget(request, fate));
+}
+
+// One row per target of the request: where it is observed, or why not.
+function everyTarget(request, fate) {
+  const rows = request.targets.map((t) => {
+    const f = fate.get(t.id) || {};
+    const observed = f.configuration !== undefined;
+    return [t.id, t.priority, f.pointing || "", observed ? `c${f.configuration + 1}` : "",
+      observed ? f.arm : "", observed ? "" : (f.reason || "not in any pointing")];
+  });
+  return el("details", { class: "every-target", open: "" },
+    el("summary", {}, `Every target (${rows.length}): pointing, configuration, arm, or why it is not observed`),
+    table(["target", "priority", "pointing", "configuration", "arm", "not observed because"], rows, [0, 2, 3, 5]));
 }
 
 function sumPrio(ts) { return ts.reduce((a, t) => a + t.priority, 0) || 1; }

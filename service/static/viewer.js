@@ -78,7 +78,7 @@ function standardCoords(raDeg, decDeg, ra0Deg, dec0Deg) {
 
 function targetTable(p, members) {
   const where = new Map();
-  p.configurations.forEach((c, k) => c.assignments.forEach((a) => { if (a.target_id) where.set(a.target_id, [k + 1, a.arm, ""]); }));
+  p.configurations.forEach((c, k) => c.assignments.forEach((a) => { if (a.target_id) where.set(a.target_id, [`c${k + 1}`, a.arm, ""]); }));
   for (const u of p.unallocated) if (!where.has(u.target_id)) where.set(u.target_id, ["", "", u.reason]);
   const rows = members.map((t) => [t.id, t.priority, ...(where.get(t.id) || ["", "", "?"])]);
   return el("details", { class: "targets" }, el("summary", {}, `Targets of pointing ${p.id}`),
@@ -98,8 +98,13 @@ function configurationViewer(p, members, pos, tiers) {
     legInfo.replaceChildren(...legText(p, k));
   };
   let current = 0;
-  p.configurations.forEach((c, k) => stepper.append(el("button", { type: "button", "data-k": k,
-    title: `${c.arm_yield} arms, priority ${c.total_priority}`, onclick: () => { current = k; show(k); } }, `c${k + 1}`)));
+  p.configurations.forEach((c, k) => {
+    const flag = legFlag(p, k);
+    stepper.append(el("button", { type: "button", "data-k": k, class: flag,
+      title: `${c.arm_yield} arms, priority ${c.total_priority}` + (flag === "failed" ? "; its motion leg was NOT planned" :
+        flag === "changed" ? "; changed by the motion planner" : ""),
+      onclick: () => { current = k; show(k); } }, `c${k + 1}` + (flag === "failed" ? " ✗" : flag === "changed" ? " *" : "")));
+  });
   const play = el("button", { type: "button", class: "play", title: "animate the motion leg into this configuration",
     onclick: () => playLeg(p, current, view, legInfo, () => show(current)) }, "▶ play the leg into it");
   const save = el("button", { type: "button", class: "save-svg", title: "this picture as an SVG file",
@@ -107,6 +112,16 @@ function configurationViewer(p, members, pos, tiers) {
   box.append(stepper, play, " ", save, legInfo, view);
   show(0);
   return box;
+}
+
+// "failed" when a motion leg into or out of configuration k was not planned, "changed" when the
+// motion planner changed it (the pointing's `changes`), "" otherwise.
+function legFlag(p, k) {
+  const last = k === p.configurations.length - 1;
+  const legOk = (i) => !p.motions[i] || p.motions[i].status === "ok";
+  if (!legOk(k) || (last && !legOk(k + 1))) return "failed";
+  if (p.changes.some((c) => c.configuration === k || c.leg === k)) return "changed";
+  return "";
 }
 
 function savePicture(root, name) {
