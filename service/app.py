@@ -35,20 +35,17 @@ from service.errors import (
     parse_loc,
 )
 from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
+from service.job_schemas import JOB_STATUS, JobCreated, JobRequest, JobStatus
 from service.jobpool import JobManager, PoolOptions
 from service.jobs import CANCELLED, EXPIRED
 from service.limits import check_request
 from service.middleware import BodyTimeoutMiddleware
 from service.schemas import (
-    JOB_STATUS,
     AllocationRequest,
     AllocationResponse,
     ErrorResponse,
     Health,
     InstrumentInfo,
-    JobCreated,
-    JobRequest,
-    JobStatus,
     MotionPlanRequest,
     MotionPlanResponse,
     PlanRequest,

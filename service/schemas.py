@@ -15,7 +15,6 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
-    TypeAdapter,
     ValidationError,
     ValidationInfo,
     ValidatorFunctionWrapHandler,
@@ -330,32 +329,6 @@ class PlanRequest(Request):
         return _one_target_source(v, info)
 
 
-class SegmentationJob(Request):
-    kind: Literal["segmentation"]
-    request: SegmentationRequest
-
-
-class AllocationJob(Request):
-    kind: Literal["allocation"]
-    request: AllocationRequest
-
-
-class MotionPlanJob(Request):
-    kind: Literal["motion-plan"]
-    request: MotionPlanRequest
-
-
-class PlanJob(Request):
-    kind: Literal["plan"]
-    request: PlanRequest
-
-
-JobRequest = Annotated[
-    SegmentationJob | AllocationJob | MotionPlanJob | PlanJob, Field(discriminator="kind")
-]
-JobKind = Literal["segmentation", "allocation", "motion-plan", "plan"]
-JobState = Literal["queued", "running", "done", "failed", "cancelled"]
-
 # ------------------------------------------------------------------------ responses
 
 
@@ -598,51 +571,6 @@ class PlanResponse(Response):
                          "as returned), `field_completeness` = allocated_targets / targets "
                          "(every target of the request) and `priority_completeness` (their "
                          "priority over the priority of every target).")
-
-
-class JobCreated(Response):
-    job_id: str
-    status: JobState
-
-
-class JobStatusBase(Response):
-    job_id: str
-    kind: JobKind
-    status: JobState = Field(description="'queued', 'running', then 'done' (with `result`), "
-                             "'failed' (with `error`) or 'cancelled' (POST "
-                             "/v1/jobs/{job_id}/cancel).")
-    progress: float = Field(ge=0.0, le=1.0)
-    result: Response | None = None
-    error: str | None = Field(None, description="Why the job failed or was cancelled.")
-    created_at: float = Field(description="Unix time the job was accepted.")
-    updated_at: float = Field(description="Unix time of the last state change.")
-
-
-class SegmentationJobStatus(JobStatusBase):
-    kind: Literal["segmentation"]
-    result: SegmentationResponse | None = Field(None, description="Set when `status` is 'done'.")
-
-
-class AllocationJobStatus(JobStatusBase):
-    kind: Literal["allocation"]
-    result: AllocationResponse | None = Field(None, description="Set when `status` is 'done'.")
-
-
-class MotionPlanJobStatus(JobStatusBase):
-    kind: Literal["motion-plan"]
-    result: MotionPlanResponse | None = Field(None, description="Set when `status` is 'done'.")
-
-
-class PlanJobStatus(JobStatusBase):
-    kind: Literal["plan"]
-    result: PlanResponse | None = Field(None, description="Set when `status` is 'done'.")
-
-
-JobStatus = Annotated[
-    SegmentationJobStatus | AllocationJobStatus | MotionPlanJobStatus | PlanJobStatus,
-    Field(discriminator="kind"),
-]
-JOB_STATUS: TypeAdapter[Any] = TypeAdapter(JobStatus)
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

@@ -23,7 +23,8 @@ from planner.sequence import PlanChange, SequenceOptions, SequencePlan
 from service import jobs, pipeline
 from service.app import create_app
 from service.cli import EXIT_NOT_EXECUTABLE, build_parser, main
-from service.schemas import PlanJobStatus, PlanResponse
+from service.job_schemas import PlanJobStatus
+from service.schemas import PlanResponse
 from service.settings import Settings
 
 TOKEN = "t0ken"

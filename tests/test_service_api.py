@@ -515,7 +515,8 @@ def test_stage_out_of_time_is_422_on_time_limit(tmp_path, monkeypatch) -> None:
 
 
 def test_example_requests_are_valid() -> None:
-    from service.schemas import REQUEST_TYPES, JobStatus  # noqa: F401
+    from service.job_schemas import JobStatus  # noqa: F401
+    from service.schemas import REQUEST_TYPES
 
     names = {"segmentation": "segmentation", "allocation": "allocation",
              "allocation_sky": "allocation", "motion_plan": "motion-plan", "plan": "plan"}
