@@ -119,8 +119,9 @@ def _watch(store: JobStore, job_id: str, owner: str, lease_s: float,
     finally:
         stop.set()
         t.join(timeout=5)
-        if cancelled.is_set():
-            store.stopped(job_id, owner)
+        # also when the job ended before its cancellation was seen: the server must not
+        # take this worker, busy with its next job, for one that did not stop
+        store.stopped(job_id, owner)
 
 
 def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: str | None,

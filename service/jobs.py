@@ -183,7 +183,7 @@ class JobStore:
         return None if row is None else str(row[0])
 
     def stopped(self, job_id: str, owner: str) -> None:
-        """``owner`` has stopped working on its cancelled job."""
+        """``owner`` has stopped working on ``job_id`` (a no-op unless it was cancelled)."""
         with _closing(connect(self.db_path)) as con:
             con.execute(f"UPDATE jobs SET owner=NULL, lease_until=NULL WHERE job_id=? AND "
                         f"status='{CANCELLED}' AND owner=?", (job_id, owner))

@@ -147,3 +147,19 @@ def test_a_cancelled_stage_stops_at_its_next_progress_report(tmp_path: Path) -> 
     # the same job without the flag runs to its end, but a cancelled job is never reopened
     assert run_job(str(db), job, "segmentation", SEG_REQUEST, None, 10.0) == "done"
     assert store.get(job)["status"] == CANCELLED and store.get(job)["result"] is None
+
+
+def test_a_job_cancelled_as_it_ends_does_not_get_its_worker_killed(tmp_path: Path) -> None:
+    """The worker finished before it saw the cancellation: it says it stopped, so the server
+    never kills it later (it may be running its next job by then)."""
+    from service.jobpool import _watch
+
+    store = JobStore(tmp_path / "j.db")
+    store.init()
+    job = store.create("plan", {"targets": []})
+    assert store.claim("srv/42", 30.0) is not None
+    flag = threading.Event()
+    with _watch(store, job, "srv/42", 30.0, flag):
+        assert store.cancel(job, grace_s=0.0) == "running"  # the job ends at once
+    time.sleep(0.01)
+    assert store.overdue_cancelled("srv") == []
