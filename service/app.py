@@ -17,7 +17,7 @@ from typing import Annotated, Any
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
-from pydantic import BaseModel
+from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from models.errors import InputError
@@ -480,8 +480,13 @@ def _job_answer(st: ServiceState, job_id: str) -> JSONResponse:
     if job["status"] == EXPIRED:
         raise ServiceError(f"job {job_id!r} has expired and its result was deleted ({kept})",
                            status_code=410, code="gone")
-    return JSONResponse(JOB_STATUS.dump_python(JOB_STATUS.validate_python(job), mode="json",
-                                               by_alias=True))
+    try:
+        typed = JOB_STATUS.validate_python(job)
+    except ValidationError as exc:  # a result stored under an older schema: answered as stored
+        log.warning("job %s: stored result does not fit the %s schema (%d errors); answered "
+                    "as stored", job_id, job["kind"], exc.error_count())
+        return JSONResponse(job)
+    return JSONResponse(JOB_STATUS.dump_python(typed, mode="json", by_alias=True))
 
 
 app = create_app()

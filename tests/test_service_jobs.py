@@ -140,3 +140,15 @@ def test_default_job_database_is_under_an_ignored_data_directory(tmp_path: Path,
     monkeypatch.chdir(tmp_path)
     JobStore(default).init()  # the directory is created
     assert (tmp_path / default).is_file()
+
+
+def test_a_result_stored_under_an_older_schema_is_answered_as_stored(tmp_path: Path) -> None:
+    db = tmp_path / "j.db"
+    store = JobStore(db)
+    store.init()
+    old = store.create("segmentation", SEG_REQUEST)
+    store.set_done(old, {"clusters": [[0, 1]]})  # not a SegmentationResponse
+    with TestClient(create_app(Settings(job_db=db))) as c:
+        r = c.get(f"/v1/jobs/{old}")
+    assert r.status_code == 200, r.text
+    assert (r.json()["status"], r.json()["result"]) == ("done", {"clusters": [[0, 1]]})

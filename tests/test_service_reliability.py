@@ -203,7 +203,8 @@ def test_finished_results_expire_with_410(tmp_path) -> None:
     ids = []
     for i in range(4):
         j = store.create("segmentation", SEG)
-        store.set_done(j, {"n": i})
+        store.set_done(j, {"tangent_point": {"ra_deg": 0.0, "dec_deg": 0.0}, "pointings": [],
+                           "stats": {"n": i}})
         ids.append(j)
         time.sleep(0.01)
     live = store.create("segmentation", SEG)  # an open job is never expired
@@ -213,7 +214,8 @@ def test_finished_results_expire_with_410(tmp_path) -> None:
         for j in ids[:2]:
             r = c.get(f"/v1/jobs/{j}")
             assert r.status_code == 410 and "expired" in r.json()["detail"], r.text
-        assert [c.get(f"/v1/jobs/{j}").json()["result"] for j in ids[2:]] == [{"n": 2}, {"n": 3}]
+        assert [c.get(f"/v1/jobs/{j}").json()["result"]["stats"] for j in ids[2:]] == [
+            {"n": 2}, {"n": 3}]
         assert c.get(f"/v1/jobs/{live}").status_code == 200
         gone = c.get("/v1/jobs/0123456789abcdef")
         assert gone.status_code == 404 and "kept for" in gone.json()["detail"]
