@@ -14,7 +14,9 @@ COPY models ./models
 COPY solvers ./solvers
 COPY planner ./planner
 COPY service ./service
-RUN pip install . \
+# the 'distributed' extra lets the same image run the Dask scheduler and workers (compose.yaml)
+ARG EXTRAS=distributed
+RUN pip install ".[${EXTRAS}]" \
     && (cd / && python -c "from planner.clearance import compile_kernels; compile_kernels()") \
     && useradd --create-home --uid 10001 mxs \
     && mkdir -p /data \

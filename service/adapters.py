@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -143,7 +143,7 @@ def instrument_out(inst: Instrument) -> dict[str, Any]:
     })
 
 
-def pointing_out(p: Pointing, ids: Sequence[str]) -> dict[str, Any]:
+def pointing_out(p: Pointing, ids: Sequence[str] | Mapping[int, str]) -> dict[str, Any]:
     """``solvers.segmentation.Pointing`` -> PointingOut dict (``ids`` of the segmented targets)."""
     return {"id": str(p.id), "ra_deg": float(p.ra_deg), "dec_deg": float(p.dec_deg),
             "x_mm": float(p.x_mm), "y_mm": float(p.y_mm), "radius_mm": float(p.radius_mm),

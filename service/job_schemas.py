@@ -65,6 +65,13 @@ class JobStatusBase(Response):
     error: str | None = Field(None, description="Why the job failed or was cancelled.")
     created_at: float = Field(description="Unix time the job was accepted.")
     updated_at: float = Field(description="Unix time of the last state change.")
+    pointings_done: int | None = Field(None, ge=0, description="A plan job: pointings whose "
+                                       "plan is computed and stored. `progress` is 0.05 once "
+                                       "the field is segmented, then 0.05 + 0.95 * "
+                                       "pointings_done / pointings_total (plus the part done "
+                                       "of a pointing being computed in the job pool).")
+    pointings_total: int | None = Field(None, ge=0, description="A plan job: its pointings "
+                                        "(known once the field is segmented).")
 
 
 class SegmentationJobStatus(JobStatusBase):

@@ -56,6 +56,7 @@ class PoolOptions:
     retention_count: int = 1000
     retry_after_s: int = 5
     poll_s: float = 0.2
+    dask_scheduler: str | None = None
 
     def __post_init__(self) -> None:
         if self.workers < 1 or self.lease_s <= 0 or self.max_attempts < 1:
@@ -125,12 +126,15 @@ def _watch(store: JobStore, job_id: str, owner: str, lease_s: float,
 
 
 def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: str | None,
-                lease_s: float, poll_s: float) -> None:
-    """A worker process: claim, run, record; forever (until its server stops it)."""
+                lease_s: float, poll_s: float, dask_scheduler: str | None = None) -> None:
+    """A worker process: claim, run, record; forever (until its server stops it). The
+    pointings of its plan jobs run on the engine the settings chose (:func:`make_runner`)."""
     die_with_parent(parent_pid)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle
     from service import pipeline  # import the domain and its compiled kernels before the first job
+    from service.runners import make_runner
     pipeline.warm_up()
+    runner = make_runner(dask_scheduler)
     owner = f"{instance}/{os.getpid()}"
     store = JobStore(db_path)
     while True:
@@ -145,7 +149,8 @@ def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: s
         cancelled = threading.Event()
         with _watch(store, job.job_id, owner, lease_s, cancelled):
             run_job(db_path, job.job_id, job.kind, job.request, instrument_file,
-                    job.time_limit_s, job.budget_s, cancelled)
+                    job.time_limit_s, job.budget_s, cancelled, owner=owner,
+                    runner=runner)
 
 
 # --------------------------------------------------------------------- server side
@@ -219,7 +224,7 @@ class JobManager:
         o = self.options
         p = ctx.Process(target=worker_main, name="mxs-job-worker", daemon=True, args=(
             str(self.store.db_path), self.instance, os.getpid(), o.instrument_file, o.lease_s,
-            o.poll_s))
+            o.poll_s, o.dask_scheduler))
         p.start()
         return p
 

@@ -8,6 +8,12 @@ the job runs; progress, then ``done`` with the result or ``failed`` with the rea
 committed in their own transaction (WAL, synchronous=FULL), so a finished result survives any
 later crash and is never overwritten (only open jobs are updated).
 
+A ``plan`` job commits each pointing's answer to ``job_pointings`` as soon as it is computed
+(:mod:`service.programme`): progress counts committed pointings, and a job that is re-queued
+after an interruption resumes from them, so no finished pointing is lost or computed again.
+``MXS_JOB_MAX_ATTEMPTS`` counts interruptions of the whole job (each attempt only computes the
+pointings still missing); a commit is accepted only from the job's current owner.
+
 Recovery never touches a live job: only a ``running`` job whose lease has expired (its server
 was killed, its worker died) is re-queued for any server to pick up, and failed with the
 reason once it has been interrupted ``MXS_JOB_MAX_ATTEMPTS`` times. A server that stops
@@ -32,9 +38,12 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from service.errors import json_safe
+
+if TYPE_CHECKING:
+    from service.runners import PointingRunner
 
 log = logging.getLogger("service.jobs")
 
@@ -57,6 +66,15 @@ CREATE TABLE IF NOT EXISTS jobs (
     updated_at REAL NOT NULL
 )
 """
+_POINTINGS = """
+CREATE TABLE IF NOT EXISTS job_pointings (
+    job_id     TEXT NOT NULL,
+    idx        INTEGER NOT NULL,
+    result     TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    PRIMARY KEY (job_id, idx)
+)
+"""
 # columns added to the first table layout (a database from an older server is migrated)
 _COLUMNS = {
     "owner": "TEXT",
@@ -64,8 +82,22 @@ _COLUMNS = {
     "attempts": "INTEGER NOT NULL DEFAULT 0",
     "time_limit_s": "REAL",
     "budget_s": "REAL",
+    "pointings_done": "INTEGER",
+    "pointings_total": "INTEGER",
 }
-_PUBLIC = ("job_id", "kind", "status", "progress", "result", "error", "created_at", "updated_at")
+_PUBLIC = ("job_id", "kind", "status", "progress", "result", "error", "created_at", "updated_at",
+           "pointings_done", "pointings_total")
+# the progress of a plan job once its field is segmented; its pointings share the rest
+SEGMENTED = 0.05
+# the job may take a commit: open, and (when an owner is named) still that owner's
+_OURS = f"job_id = ? AND status IN {OPEN} AND (? = '' OR owner = ?)"
+
+
+def pointing_progress(done: float, total: int) -> float:
+    """The progress of a plan job with ``done`` of its ``total`` pointings computed (a
+    fraction for the part done of one being computed): :data:`SEGMENTED`, then the rest in
+    proportion to the pointings, as the synchronous pipeline reports it."""
+    return min(SEGMENTED + (1.0 - SEGMENTED) * done / max(total, 1), 1.0)
 
 
 def connect(db_path: str | Path) -> sqlite3.Connection:
@@ -113,6 +145,7 @@ class JobStore:
         with _closing(connect(self.db_path)) as con:
             con.execute("PRAGMA journal_mode = WAL")
             con.execute(_SCHEMA)
+            con.execute(_POINTINGS)
             have = {row[1] for row in con.execute("PRAGMA table_info(jobs)")}
             for name, decl in _COLUMNS.items():
                 if name not in have:
@@ -271,6 +304,66 @@ class JobStore:
     def set_failed(self, job_id: str, error: str) -> None:
         self._update(job_id, "status='failed', error=?, owner=NULL, lease_until=NULL", (error,))
 
+    # ------------------------------------------------------- per-pointing plan jobs
+
+    def start_pointings(self, job_id: str, owner: str, total: int) -> bool:
+        """Record that the job's field is segmented into ``total`` pointings (progress
+        :data:`SEGMENTED`, then :func:`pointing_progress`); False when the job is no longer
+        ``owner``'s (``owner`` '' : any open job)."""
+        with _closing(connect(self.db_path)) as con:
+            return con.execute(
+                "UPDATE jobs SET pointings_total=?, pointings_done=(SELECT COUNT(*) FROM "
+                "job_pointings WHERE job_id=?), progress=MAX(progress, ?), updated_at=? "
+                "WHERE " + _OURS,
+                (int(total), job_id, SEGMENTED, time.time(), job_id, owner, owner)).rowcount == 1
+
+    def commit_pointing(self, job_id: str, owner: str, index: int, result: dict[str, Any]) -> bool:
+        """Commit pointing ``index``'s answer and the job's progress in one transaction, if
+        the job is still ``owner``'s (else nothing is written and False is returned). A
+        pointing already committed keeps its first answer."""
+        blob = json.dumps(json_safe(result))
+        with _closing(connect(self.db_path)) as con:
+            con.execute("BEGIN IMMEDIATE")
+            try:
+                if con.execute("SELECT 1 FROM jobs WHERE " + _OURS,
+                               (job_id, owner, owner)).fetchone() is None:
+                    con.execute("ROLLBACK")
+                    return False
+                now = time.time()
+                con.execute("INSERT OR IGNORE INTO job_pointings (job_id, idx, result, created_at) "
+                            "VALUES (?, ?, ?, ?)", (job_id, int(index), blob, now))
+                (done,) = con.execute("SELECT COUNT(*) FROM job_pointings WHERE job_id=?",
+                                      (job_id,)).fetchone()
+                (total,) = con.execute("SELECT COALESCE(pointings_total, ?) FROM jobs "
+                                       "WHERE job_id=?", (done, job_id)).fetchone()
+                con.execute("UPDATE jobs SET pointings_done=?, progress=MAX(progress, ?), "
+                            "updated_at=? WHERE job_id=?",
+                            (done, pointing_progress(done, int(total)), now, job_id))
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+        return True
+
+    def pointing_results(self, job_id: str) -> dict[int, dict[str, Any]]:
+        """The committed pointing answers of a job, by pointing index."""
+        with _closing(connect(self.db_path)) as con:
+            rows = con.execute("SELECT idx, result FROM job_pointings WHERE job_id=?",
+                               (job_id,)).fetchall()
+        return {int(i): json.loads(r) for i, r in rows}
+
+    def drop_pointings(self, job_id: str, indices: list[int]) -> None:
+        """Forget committed pointings (answers that no longer match the job's segmentation)."""
+        with _closing(connect(self.db_path)) as con:
+            con.executemany("DELETE FROM job_pointings WHERE job_id=? AND idx=?",
+                            [(job_id, int(i)) for i in indices])
+
+    def owns(self, job_id: str, owner: str) -> bool:
+        """Whether the job is open and (``owner`` non-empty) still ``owner``'s."""
+        with _closing(connect(self.db_path)) as con:
+            return con.execute("SELECT 1 FROM jobs WHERE " + _OURS,
+                               (job_id, owner, owner)).fetchone() is not None
+
     def _update(self, job_id: str, assignments: str, args: tuple[Any, ...]) -> None:
         """Change an open job only: a finished result is never overwritten."""
         with _closing(connect(self.db_path)) as con:
@@ -327,6 +420,9 @@ class JobStore:
             ).rowcount
             con.execute(f"DELETE FROM jobs WHERE status='{EXPIRED}' AND updated_at < ?",
                         (now - 10 * retention_s,))
+            # the pointings of a finished job live on in its result (or are of no more use)
+            con.execute("DELETE FROM job_pointings WHERE job_id NOT IN "
+                        f"(SELECT job_id FROM jobs WHERE status IN {OPEN})")
             con.execute("COMMIT")
         return n
 
@@ -347,15 +443,19 @@ class _closing:
 
 def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
             instrument_file: str | None, time_limit_s: float,
-            budget_s: float | None = None, cancelled: threading.Event | None = None) -> str:
+            budget_s: float | None = None, cancelled: threading.Event | None = None, *,
+            owner: str = "", runner: PointingRunner | None = None) -> str:
     """Run one claimed job's stage and persist its outcome. Never raises an ``Exception``.
 
     Once ``cancelled`` is set (the job was cancelled), the stage stops at its next progress
-    report (:class:`~service.executor.Cancelled`) and ``"cancelled"`` is returned."""
+    report (:class:`~service.executor.Cancelled`) and ``"cancelled"`` is returned. A plan
+    job's pointings run on ``runner`` (default: here, one after the other); it stops as soon
+    as it is cancelled, or returns "stopped" once it is no longer ``owner``'s."""
     from models.instrument import InstrumentError
-    from service import pipeline
+    from service import pipeline, programme
     from service.errors import ServiceError
     from service.executor import Cancelled
+    from service.runners import LocalPoolRunner, RunnerError
 
     store = JobStore(db_path)
     try:
@@ -370,13 +470,21 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
                 store.set_progress(job_id, p)
 
         inst = pipeline.instrument_from(instrument_file)
-        result = pipeline.run(kind, request, inst, progress, time_limit_s=time_limit_s,
-                              budget_s=budget_s)
+        if kind == "plan":
+            result = programme.run_plan(store, job_id, owner, request, inst,
+                                        runner or LocalPoolRunner(), time_limit_s=time_limit_s,
+                                        budget_s=budget_s, progress=progress,
+                                        cancelled=cancelled)
+            if result is None:
+                return CANCELLED if store.status(job_id) == CANCELLED else "stopped"
+        else:
+            result = pipeline.run(kind, request, inst, progress, time_limit_s=time_limit_s,
+                                  budget_s=budget_s)
         store.set_done(job_id, result)
         return "done"
     except Cancelled:
         return CANCELLED
-    except (ServiceError, InstrumentError) as exc:
+    except (ServiceError, InstrumentError, RunnerError) as exc:
         store.set_failed(job_id, str(exc))
     except ValueError as exc:  # domain input errors (InputError) and pydantic ValidationError
         store.set_failed(job_id, f"invalid input: {exc}")

@@ -14,7 +14,7 @@ import logging
 import math
 import re
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -218,19 +218,34 @@ class PointingPlan:
 
 
 @dataclass(frozen=True)
-class FieldPlan:
-    segmentation: Segmentation
-    pointings: tuple[PointingPlan, ...]
-    stats: dict = field(default_factory=dict)
+class PointingTask:
+    """Everything the plan of one pointing needs, small and picklable (it is what a Dask
+    worker receives): the pointing, its own targets, the request's options, its seed
+    (:func:`pointing_seed`) and its wall-clock share ``share_s``; ``time_limit_s`` caps every
+    solver call."""
+
+    index: int
+    pointing: Pointing
+    members: tuple[SkyTarget, ...]
+    method: str
+    solver: str
+    position_angle_deg: float
+    seed: int
+    share_s: float
+    time_limit_s: float
 
 
 class _Deadline:
-    """The wall-clock end of a plan (None: no limit)."""
+    """The wall-clock end of a plan (None: no limit), ``reserve_s`` before ``limit_s``."""
 
-    def __init__(self, limit_s: float | None) -> None:
+    def __init__(self, limit_s: float | None, reserve_s: float = 0.0) -> None:
         self.t0 = time.monotonic()
-        reserve = 0.0 if limit_s is None else min(RESERVE_SHARE * limit_s, RESERVE_MAX_S)
-        self.end = None if limit_s is None else self.t0 + limit_s - reserve
+        self.end = None if limit_s is None else self.t0 + limit_s - reserve_s
+
+    @classmethod
+    def of_plan(cls, limit_s: float | None) -> _Deadline:
+        """A whole plan's deadline, keeping back the time to build the answer."""
+        return cls(limit_s, 0.0 if limit_s is None else min(RESERVE_SHARE * limit_s, RESERVE_MAX_S))
 
     def left_s(self) -> float:
         return math.inf if self.end is None else self.end - time.monotonic()
@@ -244,6 +259,13 @@ def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float | None:
     capped by the server's ``budget_s``; None when neither bounds it."""
     limits = [v for v in (req.time_limit_s, budget_s) if v is not None]
     return float(min(limits)) if limits else None
+
+
+def pointing_seed(seed: int, index: int) -> int:
+    """The seed of pointing ``index`` of a plan seeded ``seed``: a fixed function of the two
+    (pointing 0 keeps ``seed``), so a pointing's plan does not depend on which worker computes
+    it or in which order the pointings run."""
+    return (int(seed) + 2_654_435_761 * int(index)) % 2**31
 
 
 def sequence_motion(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets, *,
@@ -261,24 +283,40 @@ def sequence_motion(inst: Instrument, allocation: AllocationResult, targets: Pla
         return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"
 
 
-def _plan_pointing(req: PlanRequest, inst: Instrument, p: Pointing, members: list[SkyTarget],
-                   share_s: float, deadline: _Deadline, after_s: float, time_limit_s: float,
-                   progress: Progress) -> PointingPlan:
-    """Allocation then motion sequence of one pointing within ``share_s`` seconds, leaving
-    ``after_s`` of the deadline to the pointings after it."""
+def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
+    """The segmentation stage of a plan (deterministic for the request and its seed)."""
+    return segment(SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
+                                       mode=req.segmentation_mode, seed=req.seed), inst)
+
+
+def pointing_task(req: PlanRequest, seg: Segmentation, index: int, share_s: float,
+                  time_limit_s: float) -> PointingTask:
+    """The task of pointing ``index`` of ``seg``, planned within ``share_s`` seconds."""
+    p = seg.pointings[index]
+    return PointingTask(index, p, tuple(req.targets[int(k)] for k in p.target_indices),
+                        req.method, req.solver, req.position_angle_deg,
+                        pointing_seed(int(req.seed or 0), index), float(share_s),
+                        float(time_limit_s))
+
+
+def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop) -> PointingPlan:
+    """Allocation (all configurations) then the executable motion sequence of one pointing,
+    within ``task.share_s`` seconds (thesis ch. 5 and 6)."""
+    deadline = _Deadline(None if math.isinf(task.share_s) else task.share_s)
+    p = task.pointing
     ra = p.ra_deg % 360.0
-    targets = sky_plane_targets(members, ra, p.dec_deg, inst, req.position_angle_deg)
-    seed = int(req.seed or 0)
-    if share_s < MIN_POINTING_S:
-        seq = plan_sequence(inst, (), SequenceOptions(seed=seed))
+    targets = sky_plane_targets(task.members, ra, p.dec_deg, inst, task.position_angle_deg)
+    if task.share_s < MIN_POINTING_S:
+        seq = plan_sequence(inst, (), SequenceOptions(seed=task.seed))
         return PointingPlan(p, ra, targets, None, seq, stats={
             "allocation": {"skipped": "request time limit exhausted"},
             "motion": {"legs": len(seq.legs), "leg_budget_s": 0.0, "compute_s": 0.0}})
-    result = allocate(inst, targets, method=req.method, solver=req.solver, configurations="all",
-                      time_limit_s=min(time_limit_s, ALLOCATION_SHARE * share_s), seed=seed,
+    result = allocate(inst, targets, method=task.method, solver=task.solver,
+                      configurations="all", seed=task.seed,
+                      time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * task.share_s),
                       progress=_report(progress, 0.0, 0.5))
     progress(0.5)
-    motion_s = deadline.left_s() - after_s
+    motion_s = deadline.left_s()
     legs = len(result.configurations) + 1
     tm = time.monotonic()
     if motion_s < MIN_LEG_S:
@@ -287,22 +325,32 @@ def _plan_pointing(req: PlanRequest, inst: Instrument, p: Pointing, members: lis
             "time limit for its legs)")
         leg_budget = 0.0
     else:
-        leg_budget = min(time_limit_s, max(motion_s / legs, MIN_LEG_S))
+        leg_budget = min(task.time_limit_s, max(motion_s / legs, MIN_LEG_S))
         # a leg the sequence starts gets at least MIN_LEG_S: its limit ends that much early
         seq_limit = None if math.isinf(motion_s) else max(motion_s - MIN_LEG_S, 0.01)
-        seq, err = sequence_motion(inst, result, targets, seed=seed, leg_time_limit_s=leg_budget,
-                                   time_limit_s=seq_limit,
+        seq, err = sequence_motion(inst, result, targets, seed=task.seed,
+                                   leg_time_limit_s=leg_budget, time_limit_s=seq_limit,
                                    progress=lambda f: progress(0.5 + 0.5 * f))
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs,
-                        "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm}}
+                        "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm},
+             "compute_s": deadline.elapsed_s()}
     return PointingPlan(p, ra, targets, result, seq, err, stats)
 
 
-def plan_field(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
-               time_limit_s: float, budget_s: float | None = None) -> FieldPlan:
-    """Segmentation -> per pointing: projection onto the pointing's own tangent plane
-    (``position_angle_deg``) -> allocation (all configurations) -> executable motion
+def pointing_result(task: PointingTask, inst: Instrument,
+                    progress: Progress = _noop) -> dict[str, Any]:
+    """:func:`plan_pointing` as a PlanPointing dict: the unit of work a plan job commits, and
+    what a Dask worker returns."""
+    ids = {int(k): t.id for k, t in zip(task.pointing.target_indices, task.members, strict=True)}
+    return pointing_plan_out(plan_pointing(task, inst, progress), ids, inst)
+
+
+def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
+                   time_limit_s: float, budget_s: float | None = None,
+                   ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
+    """Segmentation -> per pointing, in order: projection onto the pointing's own tangent
+    plane (``position_angle_deg``) -> allocation (all configurations) -> executable motion
     sequence park -> c1 -> ... -> park (``planner.sequence.plan_sequence``, which may change
     the configurations so that every leg can be executed).
 
@@ -311,44 +359,42 @@ def plan_field(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *
     between its allocation and its motion legs; ``time_limit_s`` also caps every single
     solver call. A pointing reached after the time ran out gets no configurations (its
     targets ``no_time``)."""
-    deadline = _Deadline(plan_limit_s(req, budget_s))
-    seg = segment(SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
-                                      mode=req.segmentation_mode, seed=req.seed), inst)
+    deadline = _Deadline.of_plan(plan_limit_s(req, budget_s))
+    seg = segment_plan(req, inst)
     progress(0.05)
     n = max(len(seg.pointings), 1)
     out = []
-    for i, p in enumerate(seg.pointings):
+    for i in range(len(seg.pointings)):
         lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
         left = deadline.left_s()
         # an even share of what is left, but at least what a pointing needs: when time is
         # short the first pointings are planned and the last ones report `no_time`
         share = min(max(left / (n - i), MIN_POINTING_S), left)
-        out.append(_plan_pointing(
-            req, inst, p, [req.targets[int(k)] for k in p.target_indices], share, deadline,
-            after_s=0.0 if math.isinf(left) else max(left - share, 0.0), time_limit_s=time_limit_s,
-            progress=lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f)))
+        out.append(pointing_result(pointing_task(req, seg, i, share, time_limit_s), inst,
+                                   lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f)))
         progress(hi)
-    return FieldPlan(seg, tuple(out), {
-        "time_limit_s": time_limit_s, "budget_s": budget_s,
-        "deadline_s": plan_limit_s(req, budget_s),
-        "elapsed_s": deadline.elapsed_s()})
+    return seg, out, {"time_limit_s": time_limit_s, "budget_s": budget_s,
+                      "deadline_s": plan_limit_s(req, budget_s),
+                      "elapsed_s": deadline.elapsed_s()}
 
 
 def plan(
     req: PlanRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float,
     budget_s: float | None = None,
 ) -> dict[str, Any]:
-    """:func:`plan_field` as a PlanResponse dict. A motion leg that cannot be planned is
+    """:func:`plan_pointings` as a PlanResponse dict. A motion leg that cannot be planned is
     returned with status "failed", never as an exception; the pointing and the plan then say
     ``executable: false`` with the reasons."""
-    fp = plan_field(req, inst, progress, time_limit_s=time_limit_s, budget_s=budget_s)
-    out = plan_out(fp, [t.id for t in req.targets], inst)
+    seg, pointings, stats = plan_pointings(req, inst, progress, time_limit_s=time_limit_s,
+                                           budget_s=budget_s)
+    out = plan_out(seg, pointings, req.targets, stats)
     progress(1.0)
     return out
 
 
-def pointing_plan_out(pp: PointingPlan, ids: Sequence[str], inst: Instrument) -> dict[str, Any]:
-    """One :class:`PointingPlan` as a PlanPointing dict."""
+def pointing_plan_out(pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],
+                      inst: Instrument) -> dict[str, Any]:
+    """One :class:`PointingPlan` as a PlanPointing dict (``ids[k]``: the id of target ``k``)."""
     seq = adapters.sequence_out(pp.sequence)
     if pp.unplanned_reason is not None:
         legs = len(pp.sequence.configurations) + 1
@@ -369,45 +415,45 @@ def pointing_plan_out(pp: PointingPlan, ids: Sequence[str], inst: Instrument) ->
             "executable": seq["executable"], "reasons": seq["reasons"], "stats": stats}
 
 
-def _completeness(fp: FieldPlan, out: list[dict[str, Any]], n_targets: int) -> dict[str, float]:
+def _completeness(out: Sequence[dict[str, Any]],
+                  targets: Sequence[SkyTarget]) -> dict[str, float]:
     """Completeness of the plan as returned (after the motion planner's changes), over every
     target of the request."""
     observed = {a["target_id"] for p in out for c in p["configurations"] for a in c["assignments"]
                 if a["target_id"] is not None}
-    priority = {t: int(q) for pp in fp.pointings for t, q in zip(pp.targets.ids, pp.targets.priority,
-                                                                    strict=True)}
+    priority = {t.id: int(t.priority) for t in targets}
     total = sum(priority.values())
-    return {"field_completeness": len(observed) / n_targets if n_targets else 1.0,
+    return {"field_completeness": len(observed) / len(targets) if targets else 1.0,
             "priority_completeness": sum(priority.get(t, 0) for t in observed) / total
             if total else 1.0}
 
 
-def plan_out(fp: FieldPlan, ids: Sequence[str], inst: Instrument) -> dict[str, Any]:
-    """A :class:`FieldPlan` as a PlanResponse dict (``ids`` of the request's targets)."""
-    out = [pointing_plan_out(pp, ids, inst) for pp in fp.pointings]
+def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget],
+             stats: dict[str, Any]) -> dict[str, Any]:
+    """A PlanResponse dict from the segmentation and its PlanPointing dicts, in pointing
+    order (``targets`` of the request; ``stats`` of the whole plan's deadline)."""
     reasons: dict[str, int] = {}
     for p in out:
         for u in p["unallocated"]:
             reasons[u["reason"]] = reasons.get(u["reason"], 0) + 1
     motions = [m for p in out for m in p["motions"]]
     return {
-        "tangent_point": {"ra_deg": fp.segmentation.tangent_ra_deg,
-                          "dec_deg": fp.segmentation.tangent_dec_deg},
-        "pointings": out,
+        "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
+        "pointings": list(out),
         "executable": all(p["executable"] for p in out),
         "reasons": [f"pointing {p['id']}: {r}" for p in out for r in p["reasons"]],
         "stats": adapters.plain({
-            "targets": len(ids), "pointings": len(out),
+            "targets": len(targets), "pointings": len(out),
             "configurations": sum(len(p["configurations"]) for p in out),
             "allocated_targets": sum(1 for p in out for c in p["configurations"]
                                      for a in c["assignments"] if a["target_id"] is not None),
-            **_completeness(fp, out, len(ids)),
+            **_completeness(out, targets),
             "unallocated_by_reason": reasons,
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
-            **fp.stats,
-            "segmentation": fp.segmentation.stats,
+            **stats,
+            "segmentation": seg.stats,
         }),
     }
 

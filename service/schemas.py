@@ -308,7 +308,7 @@ class PlanRequest(Request):
     time_limit_s: TimeLimitS | None = Field(
         None, description="Wall-clock limit of the whole plan, s: segmentation, then every "
         "pointing's allocation and motion legs, with what is left shared out over the "
-        "pointings still to do. Default (and cap) the server's budget: MXS_PLAN_BUDGET_S for "
+        "pointings still to do (a plan job: split evenly over its pointings in advance). Default (and cap) the server's budget: MXS_PLAN_BUDGET_S for "
         "POST /v1/plans, MXS_JOB_BUDGET_S for a plan job. Pointings reached after it ran out "
         "report their targets `no_time`; plan big fields with POST /v1/jobs."
     )

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -92,7 +93,13 @@ class Settings(BaseSettings):
         "job whose lease expired (server killed) is re-queued by any server on the database."
     )
     job_max_attempts: int = Field(
-        3, ge=1, description="Interruptions after which a job is failed instead of re-queued."
+        3, ge=1, description="Interruptions after which a job is failed instead of re-queued "
+        "(counted per job; a re-queued plan job resumes from its committed pointings)."
+    )
+    dask_scheduler: str | None = Field(
+        None, description="Address of a dask.distributed scheduler (tcp://host:8786): the "
+        "pointings of plan jobs run there, one task each (needs the 'distributed' extra). "
+        "Unset: each plan job computes its pointings in its own job-pool process."
     )
     max_queued_jobs: int = Field(
         100, ge=1, description="Jobs that may wait in the queue; more are refused with 429."
@@ -117,6 +124,16 @@ class Settings(BaseSettings):
         if self.max_targets is not None and self.max_targets < value:
             value, name = self.max_targets, "max_targets"
         return value, env_name(name)
+
+    @field_validator("dask_scheduler")
+    @classmethod
+    def _dask_installed(cls, v: str | None) -> str | None:
+        if not v:
+            return None
+        if importlib.util.find_spec("distributed") is None:
+            raise ValueError("MXS_DASK_SCHEDULER is set but dask.distributed is not installed "
+                             "(pip install 'mxs-planner[distributed]')")
+        return v
 
     @property
     def cors_origin_list(self) -> list[str]:
