@@ -281,3 +281,31 @@ def test_a_job_finished_elsewhere_stops_the_local_runner_inside_its_pointing(tmp
     job = store.get(job_id)
     assert job is not None and (job["status"], job["error"]) == ("failed", "closed elsewhere")
     assert sorted(store.pointing_results(job_id)) == [0]
+
+
+def test_a_cancelled_dask_job_stops_submitting_and_cancels_its_tasks(tmp_path, cluster,
+                                                                    monkeypatch) -> None:
+    """POST /v1/jobs/{id}/cancel's store call after the first pointing: the job ends
+    `cancelled` with no result, its other Dask tasks are cancelled and nothing more is
+    committed."""
+    store, job_id = new_job(tmp_path, owner="srv/1")
+    commit = jobs.JobStore.commit_pointing
+
+    def commit_then_cancel(self, job: str, owner: str, index: int, answer: dict) -> bool:
+        ok = commit(self, job, owner, index, answer)
+        self.cancel(job)
+        return ok
+
+    monkeypatch.setattr(jobs.JobStore, "commit_pointing", commit_then_cancel)
+    runner = DaskRunner(cluster.scheduler_address, window=1)
+    assert jobs.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
+                        owner="srv/1", runner=runner) == jobs.CANCELLED
+    client = runner.client()
+    deadline = time.monotonic() + 1.0  # far less than a pointing takes
+    while any(client.processing().values()):
+        assert time.monotonic() < deadline, "a cancelled pointing task kept running"
+        time.sleep(0.05)
+    runner.close()
+    job = store.get(job_id)
+    assert job is not None and (job["status"], job["result"]) == (jobs.CANCELLED, None)
+    assert job["pointings_done"] == 1 and sorted(store.pointing_results(job_id)) == [0]
