@@ -185,10 +185,25 @@ class TelescopePointing(Request):
 # ------------------------------------------------------------------------- requests
 
 
-class SegmentationRequest(Request):
+class SkyTargetSource(Request):
+    """Sky targets given inline (``targets``) or as a stored list (``target_list_id``): exactly one."""
+
     targets: list[SkyTarget] | None = Field(None, min_length=1, description=SKY_TARGETS_DOC)
     target_list_id: TargetListId | None = Field(None, validate_default=True,
                                                 description=TARGET_LIST_DOC)
+
+    @field_validator("targets")
+    @classmethod
+    def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
+        return None if v is None else _unique_ids(v)
+
+    @field_validator("target_list_id")
+    @classmethod
+    def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
+        return _one_target_source(v, info)
+
+
+class SegmentationRequest(SkyTargetSource):
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Complete-linkage threshold, mm; default sqrt(3) * FOV radius."
     )
@@ -200,16 +215,6 @@ class SegmentationRequest(Request):
         description="'complete-linkage' (thesis ch. 4) or 'balanced' (fewer, more even pointings).",
     )
     seed: Seed | None = None
-
-    @field_validator("targets")
-    @classmethod
-    def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
-        return None if v is None else _unique_ids(v)
-
-    @field_validator("target_list_id")
-    @classmethod
-    def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
-        return _one_target_source(v, info)
 
 
 class AllocationRequest(Request):
@@ -298,10 +303,7 @@ class MotionPlanRequest(Request):
         return _unique_arms(v, "goal") or []
 
 
-class PlanRequest(Request):
-    targets: list[SkyTarget] | None = Field(None, min_length=1, description=SKY_TARGETS_DOC)
-    target_list_id: TargetListId | None = Field(None, validate_default=True,
-                                                description=TARGET_LIST_DOC)
+class PlanRequest(SkyTargetSource):
     method: Method = "ilp"
     solver: Solver = "bnb"
     position_angle_deg: PositionAngleDeg = 0.0
@@ -317,16 +319,6 @@ class PlanRequest(Request):
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
     segmentation_mode: SegmentationMode = "complete-linkage"
-
-    @field_validator("targets")
-    @classmethod
-    def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
-        return None if v is None else _unique_ids(v)
-
-    @field_validator("target_list_id")
-    @classmethod
-    def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
-        return _one_target_source(v, info)
 
 
 # ------------------------------------------------------------------------ responses
