@@ -88,6 +88,10 @@ def _bodies_clearance(sa, ea, ra, i, sb, eb, rb, j):
     return m
 
 
+# the kernel above for other compiled modules of the planner (planner.timeline)
+bodies_clearance = _bodies_clearance
+
+
 @numba.njit(cache=True)
 def _clearance_rows(sa, ea, ra, sb, eb, rb):
     n = sa.shape[0]
@@ -201,11 +205,15 @@ def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
 
 
 def compile_kernels() -> None:
-    """Compile (or load from the on-disk cache) every kernel of this module; the Docker image
-    calls it at build time so that no request pays for the compilation."""
+    """Compile (or load from the on-disk cache) every kernel of this module and of
+    :mod:`planner.timeline`; the Docker image calls it at build time so that no request pays
+    for the compilation."""
     z = np.zeros((1, 1, 2))
     r = np.zeros(1)
     clearance_rows(z, z, r, z, z, r)
     b, i = np.zeros((1, 4)), np.zeros(1, int)
     lipschitz_clear(z, z, r, b, i, z, z, r, b, i, i, i, 1.0, 0.0, 10)
     clearance_to_arms(z, z, r, z[None], z[None], r[None])
+    from planner.timeline import compile_kernels as timeline_kernels  # it imports this module
+
+    timeline_kernels()

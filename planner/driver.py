@@ -7,10 +7,12 @@ ends), then tries the strategies (:mod:`planner.strategies`) in this order:
 1. "delays": straight zero-stop moves with departure delays; when every straight option
    fails, "cluster" (with ``max_start_stop`` >= 1): state-time detours for the smallest
    conflicting arm set; then "detours": the delay CSP's one-stop detour rounds;
-2. "prioritized" when "forward" / "reverse" are named: thesis Algorithm 6 with priority
+2. "sequenced": straight moves and one-stop detours planned arm by arm on a time grid, the
+   order adapting to the arm that could not be planned;
+3. "prioritized" when "forward" / "reverse" are named: thesis Algorithm 6 with priority
    rotation and time reversal;
-3. any other registered strategy named in ``strategies``, in the given order;
-4. "via" (when named, or after the prioritized strategy when ``via`` is set): two zero-stop
+4. any other registered strategy named in ``strategies``, in the given order;
+5. "via" (when named, or after the prioritized strategy when ``via`` is set): two zero-stop
    legs through park or another configuration.
 
 Every candidate goes through :func:`planner.verify.verify_trajectories` exactly once; a
@@ -65,11 +67,13 @@ def strategy_sequence(options: MotionOptions) -> list[Strategy]:
         seq.append(STRATEGIES["evasion"])
     if "delays" in names:
         seq += ([STRATEGIES["cluster"]] if "cluster" in names else []) + [STRATEGIES["detours"]]
+    if "sequenced" in names:
+        seq.append(STRATEGIES["sequenced"])
     prio = any(n in names for n in PRIORITIZED_NAMES)
     if prio:
         seq.append(STRATEGIES["prioritized"])
     for n in dict.fromkeys(names):
-        if n not in ("delays", "cluster", "evasion", "via") + PRIORITIZED_NAMES:
+        if n not in ("delays", "cluster", "evasion", "sequenced", "via") + PRIORITIZED_NAMES:
             seq.append(STRATEGIES[n])
     if "via" in names or (prio and options.via is not None):
         seq.append(STRATEGIES["via"])

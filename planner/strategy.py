@@ -230,6 +230,8 @@ def stage_budget(name: str, leg: Leg, budget: Budget) -> Budget:
         return budget.share(*sh.CLUSTER_SHARE)
     if name == "evasion":
         return budget.share(*sh.EVASION_SHARE)
+    if name == "sequenced":
+        return budget.share(*sh.SEQUENCED_SHARE)
     if name == "detours":
         d = leg.cache.delay_deadline if leg.cache.delay_deadline is not None else budget.deadline
         if leg.cache.cluster_s is not None:  # the cluster's time is its own, not the delay stage's

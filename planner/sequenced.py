@@ -1,0 +1,198 @@
+"""Sequenced straight moves: every arm's motion built one straight move at a time (a search).
+
+Arms are taken in a priority order. Each one goes straight to its goal (either theta2 way
+round) at the earliest departure that keeps clear of every motion committed so far
+(:class:`planner.timeline.Timeline`); an arm that is still resting at its start, or at a
+way-point, is an obstacle *until it moves*, which is what makes the order matter and the
+search work:
+
+* an arm whose straight move is blocked only by arms that will still move waits its turn
+  (it is tried again after them: revised prioritized planning, with the order adapting to the
+  blocks found);
+* an arm blocked by an arm already at its goal goes round it through one way-point
+  (start -> v -> goal, one stop), v taken from a grid of the arm's configuration space by
+  travel time;
+* when every waiting arm blocks another (swaps and cycles of arms that must pass where the
+  other is), one of the blocking arms steps aside first: a move to a way-point v clear of the
+  blocked arms' straight moves, then, later, v -> goal (one stop). This is the thesis' own
+  future work (6.5: "moving an arrived arm out of the way") done inside one leg.
+
+Each attempt is deterministic; failed attempts put the arms left over first in the next
+order, then the order is shuffled with the seed. The result is one straight move per arm
+where that is safe (zero stops, the MCC2 ideal) and at most ``max_start_stop + 1`` moves per
+arm. The driver verifies every candidate (:mod:`planner.verify`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.geometry import ArmGeom
+from planner.strategy import Budget, Leg
+from planner.timeline import MoveSamples, Timeline
+
+TWO_PI = 2.0 * np.pi
+
+DT_S = 0.25  # the grid of the timeline
+VIA_THETA1 = 9  # way-point grid: theta1 values over [theta1_min, theta1_max]
+VIA_THETA2 = 24  # and theta2 values over a full turn
+MAX_VIAS_TRIED = 60  # way-points tried per detour or step-aside, cheapest first
+
+
+@dataclass
+class SequencedResult:
+    """The timeline of the first successful attempt (None if none), the arms left over by the
+    last failed attempt, and counters."""
+
+    timeline: Timeline | None
+    failed_arms: tuple[int, ...]
+    stats: dict = field(default_factory=dict)
+
+
+def goal_targets(p: np.ndarray, g: np.ndarray) -> list[np.ndarray]:
+    """``g`` with theta2 unwrapped next to ``p``: both ways round, the shorter first (one pose
+    when theta2 does not change)."""
+    ccw = float(np.mod(g[1] - p[1], TWO_PI))
+    if ccw <= 1e-12 or TWO_PI - ccw <= 1e-12:
+        return [np.array([g[0], p[1]])]
+    turns = sorted((ccw, ccw - TWO_PI), key=abs)
+    return [np.array([g[0], p[1] + t]) for t in turns]
+
+
+def at_goal(p: np.ndarray, g: np.ndarray) -> bool:
+    d = float(np.mod(g[1] - p[1], TWO_PI))
+    return abs(p[0] - g[0]) <= 1e-9 and min(d, TWO_PI - d) <= 1e-9
+
+
+def via_grid(geom: ArmGeom, p: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """Way-point candidates of an arm at ``p`` bound for ``g`` (theta2 unwrapped within half a
+    turn of ``p``), outside the ZoA, by travel time p -> v -> g (shorter first)."""
+    t1 = np.linspace(geom.theta1_min, geom.theta1_max, VIA_THETA1)
+    t2 = p[1] + np.linspace(-np.pi, np.pi, VIA_THETA2, endpoint=False)
+    grid = np.array(np.meshgrid(t1, t2, indexing="ij")).reshape(2, -1).T
+    g2 = p[1] + (np.mod(g[1] - p[1] + np.pi, TWO_PI) - np.pi)
+    extra = [[geom.theta1_max, p[1]], [geom.theta1_max, g2], [p[0], g2], [g[0], p[1]]]
+    for f in (1 / 3, 2 / 3):
+        r = p[0] + f * (geom.theta1_max - p[0])
+        extra += [[r, p[1]], [r, g2], [r, 0.5 * (p[1] + g2)]]
+    v = np.vstack([np.array(extra), grid])
+    v = v[~geom.in_zoa(v[:, 0], v[:, 1])]
+    gg = np.array([g[0], g2])
+    cost = geom.move_time_s(p, v) + geom.move_time_s(v, gg)
+    keep = geom.move_time_s(p, v) > 1e-9
+    return v[keep][np.argsort(cost[keep], kind="stable")]
+
+
+class Attempt:
+    """One pass of the search in a given arm order (module docstring)."""
+
+    def __init__(self, leg: Leg, order: list[int], budget: Budget, dt_s: float = DT_S) -> None:
+        o = leg.options
+        self.leg = leg
+        self.budget = budget
+        self.goal = leg.goal_q
+        self.tl = Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s, buffer_mm=leg.buffer_mm,
+                           max_moves=o.max_start_stop + 1)
+        self.order = list(order)
+        for k in set(range(leg.n_arms)) - set(leg.enabled):  # disabled arms rest where they are
+            self.tl.visible[k] = True
+        self.stats = {"moves_tried": 0, "vias_tried": 0, "detours": 0}
+
+    # ---------------------------------------------------------------- single moves
+
+    def _best_move(self, k: int, targets: list[np.ndarray]) -> tuple[MoveSamples, int] | None:
+        """The target reached first (earliest arrival), with its departure step; else None.
+        Moves that also keep clear of the arms not planned yet (resting at their starts) come
+        first, so that those arms need not get out of the way."""
+        tl = self.tl
+        samples = [ms for ms in (tl.samples(k, q) for q in targets) if ms is not None]
+        for strict in (False,):
+            best = None
+            for ms in samples:
+                self.stats["moves_tried"] += 1
+                d, _ = tl.earliest_departure(k, ms, strict)
+                if d >= 0 and (best is None or d * tl.dt_s + ms.duration_s < best[1] * tl.dt_s + best[0].duration_s):
+                    best = (ms, d)
+            if best is not None:
+                return best
+        return None
+
+    def to_goal(self, k: int) -> bool:
+        found = self._best_move(k, goal_targets(self.tl.pose(k), self.goal[k]))
+        if found is None:
+            return False
+        self.tl.commit(k, *found)
+        return True
+
+    def detour(self, k: int) -> bool:
+        """Arm k start -> v -> goal, v the cheapest way-point from which both moves are safe."""
+        tl = self.tl
+        if tl.moves_left(k) < 2:
+            return False
+        p = tl.pose(k)
+        for v in via_grid(tl.geoms[k], p, self.goal[k])[:MAX_VIAS_TRIED]:
+            if self.budget.expired():
+                return False
+            self.stats["vias_tried"] += 1
+            first = self._best_move(k, [v])
+            if first is None:
+                continue
+            tl.commit(k, *first)
+            if self.to_goal(k):
+                self.stats["detours"] += 1
+                return True
+            tl.undo(k)
+        return False
+
+    # ---------------------------------------------------------------- the pass
+
+    def run(self) -> tuple[int, ...]:
+        """Plans every arm in order; returns the arm that could not be planned and those after
+        it (empty: success)."""
+        for i, k in enumerate(self.order):
+            if self.budget.expired() or not (self.to_goal(k) or self.detour(k)):
+                return tuple(self.order[i:])
+        return ()
+
+
+def first_order(leg: Leg) -> list[int]:
+    """Longest straight move first (the arms that set the makespan move earliest)."""
+    v1 = np.array([g.v1_max for g in leg.geoms])
+    v2 = np.array([g.v2_max for g in leg.geoms])
+    d = np.abs(leg.goal_q - leg.start_q)
+    d[:, 1] = np.minimum(np.mod(d[:, 1], TWO_PI), TWO_PI - np.mod(d[:, 1], TWO_PI))
+    t = np.maximum(d[:, 0] / v1, d[:, 1] / v2)
+    return [int(k) for k in sorted(leg.enabled, key=lambda k: (-t[k], k))]
+
+
+def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> SequencedResult:
+    """Attempts in adapted and shuffled orders until one plans every arm (module docstring)."""
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(leg.options.seed)
+    order = first_order(leg)
+    stats: dict = {"attempts": 0}
+    failed: tuple[int, ...] = tuple(leg.enabled)
+    tried: set[tuple[int, ...]] = set()
+    for _ in range(max_attempts):
+        if budget.expired():
+            break
+        tried.add(tuple(order))
+        att = Attempt(leg, order, budget)
+        failed = att.run()
+        stats["attempts"] += 1
+        for key, v in att.stats.items():
+            stats[key] = stats.get(key, 0) + v
+        if not failed:
+            stats["compute_s"] = time.perf_counter() - t0
+            return SequencedResult(att.tl, (), stats)
+        # the arm that could not be planned goes first, the others keep their order; an order
+        # seen before is shuffled instead
+        nxt = [failed[0]] + [k for k in order if k != failed[0]]
+        if tuple(nxt) in tried:
+            nxt = [int(k) for k in rng.permutation(order)]
+        order = nxt
+    stats["compute_s"] = time.perf_counter() - t0
+    return SequencedResult(None, failed, stats)

@@ -1,0 +1,354 @@
+"""A shared time grid of committed arm motions, and the earliest safe departure of a new move.
+
+The search primitive of the sequenced strategy (:mod:`planner.sequenced`). Every arm's
+committed motion is a list of straight joint-space moves (both joints linear, arriving
+together, thesis eq. 6.23); before its first move an arm rests at its start, after its last
+move it rests at the end pose *forever*. Arms are sampled on one grid of ``dt_s``; a new move
+of arm k from its current end pose to ``q_to`` is scheduled at the earliest grid step at which
+
+* every sample of the move keeps clearance >= ``thr_mm`` to every other arm at the same
+  time (the move may pass where another arm was, once it has left), and
+* the end pose keeps that clearance to every other arm at every later time (it rests there
+  until it moves again, and every later move of another arm is checked against it).
+
+Because the other arms' committed motions were themselves checked against arm k resting at
+its current pose forever, the new move keeps the whole set collision-free. ``thr_mm`` is
+the collision buffer plus the distance two arms can close in half a step at full speed
+(:func:`planner.geometry.body_speed_bound_mm_s`), so clearance between samples never drops
+below the buffer; the driver's verifier re-checks the result independently.
+
+Everything hot is in compiled kernels (numba) over the per-step capsule axes with a
+bounding-box pre-filter.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from planner.clearance import bodies_clearance
+from planner.geometry import ArmGeom, body_speed_bound_mm_s, edges_in_zoa
+
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True)
+class Move:
+    """One straight joint-space move of ``arm``: from ``q_from`` to ``q_to`` (theta2
+    unwrapped), departing at grid step ``depart_step``, lasting ``duration_s``."""
+
+    arm: int
+    q_from: np.ndarray
+    q_to: np.ndarray
+    depart_step: int
+    duration_s: float
+    n_steps: int  # grid steps until the arm is at q_to (ceil(duration / dt))
+
+
+@numba.njit(cache=True, inline="always")
+def _box_gap(a, i, b, m):
+    gx = max(a[i, 0] - b[m, 2], b[m, 0] - a[i, 2])
+    gy = max(a[i, 1] - b[m, 3], b[m, 1] - a[i, 3])
+    return max(gx, gy)
+
+
+@numba.njit(cache=True)
+def _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, vis, arm, m, buf, hdt):
+    """Index of a visible arm closer than the threshold to sample ``i`` of the move at step
+    ``m``, else -1. The threshold is the buffer plus the distance both arms can close in half a
+    step at their speed bounds there (zero for an arm at rest)."""
+    for j in range(S.shape[0]):
+        if j == arm or not vis[j]:
+            continue
+        thr = buf + hdt * (mspd[i] + SPD[j, m])
+        if _box_gap(mbox, i, BOX[j], m) >= thr:
+            continue
+        if bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m) < thr:
+            return j
+    return -1
+
+
+@numba.njit(cache=True)
+def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, d_lo, d_hi, d_step, buf, hdt):
+    """The first step D in range(d_lo, d_hi + 1, d_step) at which every sample i of the move
+    clears every other arm at step D + i; -1 when there is none. The sample that failed the
+    previous D is tried first (it usually fails the next D too)."""
+    n1 = ms.shape[0]
+    hint = 0
+    D = d_lo
+    while D <= d_hi:
+        if _sample_hits(ms, me, mr, mbox, mspd, hint, S, E, R, BOX, SPD, vis, arm, D + hint, buf, hdt) < 0:
+            ok = True
+            for i in range(n1):
+                if i != hint and _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, vis, arm, D + i, buf, hdt) >= 0:
+                    hint = i
+                    ok = False
+                    break
+            if ok:
+                return D
+        D += d_step
+    return -1
+
+
+@numba.njit(cache=True)
+def _last_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
+    """The last step at which pose ``gs``/``ge`` (one sample) comes closer than ``thr`` to
+    a visible arm; -1 when never."""
+    for m in range(S.shape[1] - 1, -1, -1):
+        if _sample_hits(gs, ge, gr, gbox, gspd, 0, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
+            return m
+    return -1
+
+
+@numba.njit(cache=True)
+def _first_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
+    """The first step at which pose ``gs``/``ge`` comes closer than ``thr`` to a visible arm;
+    the number of steps + 1 when never."""
+    for m in range(S.shape[1]):
+        if _sample_hits(gs, ge, gr, gbox, gspd, 0, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
+            return m
+    return S.shape[1]
+
+
+@numba.njit(cache=True)
+def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
+    """Per other arm, the first sample of the move closer than ``thr`` to that arm's final pose
+    (its pose at the last step); -1 when none."""
+    A = S.shape[0]
+    m = S.shape[1] - 1
+    out = np.full(A, -1, np.int64)
+    for j in range(A):
+        if j == arm or not vis[j]:
+            continue
+        for i in range(ms.shape[0]):
+            thr = buf + hdt * mspd[i]
+            if _box_gap(mbox, i, BOX[j], m) >= thr:
+                continue
+            if bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m) < thr:
+                out[j] = i
+                break
+    return out
+
+
+def boxes(s: np.ndarray, e: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """(..., 4) bounding boxes (xmin, ymin, xmax, ymax) of capsules ``s``/``e`` (..., nb, 2)."""
+    r = radius[:, None]
+    lo = (np.minimum(s, e) - r).min(axis=-2)
+    hi = (np.maximum(s, e) + r).max(axis=-2)
+    return np.concatenate([lo, hi], axis=-1)
+
+
+@dataclass(frozen=True)
+class MoveSamples:
+    """A move's poses at every grid step from its departure until it is at ``q_to``, and a
+    bound on the speed of its body points (:func:`planner.geometry.body_speed_bound_mm_s`)."""
+
+    q_from: np.ndarray
+    q_to: np.ndarray
+    duration_s: float
+    s: np.ndarray  # (n + 1, nb, 2) capsule axis starts
+    e: np.ndarray
+    box: np.ndarray  # (n + 1, 4)
+    speed: np.ndarray  # (n + 1,) mm/s
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.s) - 1
+
+    def end(self) -> tuple[np.ndarray, ...]:
+        """The last sample alone, at rest (speed 0)."""
+        return self.s[-1:], self.e[-1:], self.box[-1:], np.zeros(1)
+
+    def begin(self) -> tuple[np.ndarray, ...]:
+        """The first sample alone, at rest."""
+        return self.s[:1], self.e[:1], self.box[:1], np.zeros(1)
+
+
+class Timeline:
+    """Committed moves of every arm on a grid of ``dt_s`` up to ``horizon_s`` (module docstring).
+
+    ``max_moves`` per arm is ``max_start_stop + 1`` (a rest between two moves is one stop).
+    Arms not yet planned are invisible (prioritized planning); the first move of such an arm
+    also checks its rest at the start against the visible arms.
+    """
+
+    def __init__(self, geoms: tuple[ArmGeom, ...], start_q: np.ndarray, *, horizon_s: float, dt_s: float,
+                 buffer_mm: float, max_moves: int) -> None:
+        self.geoms = geoms
+        self.dt_s = float(dt_s)
+        self.n_steps = int(math.ceil(horizon_s / dt_s - 1e-9))
+        self.times_s = np.arange(self.n_steps + 1) * self.dt_s
+        self.buffer_mm = float(buffer_mm)
+        self.max_moves = int(max_moves)
+        self.start_q = np.array(start_q, float)
+        n = len(geoms)
+        nb = len(geoms[0].radius)
+        if any(len(g.radius) != nb for g in geoms):
+            raise ValueError("every arm needs the same number of bodies")
+        self.R = np.ascontiguousarray(np.stack([g.radius for g in geoms]), dtype=float)
+        self.S = np.empty((n, self.n_steps + 1, nb, 2))
+        self.E = np.empty_like(self.S)
+        self.BOX = np.empty((n, self.n_steps + 1, 4))
+        self.SPD = np.zeros((n, self.n_steps + 1))
+        self.moves: list[list[Move]] = [[] for _ in range(n)]
+        self.visible = np.zeros(n, dtype=np.bool_)
+        for k in range(n):
+            self._set_row(k)
+
+    # ------------------------------------------------------------------ state
+
+    def pose(self, k: int) -> np.ndarray:
+        """Arm k's current end pose (theta2 unwrapped)."""
+        return self.moves[k][-1].q_to if self.moves[k] else self.start_q[k]
+
+    def free_step(self, k: int) -> int:
+        """The first step at which arm k may depart again (its last arrival)."""
+        if not self.moves[k]:
+            return 0
+        m = self.moves[k][-1]
+        return m.depart_step + m.n_steps
+
+    def moves_left(self, k: int) -> int:
+        return self.max_moves - len(self.moves[k])
+
+    def arrival_s(self, k: int) -> float:
+        if not self.moves[k]:
+            return 0.0
+        m = self.moves[k][-1]
+        return m.depart_step * self.dt_s + m.duration_s
+
+    def makespan_s(self) -> float:
+        return max((self.arrival_s(k) for k in range(len(self.geoms))), default=0.0)
+
+    def waypoints(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Arm k's timed way-points (t from 0, (theta1, theta2))."""
+        t, q = [0.0], [self.start_q[k]]
+        for mv in self.moves[k]:
+            t0 = mv.depart_step * self.dt_s
+            if t0 > t[-1] + 1e-12:
+                t.append(t0)
+                q.append(mv.q_from)
+            t.append(t0 + mv.duration_s)
+            q.append(mv.q_to)
+        return np.array(t), np.array(q, float)
+
+    def _set_row(self, k: int) -> None:
+        t, q = self.waypoints(k)
+        g = self.geoms[k]
+        s, e = g.segments(np.interp(self.times_s, t, q[:, 0]), np.interp(self.times_s, t, q[:, 1]))
+        self.S[k], self.E[k] = s, e
+        self.BOX[k] = boxes(s, e, g.radius)
+        spd = np.zeros(self.n_steps + 1)
+        for mv in self.moves[k]:  # every step next to an interval in which the arm moves
+            a, b = mv.depart_step, min(mv.depart_step + mv.n_steps, self.n_steps)
+            spd[a:b + 1] = np.maximum(spd[a:b + 1], self._speed(k, mv.q_from, mv.q_to, mv.duration_s))
+        self.SPD[k] = spd
+
+    def _speed(self, k: int, a: np.ndarray, b: np.ndarray, duration_s: float) -> float:
+        if duration_s <= 0:
+            return 0.0
+        w = np.abs(np.asarray(b, float) - np.asarray(a, float)) / duration_s
+        return float(body_speed_bound_mm_s(self.geoms[k], w[0], w[1]))
+
+    # ------------------------------------------------------------------ moves
+
+    def samples(self, k: int, q_to: np.ndarray, q_from: np.ndarray | None = None) -> MoveSamples | None:
+        """Arm k's straight move from ``q_from`` (default: its current pose) to ``q_to`` (theta2
+        unwrapped) sampled on the grid; None when it crosses the ZoA or a joint limit."""
+        g = self.geoms[k]
+        a = self.pose(k) if q_from is None else np.asarray(q_from, float)
+        b = np.asarray(q_to, float)
+        if edges_in_zoa(g, a[None], b[None])[0]:
+            return None
+        T = float(g.move_time_s(a, b))
+        n = int(math.ceil(T / self.dt_s - 1e-9))
+        f = np.minimum(np.arange(n + 1) * self.dt_s / T, 1.0) if T > 0 else np.ones(1)
+        q = a + (b - a) * f[:, None]
+        s, e = g.segments(q[:, 0], q[:, 1])
+        speed = np.full(n + 1, self._speed(k, a, b, T))
+        return MoveSamples(a, b, T, np.ascontiguousarray(s), np.ascontiguousarray(e), boxes(s, e, g.radius), speed)
+
+    def _world(self, k: int, strict: bool) -> tuple:
+        vis = np.ones_like(self.visible) if strict else self.visible
+        return (self.S, self.E, self.R, self.BOX, self.SPD, vis, k, self.buffer_mm, 0.5 * self.dt_s)
+
+    def earliest_departure(self, k: int, ms: MoveSamples, strict: bool = False) -> tuple[int, set[int]]:
+        """The earliest grid step at which arm k can make move ``ms`` (module docstring), -1
+        when no step within the horizon works; and the visible arms whose final pose is in
+        the way of the move (it must pass before they get there). ``strict``: the arms not
+        yet planned count too, resting at their starts (revised prioritized planning)."""
+        n = ms.n_steps
+        w = self._world(k, strict)
+        r = self.R[k]
+        first = _final_conflicts(ms.s, ms.e, r, ms.box, ms.speed, *w)
+        blockers = {int(j) for j in np.flatnonzero(first >= 0)}
+        d_hi = self.n_steps - n
+        for j in blockers:  # sample i must pass before arm j settles in its final pose
+            d_hi = min(d_hi, self.free_step(j) - int(first[j]) - 1)
+        if not self.visible[k]:  # its rest at the start is not checked yet: it must leave in time
+            s0, e0, b0, v0 = ms.begin()
+            d_hi = min(d_hi, _first_conflict(s0, e0, r, b0, v0, *w) - 1)
+        s1, e1, b1, v1 = ms.end()
+        last = _last_conflict(s1, e1, r, b1, v1, *w)
+        d_lo = max(self.free_step(k), last - n + 1, 0)
+        if last >= self.n_steps or d_lo > d_hi:
+            return -1, blockers
+        d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:7], d_lo, d_hi, 1, *w[7:])
+        return int(d), blockers
+
+    def pose_blocks(self, k: int, q: np.ndarray, others: dict[int, MoveSamples]) -> set[int]:
+        """Arms of ``others`` whose move would come closer than the threshold to arm k resting at ``q``."""
+        g = self.geoms[k]
+        s, e = g.segments(np.array([q[0]]), np.array([q[1]]))
+        box = boxes(s, e, g.radius)
+        return {j for j, ms in others.items()
+                if _pose_vs_samples(s, e, self.R[k], box, ms.s, ms.e, self.R[j], ms.box, ms.speed,
+                                    self.buffer_mm, 0.5 * self.dt_s)}
+
+    def commit(self, k: int, ms: MoveSamples, depart_step: int) -> Move | None:
+        """Arm k makes move ``ms`` at ``depart_step`` (found by :meth:`earliest_departure`); it is
+        visible to every later move from then on. A move of zero length only makes it visible
+        (resting where it is), and does not count as a move."""
+        self.visible[k] = True
+        if ms.duration_s <= 0:
+            return None
+        mv = Move(k, ms.q_from, ms.q_to, int(depart_step), ms.duration_s, ms.n_steps)
+        self.moves[k].append(mv)
+        self._set_row(k)
+        return mv
+
+    def undo(self, k: int) -> None:
+        """Takes back arm k's last move (invisible again when it was its first)."""
+        self.moves[k].pop()
+        self.visible[k] = bool(self.moves[k])
+        self._set_row(k)
+
+
+@numba.njit(cache=True)
+def _pose_vs_samples(ps, pe, pr, pbox, ms, me, mr, mbox, mspd, buf, hdt):
+    """True when pose ``ps``/``pe`` (one sample, at rest) comes closer than the threshold to
+    any sample of a move."""
+    for i in range(ms.shape[0]):
+        thr = buf + hdt * mspd[i]
+        if _box_gap(pbox, 0, mbox, i) >= thr:
+            continue
+        if bodies_clearance(ps, pe, pr, 0, ms, me, mr, i) < thr:
+            return True
+    return False
+
+
+def compile_kernels() -> None:
+    """Compile (or load from the on-disk cache) this module's kernels."""
+    z = np.zeros((1, 1, 2))
+    r = np.zeros(1)
+    b = np.zeros((1, 4))
+    S, E, B, R, P = z[None], z[None], b[None], r[None], r[None]
+    v = np.ones(1, np.bool_)
+    _first_departure(z, z, r, b, r, S, E, R, B, P, v, 0, 0, 0, 1, 0.0, 0.0)
+    _last_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    _pose_vs_samples(z, z, r, b, z, z, r, b, r, 0.0, 0.0)
