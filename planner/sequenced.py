@@ -30,13 +30,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.geometry import ArmGeom
+from planner.geometry import ArmGeom, timed_collisions
 from planner.strategy import Budget, Leg
 from planner.timeline import MoveSamples, Timeline
 
 TWO_PI = 2.0 * np.pi
 
-DT_S = 0.25  # the grid of the timeline
+DT_S = 0.1  # the grid of the timeline
 VIA_THETA1 = 9  # way-point grid: theta1 values over [theta1_min, theta1_max]
 VIA_THETA2 = 24  # and theta2 values over a full turn
 MAX_VIAS_TRIED = 60  # way-points tried per detour or step-aside, cheapest first
@@ -89,14 +89,16 @@ def via_grid(geom: ArmGeom, p: np.ndarray, g: np.ndarray) -> np.ndarray:
 class Attempt:
     """One pass of the search in a given arm order (module docstring)."""
 
-    def __init__(self, leg: Leg, order: list[int], budget: Budget, dt_s: float = DT_S) -> None:
+    def __init__(self, leg: Leg, order: list[int], budget: Budget, dt_s: float = DT_S,
+                 holds: dict[int, int] | None = None, margin: float = 0.0) -> None:
         o = leg.options
         self.leg = leg
         self.budget = budget
         self.goal = leg.goal_q
         self.tl = Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s, buffer_mm=leg.buffer_mm,
-                           max_moves=o.max_start_stop + 1)
+                           max_moves=o.max_start_stop + 1, margin=margin)
         self.order = list(order)
+        self.holds = dict(holds or {})  # arm -> the earliest step its first move may depart
         for k in set(range(leg.n_arms)) - set(leg.enabled):  # disabled arms rest where they are
             self.tl.visible[k] = True
         self.stats = {"moves_tried": 0, "vias_tried": 0, "detours": 0}
@@ -113,7 +115,8 @@ class Attempt:
             best = None
             for ms in samples:
                 self.stats["moves_tried"] += 1
-                d, _ = tl.earliest_departure(k, ms, strict)
+                hold = self.holds.get(k, 0) if not tl.moves[k] else 0
+                d, _ = tl.earliest_departure(k, ms, strict, hold)
                 if d >= 0 and (best is None or d * tl.dt_s + ms.duration_s < best[1] * tl.dt_s + best[0].duration_s):
                     best = (ms, d)
             if best is not None:
@@ -127,13 +130,30 @@ class Attempt:
         self.tl.commit(k, *found)
         return True
 
+    def vias(self, k: int) -> np.ndarray:
+        """Way-point candidates of arm k, at most MAX_VIAS_TRIED: those where it could rest for
+        ever once the planned arms have passed, by travel time plus the wait for them to pass."""
+        tl = self.tl
+        p, g = tl.pose(k), self.goal[k]
+        v = via_grid(tl.geoms[k], p, g)
+        if len(v) == 0:
+            return v
+        last = tl.free_after(k, v)
+        ok = last < tl.n_steps
+        geom = tl.geoms[k]
+        g2 = np.array([g[0], p[1] + (np.mod(g[1] - p[1] + np.pi, TWO_PI) - np.pi)])
+        t_in = geom.move_time_s(p, v)
+        cost = np.maximum(t_in, last * tl.dt_s) + geom.move_time_s(v, g2)
+        idx = np.flatnonzero(ok)
+        idx = idx[np.argsort(cost[idx], kind="stable")]
+        return v[idx[:MAX_VIAS_TRIED]]
+
     def detour(self, k: int) -> bool:
         """Arm k start -> v -> goal, v the cheapest way-point from which both moves are safe."""
         tl = self.tl
         if tl.moves_left(k) < 2:
             return False
-        p = tl.pose(k)
-        for v in via_grid(tl.geoms[k], p, self.goal[k])[:MAX_VIAS_TRIED]:
+        for v in self.vias(k):
             if self.budget.expired():
                 return False
             self.stats["vias_tried"] += 1
@@ -149,11 +169,31 @@ class Attempt:
 
     # ---------------------------------------------------------------- the pass
 
+    def culprit(self, k: int) -> int | None:
+        """The planned arm without which arm k could go straight to its goal, if there is one
+        (the earliest in the order)."""
+        tl = self.tl
+        targets = [ms for ms in (tl.samples(k, q) for q in goal_targets(tl.pose(k), self.goal[k])) if ms is not None]
+        for j in self.order:
+            if j == k or not tl.visible[j]:
+                continue
+            tl.visible[j] = False
+            try:
+                if any(tl.earliest_departure(k, ms)[0] >= 0 for ms in targets):
+                    return j
+            finally:
+                tl.visible[j] = True
+        return None
+
     def run(self) -> tuple[int, ...]:
         """Plans every arm in order; returns the arm that could not be planned and those after
-        it (empty: success)."""
+        it (empty: success); ``self.blamed`` is then the planned arm in its way, if one is."""
+        self.blamed: int | None = None
         for i, k in enumerate(self.order):
-            if self.budget.expired() or not (self.to_goal(k) or self.detour(k)):
+            if self.budget.expired():
+                return tuple(self.order[i:])
+            if not (self.to_goal(k) or self.detour(k)):
+                self.blamed = self.culprit(k)
                 return tuple(self.order[i:])
         return ()
 
@@ -168,31 +208,59 @@ def first_order(leg: Leg) -> list[int]:
     return [int(k) for k in sorted(leg.enabled, key=lambda k: (-t[k], k))]
 
 
+# the Lipschitz margin of the time grid's threshold (planner.timeline.Timeline): a plan found
+# with the bare buffer at the samples is re-checked exactly, and planned again with the full
+# margin if it comes too close between samples
+MARGINS = (0.25, 1.0)
+HOLD_STEP_S = 10.0  # a blamed arm's departure is held back by this much more in the next attempt
+MAX_HOLD_S = 40.0
+
+
+def _collisions(leg: Leg, tl: Timeline) -> list[tuple[int, int]]:
+    """The planner's own exact re-check of a timeline (10 ms, Lipschitz-certified)."""
+    return timed_collisions(leg.geoms, [tl.waypoints(k) for k in range(leg.n_arms)], leg.buffer_mm)
+
+
 def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> SequencedResult:
-    """Attempts in adapted and shuffled orders until one plans every arm (module docstring)."""
+    """Attempts until one plans every arm (module docstring). After a failed attempt, the
+    planned arm in the way of the arm that failed (if there is one) is held back at its start
+    a little longer, so that the other can get out of its way; once held long enough, the
+    failed arm goes just before it in the order instead (else first). A state tried before
+    gives a shuffled order."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(leg.options.seed)
-    order = first_order(leg)
+    dt_s = DT_S
+    hold_step = int(round(HOLD_STEP_S / dt_s))
+    order, holds = first_order(leg), {}
     stats: dict = {"attempts": 0}
     failed: tuple[int, ...] = tuple(leg.enabled)
-    tried: set[tuple[int, ...]] = set()
+    tried: set = set()
     for _ in range(max_attempts):
         if budget.expired():
             break
-        tried.add(tuple(order))
-        att = Attempt(leg, order, budget)
-        failed = att.run()
-        stats["attempts"] += 1
-        for key, v in att.stats.items():
-            stats[key] = stats.get(key, 0) + v
-        if not failed:
-            stats["compute_s"] = time.perf_counter() - t0
-            return SequencedResult(att.tl, (), stats)
-        # the arm that could not be planned goes first, the others keep their order; an order
-        # seen before is shuffled instead
-        nxt = [failed[0]] + [k for k in order if k != failed[0]]
-        if tuple(nxt) in tried:
-            nxt = [int(k) for k in rng.permutation(order)]
-        order = nxt
+        tried.add((tuple(order), tuple(sorted(holds.items()))))
+        for margin in MARGINS:
+            att = Attempt(leg, order, budget, dt_s, holds, margin)
+            failed = att.run()
+            stats["attempts"] += 1
+            for key, v in att.stats.items():
+                stats[key] = stats.get(key, 0) + v
+            if failed:
+                break
+            if not _collisions(leg, att.tl):
+                stats["compute_s"] = time.perf_counter() - t0
+                stats["margin"] = margin
+                return SequencedResult(att.tl, (), stats)
+            stats["recheck_failures"] = stats.get("recheck_failures", 0) + 1
+            failed = tuple(order)
+        k, j = failed[0], att.blamed
+        if j is not None and holds.get(j, 0) + hold_step <= MAX_HOLD_S / dt_s:
+            holds = {**holds, j: holds.get(j, 0) + hold_step}
+        else:
+            holds = {}
+            order = [i for i in order if i != k]
+            order.insert(order.index(j) if j is not None else 0, k)
+        if (tuple(order), tuple(sorted(holds.items()))) in tried:
+            order, holds = [int(i) for i in rng.permutation(order)], {}
     stats["compute_s"] = time.perf_counter() - t0
     return SequencedResult(None, failed, stats)

@@ -104,6 +104,19 @@ def _last_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt
 
 
 @numba.njit(cache=True)
+def _last_conflicts(vs, ve, vr, vbox, vspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
+    """:func:`_last_conflict` of every pose of ``vs``/``ve`` (one per row)."""
+    out = np.empty(vs.shape[0], np.int64)
+    for p in range(vs.shape[0]):
+        out[p] = -1
+        for m in range(S.shape[1] - 1, -1, -1):
+            if _sample_hits(vs, ve, vr, vbox, vspd, p, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
+                out[p] = m
+                break
+    return out
+
+
+@numba.njit(cache=True)
 def _first_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
     """The first step at which pose ``gs``/``ge`` comes closer than ``thr`` to a visible arm;
     the number of steps + 1 when never."""
@@ -133,18 +146,33 @@ def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, buf, h
     return out
 
 
+@numba.njit(cache=True)
+def _boxes(s, e, r):
+    n, nb = s.shape[0], s.shape[1]
+    out = np.empty((n, 4))
+    for i in range(n):
+        x0 = y0 = np.inf
+        x1 = y1 = -np.inf
+        for b in range(nb):
+            x0 = min(x0, s[i, b, 0] - r[b], e[i, b, 0] - r[b])
+            y0 = min(y0, s[i, b, 1] - r[b], e[i, b, 1] - r[b])
+            x1 = max(x1, s[i, b, 0] + r[b], e[i, b, 0] + r[b])
+            y1 = max(y1, s[i, b, 1] + r[b], e[i, b, 1] + r[b])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x0, y0, x1, y1
+    return out
+
+
 def boxes(s: np.ndarray, e: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """(..., 4) bounding boxes (xmin, ymin, xmax, ymax) of capsules ``s``/``e`` (..., nb, 2)."""
-    r = radius[:, None]
-    lo = (np.minimum(s, e) - r).min(axis=-2)
-    hi = (np.maximum(s, e) + r).max(axis=-2)
-    return np.concatenate([lo, hi], axis=-1)
+    """(n, 4) bounding boxes (xmin, ymin, xmax, ymax) of capsules ``s``/``e`` (n, nb, 2)."""
+    return _boxes(np.ascontiguousarray(s, dtype=float), np.ascontiguousarray(e, dtype=float),
+                  np.ascontiguousarray(radius, dtype=float))
 
 
 @dataclass(frozen=True)
 class MoveSamples:
-    """A move's poses at every grid step from its departure until it is at ``q_to``, and a
-    bound on the speed of its body points (:func:`planner.geometry.body_speed_bound_mm_s`)."""
+    """A move's poses at every grid step from its departure until it is at ``q_to``, and the
+    speed of its body points at each for the clearance threshold (:func:`margin_speeds` of
+    :func:`planner.geometry.body_speed_bound_mm_s`)."""
 
     q_from: np.ndarray
     q_to: np.ndarray
@@ -167,21 +195,42 @@ class MoveSamples:
         return self.s[:1], self.e[:1], self.box[:1], np.zeros(1)
 
 
+def margin_speeds(n: int, speed_mm_s: float) -> np.ndarray:
+    """Per-sample speeds of a move of ``n`` steps for the clearance threshold (buffer + half a
+    step times the speeds of both arms at that sample).
+
+    Two samples a step apart bound the clearance between them when their margins add up to a
+    step at the speed of the interval (Lipschitz); so the ends of a move, where an arm meets a
+    tight start or goal configuration, are held to the bare buffer and their neighbours to
+    twice the margin: [0, 2v, v, ..., v, 2v, 0] (one step: [2v, 0])."""
+    m = np.full(n + 1, float(speed_mm_s))
+    if n == 0:
+        return np.zeros(1)
+    if n == 1:
+        return np.array([2.0 * speed_mm_s, 0.0])
+    m[0] = m[-1] = 0.0
+    m[1] = m[-2] = 2.0 * speed_mm_s
+    return m
+
+
 class Timeline:
     """Committed moves of every arm on a grid of ``dt_s`` up to ``horizon_s`` (module docstring).
 
     ``max_moves`` per arm is ``max_start_stop + 1`` (a rest between two moves is one stop).
-    Arms not yet planned are invisible (prioritized planning); the first move of such an arm
+    ``margin`` scales the Lipschitz margin of the threshold: 1 makes every plan safe between
+    samples; 0 checks the bare buffer at the samples (the 0.1 s grid then misses at most
+    fractions of a millimetre, which the caller's exact re-check catches). Arms not yet planned are invisible (prioritized planning); the first move of such an arm
     also checks its rest at the start against the visible arms.
     """
 
     def __init__(self, geoms: tuple[ArmGeom, ...], start_q: np.ndarray, *, horizon_s: float, dt_s: float,
-                 buffer_mm: float, max_moves: int) -> None:
+                 buffer_mm: float, max_moves: int, margin: float = 1.0) -> None:
         self.geoms = geoms
         self.dt_s = float(dt_s)
         self.n_steps = int(math.ceil(horizon_s / dt_s - 1e-9))
         self.times_s = np.arange(self.n_steps + 1) * self.dt_s
         self.buffer_mm = float(buffer_mm)
+        self.half_step_margin_s = 0.5 * self.dt_s * float(margin)
         self.max_moves = int(max_moves)
         self.start_q = np.array(start_q, float)
         n = len(geoms)
@@ -235,16 +284,26 @@ class Timeline:
             q.append(mv.q_to)
         return np.array(t), np.array(q, float)
 
-    def _set_row(self, k: int) -> None:
+    def _set_row(self, k: int, from_step: int = 0) -> None:
+        """Recomputes arm k's samples from ``from_step`` on (they did not change before it)."""
         t, q = self.waypoints(k)
         g = self.geoms[k]
-        s, e = g.segments(np.interp(self.times_s, t, q[:, 0]), np.interp(self.times_s, t, q[:, 1]))
-        self.S[k], self.E[k] = s, e
-        self.BOX[k] = boxes(s, e, g.radius)
+        a = max(0, int(from_step))
+        if len(t) == 1:  # at rest: one pose for every step
+            s, e = g.segments(q[:1, 0], q[:1, 1])
+            self.S[k, a:], self.E[k, a:] = s, e
+            self.BOX[k, a:] = boxes(s, e, g.radius)
+        else:
+            ts = self.times_s[a:]
+            s, e = g.segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))
+            self.S[k, a:], self.E[k, a:] = s, e
+            self.BOX[k, a:] = boxes(s, e, g.radius)
         spd = np.zeros(self.n_steps + 1)
-        for mv in self.moves[k]:  # every step next to an interval in which the arm moves
-            a, b = mv.depart_step, min(mv.depart_step + mv.n_steps, self.n_steps)
-            spd[a:b + 1] = np.maximum(spd[a:b + 1], self._speed(k, mv.q_from, mv.q_to, mv.duration_s))
+        for mv in self.moves[k]:
+            lo = mv.depart_step
+            m = margin_speeds(mv.n_steps, self._speed(k, mv.q_from, mv.q_to, mv.duration_s))
+            hi = min(lo + len(m), self.n_steps + 1)
+            spd[lo:hi] = np.maximum(spd[lo:hi], m[:hi - lo])
         self.SPD[k] = spd
 
     def _speed(self, k: int, a: np.ndarray, b: np.ndarray, duration_s: float) -> float:
@@ -268,18 +327,20 @@ class Timeline:
         f = np.minimum(np.arange(n + 1) * self.dt_s / T, 1.0) if T > 0 else np.ones(1)
         q = a + (b - a) * f[:, None]
         s, e = g.segments(q[:, 0], q[:, 1])
-        speed = np.full(n + 1, self._speed(k, a, b, T))
+        speed = margin_speeds(n, self._speed(k, a, b, T))
         return MoveSamples(a, b, T, np.ascontiguousarray(s), np.ascontiguousarray(e), boxes(s, e, g.radius), speed)
 
     def _world(self, k: int, strict: bool) -> tuple:
         vis = np.ones_like(self.visible) if strict else self.visible
-        return (self.S, self.E, self.R, self.BOX, self.SPD, vis, k, self.buffer_mm, 0.5 * self.dt_s)
+        return (self.S, self.E, self.R, self.BOX, self.SPD, vis, k, self.buffer_mm, self.half_step_margin_s)
 
-    def earliest_departure(self, k: int, ms: MoveSamples, strict: bool = False) -> tuple[int, set[int]]:
+    def earliest_departure(self, k: int, ms: MoveSamples, strict: bool = False,
+                           min_step: int = 0) -> tuple[int, set[int]]:
         """The earliest grid step at which arm k can make move ``ms`` (module docstring), -1
         when no step within the horizon works; and the visible arms whose final pose is in
         the way of the move (it must pass before they get there). ``strict``: the arms not
-        yet planned count too, resting at their starts (revised prioritized planning)."""
+        yet planned count too, resting at their starts (revised prioritized planning);
+        ``min_step`` the earliest departure allowed."""
         n = ms.n_steps
         w = self._world(k, strict)
         r = self.R[k]
@@ -293,11 +354,19 @@ class Timeline:
             d_hi = min(d_hi, _first_conflict(s0, e0, r, b0, v0, *w) - 1)
         s1, e1, b1, v1 = ms.end()
         last = _last_conflict(s1, e1, r, b1, v1, *w)
-        d_lo = max(self.free_step(k), last - n + 1, 0)
+        d_lo = max(self.free_step(k), last - n + 1, int(min_step), 0)
         if last >= self.n_steps or d_lo > d_hi:
             return -1, blockers
         d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:7], d_lo, d_hi, 1, *w[7:])
         return int(d), blockers
+
+    def free_after(self, k: int, q: np.ndarray) -> np.ndarray:
+        """For each pose of ``q`` (n, 2), the last step at which arm k resting there would come
+        too close to a visible arm (-1: never; the last step: for ever)."""
+        g = self.geoms[k]
+        s, e = g.segments(q[:, 0], q[:, 1])
+        s, e = np.ascontiguousarray(s), np.ascontiguousarray(e)
+        return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), np.zeros(len(q)), *self._world(k, False))
 
     def pose_blocks(self, k: int, q: np.ndarray, others: dict[int, MoveSamples]) -> set[int]:
         """Arms of ``others`` whose move would come closer than the threshold to arm k resting at ``q``."""
@@ -306,7 +375,7 @@ class Timeline:
         box = boxes(s, e, g.radius)
         return {j for j, ms in others.items()
                 if _pose_vs_samples(s, e, self.R[k], box, ms.s, ms.e, self.R[j], ms.box, ms.speed,
-                                    self.buffer_mm, 0.5 * self.dt_s)}
+                                    self.buffer_mm, self.half_step_margin_s)}
 
     def commit(self, k: int, ms: MoveSamples, depart_step: int) -> Move | None:
         """Arm k makes move ``ms`` at ``depart_step`` (found by :meth:`earliest_departure`); it is
@@ -317,14 +386,14 @@ class Timeline:
             return None
         mv = Move(k, ms.q_from, ms.q_to, int(depart_step), ms.duration_s, ms.n_steps)
         self.moves[k].append(mv)
-        self._set_row(k)
+        self._set_row(k, mv.depart_step)
         return mv
 
     def undo(self, k: int) -> None:
         """Takes back arm k's last move (invisible again when it was its first)."""
-        self.moves[k].pop()
+        mv = self.moves[k].pop()
         self.visible[k] = bool(self.moves[k])
-        self._set_row(k)
+        self._set_row(k, mv.depart_step)
 
 
 @numba.njit(cache=True)
@@ -350,5 +419,7 @@ def compile_kernels() -> None:
     _first_departure(z, z, r, b, r, S, E, R, B, P, v, 0, 0, 0, 1, 0.0, 0.0)
     _last_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    _last_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _pose_vs_samples(z, z, r, b, z, z, r, b, r, 0.0, 0.0)
+    _boxes(z, z, r)

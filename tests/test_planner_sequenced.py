@@ -1,0 +1,149 @@
+"""The sequenced strategy and its time-grid primitive (planner/sequenced.py, planner/timeline.py).
+
+Oracles: the driver's independent verifier with exhaustive 10 ms sampling, and a brute-force
+departure search written with the numpy capsule distance of models.collision.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.collision import segment_distance_mm
+from models.instrument import default_instrument
+from planner import plan_motion
+from planner.options import MotionOptions
+from planner.sequenced import Attempt, first_order, goal_targets, plan_sequenced, via_grid
+from planner.strategy import Budget, Leg
+from planner.timeline import Timeline
+from planner.verify import verify_trajectories
+
+INST = default_instrument()
+PARK = INST.park_configuration
+LEGS = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())["legs"]
+
+
+def _leg(start, goal, **kw) -> Leg:
+    return Leg.build(INST, np.array(start, float), np.array(goal, float), MotionOptions(**kw))
+
+
+def _clear_brute(tl: Timeline, k: int, ms, D: int) -> bool:
+    """Move ``ms`` of arm k departing at step D against every visible arm, in numpy."""
+    n = ms.n_steps
+    hdt = tl.half_step_margin_s
+    for j in np.flatnonzero(tl.visible):
+        if j == k:
+            continue
+        m = np.arange(D, D + n + 1)
+        d = segment_distance_mm(ms.s[:, :, None, :], ms.e[:, :, None, :], tl.S[j, m][:, None, :, :],
+                                tl.E[j, m][:, None, :, :])
+        c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+        if np.any(c < tl.buffer_mm + hdt * (ms.speed + tl.SPD[j, m])):
+            return False
+        # at rest at the end from D + n on
+        rest = np.arange(D + n, tl.n_steps + 1)
+        d = segment_distance_mm(ms.s[-1][None, :, None, :], ms.e[-1][None, :, None, :], tl.S[j, rest][:, None],
+                                tl.E[j, rest][:, None])
+        c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+        if np.any(c < tl.buffer_mm + hdt * tl.SPD[j, rest]):
+            return False
+        if not tl.visible[k]:  # resting at the start until D
+            before = np.arange(0, D + 1)
+            d = segment_distance_mm(ms.s[0][None, :, None, :], ms.e[0][None, :, None, :], tl.S[j, before][:, None],
+                                    tl.E[j, before][:, None])
+            c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+            if np.any(c < tl.buffer_mm + hdt * tl.SPD[j, before]):
+                return False
+    return True
+
+
+@pytest.mark.parametrize("leg_index", range(len(LEGS)))
+def test_earliest_departure_matches_brute_force(leg_index):
+    """On a real leg, every arm's earliest departure (after the arms before it in the order are
+    committed) is the first step the numpy brute force accepts."""
+    spec = LEGS[leg_index]
+    leg = _leg(spec["start_q"], spec["goal_q"], horizon_s=160.0)
+    tl = Timeline(leg.geoms, leg.start_q, horizon_s=160.0, dt_s=1.0, buffer_mm=leg.buffer_mm, max_moves=2)
+    checked = 0
+    for k in first_order(leg):
+        for q in goal_targets(tl.pose(k), leg.goal_q[k]):
+            ms = tl.samples(k, q)
+            if ms is None or ms.n_steps == 0:
+                continue
+            d, _ = tl.earliest_departure(k, ms)
+            brute = next((D for D in range(0, tl.n_steps - ms.n_steps + 1) if _clear_brute(tl, k, ms, D)), -1)
+            assert d == brute, (k, d, brute)
+            checked += 1
+            if d >= 0:
+                tl.commit(k, ms, d)
+                break
+    assert checked >= 12
+
+
+@pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
+def test_real_failing_legs_plan_and_verify(spec):
+    """Legs of the allocator's own sequences that the other strategies could not plan."""
+    start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
+    plan = plan_motion(INST, start, goal, strategies=("sequenced",), time_budget_s=30.0)
+    assert plan.status == "ok", plan.stats.get("reasons")
+    assert plan.stats["strategy"] == "sequenced"
+    rep = verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1, exhaustive=True)
+    assert rep.ok and rep.min_clearance_mm >= INST.collision_buffer_mm
+    assert plan.makespan_s <= 1.2 * plan.stats["lower_bound_s"]
+
+
+def test_sequenced_plan_is_deterministic_and_within_stops():
+    spec = LEGS[0]
+    leg = _leg(spec["start_q"], spec["goal_q"], seed=3)
+    a = plan_sequenced(leg, Budget.of(30.0))
+    b = plan_sequenced(leg, Budget.of(30.0))
+    assert a.timeline is not None and b.timeline is not None
+    for k in range(leg.n_arms):
+        ta, qa = a.timeline.waypoints(k)
+        tb, qb = b.timeline.waypoints(k)
+        assert np.array_equal(ta, tb) and np.array_equal(qa, qb)
+        assert len(a.timeline.moves[k]) <= 2  # max_start_stop = 1
+
+
+def test_no_stop_allowed_means_straight_moves_only():
+    spec = LEGS[1]
+    leg = _leg(spec["start_q"], spec["goal_q"], max_start_stop=0)
+    res = plan_sequenced(leg, Budget.of(5.0))
+    if res.timeline is not None:
+        assert all(len(m) <= 1 for m in res.timeline.moves)
+    else:
+        assert res.failed_arms
+
+
+def test_swap_through_each_other_is_refused_or_verified():
+    """Two neighbours whose goals are each other's side: the driver never returns an
+    unverified plan, whatever the strategy answers."""
+    goal = PARK.copy()
+    goal[0] = (2.0, 2.6)
+    goal[1] = (2.0, -2.6 % (2 * np.pi))
+    plan = plan_motion(INST, PARK, goal, strategies=("sequenced",), time_budget_s=10.0)
+    if plan.status == "ok":
+        rep = verify_trajectories(INST, plan.trajectories, PARK, goal, max_start_stop=1, exhaustive=True)
+        assert rep.ok
+    else:
+        assert plan.failed_arms
+
+
+def test_arms_already_at_goal_stay_and_are_obstacles():
+    """A leg where nothing moves: every arm stays where it is (no move) and counts as an obstacle."""
+    leg = _leg(PARK, PARK)
+    att = Attempt(leg, first_order(leg), Budget.of(5.0))
+    assert att.run() == ()
+    assert all(not m for m in att.tl.moves) and att.tl.visible.all()
+
+
+def test_via_grid_outside_zoa_and_sorted_by_travel_time():
+    g = _leg(PARK, PARK).geoms[3]
+    p, q = np.array([2.0, 1.0]), np.array([1.5, 2.5])
+    v = via_grid(g, p, q)
+    assert len(v) > 50 and not g.in_zoa(v[:, 0], v[:, 1]).any()
+    cost = g.move_time_s(p, v) + g.move_time_s(v, q)
+    assert np.all(np.diff(cost) >= -1e-9)
