@@ -4,11 +4,12 @@
 (:class:`planner.strategy.Leg`) once, rejects unplannable ends (6.3.1 assumes feasible
 ends), then tries the strategies (:mod:`planner.strategies`) in this order:
 
-1. "delays": straight zero-stop moves with departure delays; when every straight option
-   fails, "cluster" (with ``max_start_stop`` >= 1): state-time detours for the smallest
-   conflicting arm set; then "detours": the delay CSP's one-stop detour rounds;
+1. "delays": straight zero-stop moves with departure delays;
 2. "sequenced": straight moves and one-stop detours planned arm by arm on a time grid, the
-   order adapting to the arm that could not be planned;
+   order adapting to the arm that could not be planned (it plans almost every leg the
+   delays leave);
+   then "evasion", "cluster" (with ``max_start_stop`` >= 1): state-time detours for the
+   smallest conflicting arm set, and "detours": the delay CSP's one-stop detour rounds;
 3. "prioritized" when "forward" / "reverse" are named: thesis Algorithm 6 with priority
    rotation and time reversal;
 4. any other registered strategy named in ``strategies``, in the given order;
@@ -63,12 +64,12 @@ def strategy_sequence(options: MotionOptions) -> list[Strategy]:
     seq: list[Strategy] = []
     if "delays" in names:
         seq.append(STRATEGIES["delays"])
+    if "sequenced" in names:
+        seq.append(STRATEGIES["sequenced"])
     if "evasion" in names:
         seq.append(STRATEGIES["evasion"])
     if "delays" in names:
         seq += ([STRATEGIES["cluster"]] if "cluster" in names else []) + [STRATEGIES["detours"]]
-    if "sequenced" in names:
-        seq.append(STRATEGIES["sequenced"])
     prio = any(n in names for n in PRIORITIZED_NAMES)
     if prio:
         seq.append(STRATEGIES["prioritized"])

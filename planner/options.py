@@ -26,7 +26,7 @@ DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
 # the evasion strategy (clear detours and step-aside moves in the delay CSP)
 EVASION_SHARE = (0.4, 4.0)
 # the sequenced strategy (arm-by-arm straight moves and detours on a time grid)
-SEQUENCED_SHARE = (0.35, 3.5)
+SEQUENCED_SHARE = (0.6, 6.0)
 # kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it
 VIA_RESERVE_SHARE = (0.15, 1.5)
 # each leg of the "via" fallback gets at least this budget
@@ -46,7 +46,7 @@ MIN_DT_S = 0.1
 MIN_DT_COL_S = 0.01
 MAX_DELAY_SAMPLES = 1e6
 
-DEFAULT_STRATEGIES = ("delays", "evasion", "cluster", "sequenced", "forward", "reverse")
+DEFAULT_STRATEGIES = ("delays", "sequenced", "evasion", "cluster", "forward", "reverse")
 # names with a fixed place in the order (planner.driver.strategy_sequence); others are looked up
 # in the registry (planner.strategy.STRATEGIES)
 BUILTIN_NAMES = ("delays", "cluster", "evasion", "sequenced", "forward", "reverse", "via")

@@ -103,15 +103,42 @@ def _last_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt
     return -1
 
 
+BLOCK = 32  # steps per block of the per-block bounding boxes (rest-pose scans skip whole blocks)
+
+
 @numba.njit(cache=True)
-def _last_conflicts(vs, ve, vr, vbox, vspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
-    """:func:`_last_conflict` of every pose of ``vs``/``ve`` (one per row)."""
-    out = np.empty(vs.shape[0], np.int64)
+def _last_conflicts(vs, ve, vr, vbox, S, E, R, BOX, SPD, BBOX, BSPD, vis, arm, buf, hdt, stride):
+    """For each pose of ``vs``/``ve`` (one per row, at rest), the last step (of every
+    ``stride``-th) at which it comes closer than the threshold to a visible arm; -1 when
+    never. Blocks of BLOCK steps whose union box (``BBOX``, fastest speed ``BSPD``) is clear of
+    the pose are skipped."""
+    n_blocks = BBOX.shape[1]
+    M = S.shape[1]
+    out = np.full(vs.shape[0], -1, np.int64)
     for p in range(vs.shape[0]):
-        out[p] = -1
-        for m in range(S.shape[1] - 1, -1, -1):
-            if _sample_hits(vs, ve, vr, vbox, vspd, p, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
-                out[p] = m
+        for b in range(n_blocks - 1, -1, -1):
+            near = False
+            for j in range(S.shape[0]):
+                if j != arm and vis[j] and _box_gap(vbox, p, BBOX[j], b) < buf + hdt * BSPD[j, b]:
+                    near = True
+                    break
+            if not near:
+                continue
+            found = -1
+            for m in range(min(M, (b + 1) * BLOCK) - 1, b * BLOCK - 1, -stride):
+                for j in range(S.shape[0]):
+                    if j == arm or not vis[j]:
+                        continue
+                    thr = buf + hdt * SPD[j, m]
+                    if _box_gap(vbox, p, BOX[j], m) >= thr:
+                        continue
+                    if bodies_clearance(vs, ve, vr, p, S[j], E[j], R[j], m) < thr:
+                        found = m
+                        break
+                if found >= 0:
+                    break
+            if found >= 0:
+                out[p] = found
                 break
     return out
 
@@ -242,10 +269,29 @@ class Timeline:
         self.E = np.empty_like(self.S)
         self.BOX = np.empty((n, self.n_steps + 1, 4))
         self.SPD = np.zeros((n, self.n_steps + 1))
+        n_blocks = -(-(self.n_steps + 1) // BLOCK)
+        self.BBOX = np.empty((n, n_blocks, 4))
+        self.BSPD = np.zeros((n, n_blocks))
         self.moves: list[list[Move]] = [[] for _ in range(n)]
         self.visible = np.zeros(n, dtype=np.bool_)
         for k in range(n):
             self._set_row(k)
+        self.keep_rest_state()
+
+    def fresh(self) -> Timeline:
+        """A copy of this timeline with every arm back at its start (nothing planned)."""
+        t = object.__new__(Timeline)
+        t.__dict__.update(self.__dict__)
+        t.moves = [[] for _ in self.moves]
+        t.visible = np.zeros_like(self.visible)
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD"):
+            setattr(t, name, getattr(self, "_rest_" + name).copy())
+        return t
+
+    def keep_rest_state(self) -> None:
+        """Remember the current rows as the state :meth:`fresh` returns to."""
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD"):
+            setattr(self, "_rest_" + name, getattr(self, name).copy())
 
     # ------------------------------------------------------------------ state
 
@@ -305,6 +351,12 @@ class Timeline:
             hi = min(lo + len(m), self.n_steps + 1)
             spd[lo:hi] = np.maximum(spd[lo:hi], m[:hi - lo])
         self.SPD[k] = spd
+        nb = self.BBOX.shape[1]
+        pad = nb * BLOCK - (self.n_steps + 1)
+        bx = np.concatenate([self.BOX[k], np.repeat(self.BOX[k, -1:], pad, axis=0)]).reshape(nb, BLOCK, 4)
+        self.BBOX[k, :, :2] = bx[:, :, :2].min(axis=1)
+        self.BBOX[k, :, 2:] = bx[:, :, 2:].max(axis=1)
+        self.BSPD[k] = np.concatenate([spd, np.zeros(pad)]).reshape(nb, BLOCK).max(axis=1)
 
     def _speed(self, k: int, a: np.ndarray, b: np.ndarray, duration_s: float) -> float:
         if duration_s <= 0:
@@ -360,13 +412,16 @@ class Timeline:
         d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:7], d_lo, d_hi, 1, *w[7:])
         return int(d), blockers
 
-    def free_after(self, k: int, q: np.ndarray) -> np.ndarray:
-        """For each pose of ``q`` (n, 2), the last step at which arm k resting there would come
-        too close to a visible arm (-1: never; the last step: for ever)."""
+    def free_after(self, k: int, q: np.ndarray, stride: int = 1) -> np.ndarray:
+        """For each pose of ``q`` (n, 2), the last step (of every ``stride``-th in each block of
+        BLOCK steps, the block's last included) at which arm k resting there would come too
+        close to a visible arm (-1: never; the last step: for ever)."""
         g = self.geoms[k]
         s, e = g.segments(q[:, 0], q[:, 1])
         s, e = np.ascontiguousarray(s), np.ascontiguousarray(e)
-        return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), np.zeros(len(q)), *self._world(k, False))
+        w = self._world(k, False)
+        return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), *w[:5], self.BBOX, self.BSPD, *w[5:],
+                               int(stride))
 
     def pose_blocks(self, k: int, q: np.ndarray, others: dict[int, MoveSamples]) -> set[int]:
         """Arms of ``others`` whose move would come closer than the threshold to arm k resting at ``q``."""
@@ -419,7 +474,7 @@ def compile_kernels() -> None:
     _first_departure(z, z, r, b, r, S, E, R, B, P, v, 0, 0, 0, 1, 0.0, 0.0)
     _last_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
-    _last_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    _last_conflicts(z, z, r, b, S, E, R, B, P, B, P, v, 0, 0.0, 0.0, 1)
     _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _pose_vs_samples(z, z, r, b, z, z, r, b, r, 0.0, 0.0)
     _boxes(z, z, r)

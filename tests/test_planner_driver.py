@@ -173,7 +173,7 @@ def test_motion_options_reject_bad_values_naming_the_field(field, kw, message):
 def test_motion_options_defaults_and_explicit_options():
     o = MotionOptions()
     assert (o.dt_s, o.dt_col_s, o.max_start_stop, o.horizon_s, o.grid, o.via) == (6.0, 0.1, 1, 220.0, (8, 6), "park")
-    assert o.strategies == ("delays", "evasion", "cluster", "sequenced", "forward", "reverse") and o.collision_steps == 60
+    assert o.strategies == ("delays", "sequenced", "evasion", "cluster", "forward", "reverse") and o.collision_steps == 60
     inst, goal = _two_arm()
     a = plan_motion(inst, PARK, goal, seed=2, max_start_stop=0)
     b = plan_motion(inst, PARK, goal, options=MotionOptions(seed=2, max_start_stop=0))

@@ -135,7 +135,8 @@ def test_swap_through_each_other_is_refused_or_verified():
 def test_arms_already_at_goal_stay_and_are_obstacles():
     """A leg where nothing moves: every arm stays where it is (no move) and counts as an obstacle."""
     leg = _leg(PARK, PARK)
-    att = Attempt(leg, first_order(leg), Budget.of(5.0))
+    tl = Timeline(leg.geoms, leg.start_q, horizon_s=60.0, dt_s=0.1, buffer_mm=leg.buffer_mm, max_moves=2)
+    att = Attempt(leg, first_order(leg), Budget.of(5.0), tl)
     assert att.run() == ()
     assert all(not m for m in att.tl.moves) and att.tl.visible.all()
 
