@@ -18,9 +18,11 @@ ends), then tries the strategies (:mod:`planner.strategies`) in this order:
 
 Every candidate goes through :func:`planner.verify.verify_trajectories` exactly once; a
 rejected candidate is logged in ``stats["attempt_log"]`` and the next strategy is tried.
-A verified plan from a strategy of :data:`planner.options.SHORTER_SEARCH_AFTER` longer
-than ``CLUSTER_MAKESPAN_RATIO`` x the lower bound lets the prioritized strategy try for a
-shorter one with part of the remaining budget; the shorter verified plan is kept. The
+A verified plan from the delays, evasion or cluster strategies longer than
+``SEQUENCED_SHORTER_RATIO`` x the lower bound lets the sequenced strategy try for a shorter
+one with part of the remaining budget (the prioritized strategy, above
+``CLUSTER_MAKESPAN_RATIO``, when "sequenced" is not among the strategies); the shorter
+verified plan is kept. The
 budget shares are those of :mod:`planner.options`.
 
 Only the driver imports the verifier. Unplannable input fails fast with status "failed";
@@ -105,28 +107,48 @@ def _verify(leg: Leg, cand: Candidate, stats: dict):
     return rep
 
 
-def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
-    """The driver's "keep the shorter plan" policy after a long verified candidate."""
+def _shorter_searches(leg: Leg, strategy: str) -> list[tuple[Strategy, float]]:
+    """The strategies that may look for a shorter plan than one of ``strategy``, each with the
+    makespan / lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the
+    ratio): "sequenced" after the straight delays, evasion or cluster
+    (SEQUENCED_SHORTER_RATIO), then "prioritized" after evasion, cluster or sequenced
+    (CLUSTER_MAKESPAN_RATIO)."""
     o = leg.options
-    if not (cand.strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse"))
-            and leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S
-            and cand.makespan_s > sh.CLUSTER_MAKESPAN_RATIO * leg.lower_bound_s):
-        return None
-    opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
-    alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
-                  leg.lower_bound_s, dataclasses.replace(leg.cache))
-    t_a = time.perf_counter()
-    frac, _ = sh.SHORTER_SEARCH_SHARE
-    out = STRATEGIES["prioritized"].plan(alt_leg, budget.share(frac, budget.left_s()))
-    alt_stats = merge_stats({}, out.stats)
-    ok = isinstance(out, Candidate) and _verify(alt_leg, out, alt_stats).ok
-    stats["cluster_makespan_s"] = cand.makespan_s
-    stats["shorter_search"] = {"status": "ok" if ok else "failed", "makespan_s": out.makespan_s if ok else math.nan,
-                               "compute_s": time.perf_counter() - t_a}
-    if ok and out.makespan_s < cand.makespan_s:
-        merge_stats(stats, alt_stats)
-        return MotionPlan("ok", float(out.makespan_s), out.trajectories, (), stats)
-    return None
+    out: list[tuple[Strategy, float]] = []
+    if strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
+        out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
+    if strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
+        out.append((STRATEGIES["prioritized"], sh.CLUSTER_MAKESPAN_RATIO))
+    return out
+
+
+def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
+    """The driver's "keep the shorter plan" policy after a long verified candidate: the
+    shortest verified plan of the searches of :func:`_shorter_searches`, if shorter."""
+    o = leg.options
+    best: MotionPlan | None = None
+    best_s = cand.makespan_s
+    for searcher, ratio in _shorter_searches(leg, cand.strategy):
+        long = best_s > ratio * leg.lower_bound_s or best_s > sh.MAKESPAN_GOAL_S
+        if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
+            continue
+        opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
+        alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
+                      leg.lower_bound_s, dataclasses.replace(leg.cache))
+        t_a = time.perf_counter()
+        frac, _ = sh.SHORTER_SEARCH_SHARE
+        out = searcher.plan(alt_leg, budget.share(frac, budget.left_s()))
+        alt_stats = merge_stats({}, out.stats)
+        ok = isinstance(out, Candidate) and _verify(alt_leg, out, alt_stats).ok
+        stats["first_makespan_s"] = cand.makespan_s
+        stats.setdefault("shorter_search", []).append(
+            {"strategy": searcher.name, "status": "ok" if ok else "failed",
+             "makespan_s": out.makespan_s if ok else math.nan, "compute_s": time.perf_counter() - t_a})
+        if ok and out.makespan_s < best_s:
+            merge_stats(stats, alt_stats)
+            best_s = float(out.makespan_s)
+            best = MotionPlan("ok", best_s, out.trajectories, (), stats)
+    return best
 
 
 def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = None) -> MotionPlan:

@@ -34,7 +34,13 @@ VIA_MIN_BUDGET_S = 0.5
 # a plan longer than CLUSTER_MAKESPAN_RATIO x the lower bound from one of these strategies lets
 # the driver run the prioritized strategy (at most SHORTER_SEARCH_ATTEMPTS attempts, this share
 # of the budget, if at least SHORTER_SEARCH_MIN_LEFT_S is left) and keep the shorter verified plan
-SHORTER_SEARCH_AFTER = ("cluster", "evasion")
+SHORTER_SEARCH_AFTER = ("cluster", "evasion", "sequenced")
+# the same with the sequenced strategy, which tries plans longer than this ratio from these
+SEQUENCED_SHORTER_AFTER = ("delays", "cluster", "evasion")
+SEQUENCED_SHORTER_RATIO = 1.10
+# plans longer than this (the thesis' configuration time goal, 6.4.2) are searched for a
+# shorter one whatever their ratio to the lower bound
+MAKESPAN_GOAL_S = 120.0
 CLUSTER_MAKESPAN_RATIO = 1.25
 SHORTER_SEARCH_SHARE = (0.3, math.inf)
 SHORTER_SEARCH_ATTEMPTS = 2

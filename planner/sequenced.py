@@ -41,6 +41,7 @@ DT_S = 0.1  # the grid of the timeline
 VIA_THETA1 = 9  # way-point grid: theta1 values over [theta1_min, theta1_max]
 VIA_THETA2 = 24  # and theta2 values over a full turn
 MAX_VIAS_TRIED = 60  # way-points tried per detour, cheapest first
+MAX_VIAS_LATE = 20  # way-points tried for an arm whose straight move arrives after the target
 RANK_STRIDE = 8  # the way-points' ranking looks at every 8th step
 
 
@@ -92,8 +93,9 @@ class Attempt:
     """One pass of the search in a given arm order (module docstring)."""
 
     def __init__(self, leg: Leg, order: list[int], budget: Budget, timeline: Timeline,
-                 holds: dict[int, int] | None = None) -> None:
+                 holds: dict[int, int] | None = None, target_s: float = math.inf) -> None:
         self.leg = leg
+        self.target_s = float(target_s)
         self.budget = budget
         self.goal = leg.goal_q
         self.tl = timeline.fresh()
@@ -124,10 +126,18 @@ class Attempt:
         return None
 
     def to_goal(self, k: int) -> bool:
-        found = self._best_move(k, goal_targets(self.tl.pose(k), self.goal[k]))
+        """Arm k straight to its goal at the earliest departure; when that arrives after the
+        makespan target, a detour arriving earlier is taken instead, if there is one."""
+        tl = self.tl
+        found = self._best_move(k, goal_targets(tl.pose(k), self.goal[k]))
         if found is None:
             return False
-        self.tl.commit(k, *found)
+        ms, d = found
+        arrival_s = d * tl.dt_s + ms.duration_s
+        if arrival_s > self.target_s and tl.moves_left(k) >= 2 and self.detour(k, arrival_s, MAX_VIAS_LATE):
+            self.stats["earlier_detours"] = self.stats.get("earlier_detours", 0) + 1
+            return True
+        tl.commit(k, ms, d)
         return True
 
     def vias(self, k: int) -> np.ndarray:
@@ -148,22 +158,25 @@ class Attempt:
         idx = idx[np.argsort(cost[idx], kind="stable")]
         return v[idx[:MAX_VIAS_TRIED]]
 
-    def detour(self, k: int) -> bool:
-        """Arm k start -> v -> goal, v the cheapest way-point from which both moves are safe."""
+    def detour(self, k: int, before_s: float = math.inf, max_vias: int | None = None) -> bool:
+        """Arm k start -> v -> goal arriving before ``before_s``, v the cheapest way-point
+        from which both moves are safe."""
         tl = self.tl
         if tl.moves_left(k) < 2:
             return False
-        for v in self.vias(k):
+        for v in self.vias(k)[:max_vias]:
             if self.budget.expired():
                 return False
             self.stats["vias_tried"] += 1
             first = self._best_move(k, [v])
-            if first is None:
+            if first is None or first[1] * tl.dt_s + first[0].duration_s >= before_s:
                 continue
             tl.commit(k, *first)
             if self.to_goal(k):
-                self.stats["detours"] += 1
-                return True
+                if tl.arrival_s(k) < before_s:
+                    self.stats["detours"] += 1
+                    return True
+                tl.undo(k)
             tl.undo(k)
         return False
 
@@ -198,13 +211,18 @@ class Attempt:
         return ()
 
 
-def first_order(leg: Leg) -> list[int]:
-    """Longest straight move first (the arms that set the makespan move earliest)."""
+def direct_times_s(leg: Leg) -> np.ndarray:
+    """Each arm's shortest straight move time (thesis eq. 6.23)."""
     v1 = np.array([g.v1_max for g in leg.geoms])
     v2 = np.array([g.v2_max for g in leg.geoms])
     d = np.abs(leg.goal_q - leg.start_q)
     d[:, 1] = np.minimum(np.mod(d[:, 1], TWO_PI), TWO_PI - np.mod(d[:, 1], TWO_PI))
-    t = np.maximum(d[:, 0] / v1, d[:, 1] / v2)
+    return np.maximum(d[:, 0] / v1, d[:, 1] / v2)
+
+
+def first_order(leg: Leg) -> list[int]:
+    """Longest straight move first (the arms that set the makespan move earliest)."""
+    t = direct_times_s(leg)
     return [int(k) for k in sorted(leg.enabled, key=lambda k: (-t[k], k))]
 
 
@@ -236,6 +254,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
     bases = {m: Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s, buffer_mm=leg.buffer_mm,
                          max_moves=o.max_start_stop + 1, margin=m) for m in MARGINS}
     order, holds = first_order(leg), {}
+    direct_s = direct_times_s(leg)
     stats: dict = {"attempts": 0}
     failed: tuple[int, ...] = tuple(leg.enabled)
     tried: set = set()
@@ -248,7 +267,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
         tried.add((tuple(order), tuple(sorted(holds.items()))))
         found = None
         for margin in MARGINS:
-            att = Attempt(leg, order, budget, bases[margin], holds)
+            att = Attempt(leg, order, budget, bases[margin], holds, target_s)
             failed = att.run()
             stats["attempts"] += 1
             for key, v in att.stats.items():
@@ -271,7 +290,8 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
             order, holds = [late] + [i for i in order if i != late], {}
         else:
             k, j = failed[0], att.blamed
-            if j is not None and holds.get(j, 0) + hold_step <= MAX_HOLD_S / dt_s:
+            held_s = (holds.get(j, 0) + hold_step) * dt_s if j is not None else math.inf
+            if j is not None and held_s <= MAX_HOLD_S and held_s + direct_s[j] <= target_s:
                 holds = {**holds, j: holds.get(j, 0) + hold_step}
             else:
                 holds = {}

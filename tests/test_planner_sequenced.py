@@ -148,3 +148,17 @@ def test_via_grid_outside_zoa_and_sorted_by_travel_time():
     assert len(v) > 50 and not g.in_zoa(v[:, 0], v[:, 1]).any()
     cost = g.move_time_s(p, v) + g.move_time_s(v, q)
     assert np.all(np.diff(cost) >= -1e-9)
+
+
+def test_long_straight_delay_plan_gets_a_sequenced_shorter_search():
+    """A leg whose departure-delay plan is 1.27 x the lower bound: the driver lets the
+    sequenced strategy look for a shorter plan and keeps the shorter verified one."""
+    spec = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())["long_delays_leg"]
+    start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
+    plan = plan_motion(INST, start, goal, time_budget_s=30.0)
+    assert plan.status == "ok"
+    searches = plan.stats.get("shorter_search", [])
+    assert plan.stats.get("first_makespan_s", 0) > 1.1 * plan.stats["lower_bound_s"]
+    assert any(s["strategy"] == "sequenced" for s in searches)
+    assert plan.makespan_s <= plan.stats["first_makespan_s"]
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
