@@ -1,26 +1,26 @@
 """Sequenced straight moves: every arm's motion built one straight move at a time (a search).
 
-Arms are taken in a priority order. Each one goes straight to its goal (either theta2 way
-round) at the earliest departure that keeps clear of every motion committed so far
-(:class:`planner.timeline.Timeline`); an arm that is still resting at its start, or at a
-way-point, is an obstacle *until it moves*, which is what makes the order matter and the
-search work:
+Prioritized planning (thesis 6.3.3) at the level of whole straight joint-space moves on a
+fine time grid (:class:`planner.timeline.Timeline`). Arms are taken in a priority order; each
+goes straight to its goal, either theta2 way round, at the earliest departure that keeps clear
+of the motions of the arms planned before it. Arms not planned yet are invisible, so an arm
+that rests in the way of an earlier one must get out in time (its first move is checked
+against its rest at the start), which is what lets arms move together and in turn:
 
-* an arm whose straight move is blocked only by arms that will still move waits its turn
-  (it is tried again after them: revised prioritized planning, with the order adapting to the
-  blocks found);
-* an arm blocked by an arm already at its goal goes round it through one way-point
-  (start -> v -> goal, one stop), v taken from a grid of the arm's configuration space by
-  travel time;
-* when every waiting arm blocks another (swaps and cycles of arms that must pass where the
-  other is), one of the blocking arms steps aside first: a move to a way-point v clear of the
-  blocked arms' straight moves, then, later, v -> goal (one stop). This is the thesis' own
-  future work (6.5: "moving an arrived arm out of the way") done inside one leg.
+* an arm that cannot go straight goes through one way-point (start -> v -> goal, one stop):
+  a step aside, a retraction or a detour, v from a grid of its joint space ranked by travel
+  time plus the wait for the planned arms to leave v;
+* when an arm cannot be planned at all, the planned arm in its way is held back at its start
+  (so that the other gets out of its way first), then the order changes (the failed arm
+  just before it); an order tried before is shuffled with the seed;
+* a plan over the makespan target (:func:`makespan_target_s`) is improved, for as long again,
+  with its last arm first in the order, and the shortest plan is kept.
 
-Each attempt is deterministic; failed attempts put the arms left over first in the next
-order, then the order is shuffled with the seed. The result is one straight move per arm
-where that is safe (zero stops, the MCC2 ideal) and at most ``max_start_stop + 1`` moves per
-arm. The driver verifies every candidate (:mod:`planner.verify`).
+Plans are searched with a quarter of the timeline's Lipschitz margin and re-checked exactly
+(:func:`planner.geometry.timed_collisions`); when the re-check finds a pair too close, the
+same attempt runs with the full margin. The result has one straight move per arm where that
+is safe (zero stops, the MCC2 ideal) and at most ``max_start_stop + 1`` moves per arm; the
+driver verifies it (:mod:`planner.verify`). Each attempt is deterministic.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ RANK_STRIDE = 8  # the way-points' ranking looks at every 8th step
 
 @dataclass
 class SequencedResult:
-    """The timeline of the first successful attempt (None if none), the arms left over by the
-    last failed attempt, and counters."""
+    """The timeline of the shortest plan found (None if none), the arms left over by the last
+    failed attempt, and counters."""
 
     timeline: Timeline | None
     failed_arms: tuple[int, ...]
@@ -108,22 +108,16 @@ class Attempt:
     # ---------------------------------------------------------------- single moves
 
     def _best_move(self, k: int, targets: list[np.ndarray]) -> tuple[MoveSamples, int] | None:
-        """The target reached first (earliest arrival), with its departure step; else None.
-        Moves that also keep clear of the arms not planned yet (resting at their starts) come
-        first, so that those arms need not get out of the way."""
+        """The target reached first (earliest arrival), with its departure step; else None."""
         tl = self.tl
-        samples = [ms for ms in (tl.samples(k, q) for q in targets) if ms is not None]
-        for strict in (False,):
-            best = None
-            for ms in samples:
-                self.stats["moves_tried"] += 1
-                hold = self.holds.get(k, 0) if not tl.moves[k] else 0
-                d, _ = tl.earliest_departure(k, ms, strict, hold)
-                if d >= 0 and (best is None or d * tl.dt_s + ms.duration_s < best[1] * tl.dt_s + best[0].duration_s):
-                    best = (ms, d)
-            if best is not None:
-                return best
-        return None
+        best = None
+        hold = self.holds.get(k, 0) if not tl.moves[k] else 0
+        for ms in (m for m in (tl.samples(k, q) for q in targets) if m is not None):
+            self.stats["moves_tried"] += 1
+            d, _ = tl.earliest_departure(k, ms, min_step=hold)
+            if d >= 0 and (best is None or d * tl.dt_s + ms.duration_s < best[1] * tl.dt_s + best[0].duration_s):
+                best = (ms, d)
+        return best
 
     def to_goal(self, k: int) -> bool:
         """Arm k straight to its goal at the earliest departure; when that arrives after the

@@ -3,22 +3,27 @@
 The search primitive of the sequenced strategy (:mod:`planner.sequenced`). Every arm's
 committed motion is a list of straight joint-space moves (both joints linear, arriving
 together, thesis eq. 6.23); before its first move an arm rests at its start, after its last
-move it rests at the end pose *forever*. Arms are sampled on one grid of ``dt_s``; a new move
-of arm k from its current end pose to ``q_to`` is scheduled at the earliest grid step at which
+move it rests at the end pose *for ever*. Arms are sampled on one grid of ``dt_s``. Only
+*visible* arms (those planned) are obstacles. A new move of arm k from its current end pose
+is scheduled at the earliest grid step at which
 
-* every sample of the move keeps clearance >= ``thr_mm`` to every other arm at the same
-  time (the move may pass where another arm was, once it has left), and
-* the end pose keeps that clearance to every other arm at every later time (it rests there
-  until it moves again, and every later move of another arm is checked against it).
+* every sample of the move keeps the threshold to every visible arm at the same time (the
+  move may pass where another arm was, once it has left),
+* the end pose keeps it to every visible arm at every later time (the arm rests there until
+  it moves again, and every later move of another arm is checked against it), and
+* for the arm's first move, the start pose keeps it until the departure.
 
-Because the other arms' committed motions were themselves checked against arm k resting at
-its current pose forever, the new move keeps the whole set collision-free. ``thr_mm`` is
-the collision buffer plus the distance two arms can close in half a step at full speed
-(:func:`planner.geometry.body_speed_bound_mm_s`), so clearance between samples never drops
-below the buffer; the driver's verifier re-checks the result independently.
+Because the visible arms' motions were themselves checked against arm k's committed motion
+(resting at its current pose for ever), the set stays collision-free as arms are added.
 
-Everything hot is in compiled kernels (numba) over the per-step capsule axes with a
-bounding-box pre-filter.
+The threshold at a sample is the buffer plus half a step times the speed bounds of both
+arms' body points there (:func:`planner.geometry.body_speed_bound_mm_s`, scaled by
+``margin``): with ``margin`` 1, two samples a step apart bound the clearance between them
+(Lipschitz), so no pose between samples comes below the buffer. The ends of a move are held
+to the bare buffer and their neighbours to twice the margin (:func:`margin_speeds`).
+
+Everything hot is in compiled kernels (numba) over the per-step capsule axes, with bounding
+boxes per step and per block of steps as pre-filters.
 """
 
 from __future__ import annotations
@@ -382,19 +387,16 @@ class Timeline:
         speed = margin_speeds(n, self._speed(k, a, b, T))
         return MoveSamples(a, b, T, np.ascontiguousarray(s), np.ascontiguousarray(e), boxes(s, e, g.radius), speed)
 
-    def _world(self, k: int, strict: bool) -> tuple:
-        vis = np.ones_like(self.visible) if strict else self.visible
-        return (self.S, self.E, self.R, self.BOX, self.SPD, vis, k, self.buffer_mm, self.half_step_margin_s)
+    def _world(self, k: int) -> tuple:
+        return (self.S, self.E, self.R, self.BOX, self.SPD, self.visible, k, self.buffer_mm, self.half_step_margin_s)
 
-    def earliest_departure(self, k: int, ms: MoveSamples, strict: bool = False,
-                           min_step: int = 0) -> tuple[int, set[int]]:
+    def earliest_departure(self, k: int, ms: MoveSamples, min_step: int = 0) -> tuple[int, set[int]]:
         """The earliest grid step at which arm k can make move ``ms`` (module docstring), -1
         when no step within the horizon works; and the visible arms whose final pose is in
-        the way of the move (it must pass before they get there). ``strict``: the arms not
-        yet planned count too, resting at their starts (revised prioritized planning);
-        ``min_step`` the earliest departure allowed."""
+        the way of the move (it must pass before they get there). ``min_step``: the earliest
+        departure allowed."""
         n = ms.n_steps
-        w = self._world(k, strict)
+        w = self._world(k)
         r = self.R[k]
         first = _final_conflicts(ms.s, ms.e, r, ms.box, ms.speed, *w)
         blockers = {int(j) for j in np.flatnonzero(first >= 0)}
@@ -419,18 +421,9 @@ class Timeline:
         g = self.geoms[k]
         s, e = g.segments(q[:, 0], q[:, 1])
         s, e = np.ascontiguousarray(s), np.ascontiguousarray(e)
-        w = self._world(k, False)
+        w = self._world(k)
         return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), *w[:5], self.BBOX, self.BSPD, *w[5:],
                                int(stride))
-
-    def pose_blocks(self, k: int, q: np.ndarray, others: dict[int, MoveSamples]) -> set[int]:
-        """Arms of ``others`` whose move would come closer than the threshold to arm k resting at ``q``."""
-        g = self.geoms[k]
-        s, e = g.segments(np.array([q[0]]), np.array([q[1]]))
-        box = boxes(s, e, g.radius)
-        return {j for j, ms in others.items()
-                if _pose_vs_samples(s, e, self.R[k], box, ms.s, ms.e, self.R[j], ms.box, ms.speed,
-                                    self.buffer_mm, self.half_step_margin_s)}
 
     def commit(self, k: int, ms: MoveSamples, depart_step: int) -> Move | None:
         """Arm k makes move ``ms`` at ``depart_step`` (found by :meth:`earliest_departure`); it is
@@ -451,19 +444,6 @@ class Timeline:
         self._set_row(k, mv.depart_step)
 
 
-@numba.njit(cache=True)
-def _pose_vs_samples(ps, pe, pr, pbox, ms, me, mr, mbox, mspd, buf, hdt):
-    """True when pose ``ps``/``pe`` (one sample, at rest) comes closer than the threshold to
-    any sample of a move."""
-    for i in range(ms.shape[0]):
-        thr = buf + hdt * mspd[i]
-        if _box_gap(pbox, 0, mbox, i) >= thr:
-            continue
-        if bodies_clearance(ps, pe, pr, 0, ms, me, mr, i) < thr:
-            return True
-    return False
-
-
 def compile_kernels() -> None:
     """Compile (or load from the on-disk cache) this module's kernels."""
     z = np.zeros((1, 1, 2))
@@ -476,5 +456,4 @@ def compile_kernels() -> None:
     _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _last_conflicts(z, z, r, b, S, E, R, B, P, B, P, v, 0, 0.0, 0.0, 1)
     _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
-    _pose_vs_samples(z, z, r, b, z, z, r, b, r, 0.0, 0.0)
     _boxes(z, z, r)
