@@ -37,7 +37,7 @@ VIA_MIN_BUDGET_S = 0.5
 SHORTER_SEARCH_AFTER = ("cluster", "evasion", "sequenced")
 # the same with the sequenced strategy, which tries plans longer than this ratio from these
 SEQUENCED_SHORTER_AFTER = ("delays", "cluster", "evasion")
-SEQUENCED_SHORTER_RATIO = 1.10
+SEQUENCED_SHORTER_RATIO = 1.25
 # plans longer than this (the thesis' configuration time goal, 6.4.2) are searched for a
 # shorter one whatever their ratio to the lower bound
 MAKESPAN_GOAL_S = 120.0

@@ -85,7 +85,8 @@ def test_earliest_departure_matches_brute_force(leg_index):
 
 @pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
 def test_real_failing_legs_plan_and_verify(spec):
-    """Legs of the allocator's own sequences that the other strategies could not plan."""
+    """Legs of the allocator's own sequences and of the M13 example that the other strategies
+    could not plan."""
     start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
     plan = plan_motion(INST, start, goal, strategies=("sequenced",), time_budget_s=30.0)
     assert plan.status == "ok", plan.stats.get("reasons")
