@@ -13,8 +13,8 @@ against its rest at the start), which is what lets arms move together and in tur
 * when an arm cannot be planned at all, the planned arm in its way is held back at its start
   (so that the other gets out of its way first), then the order changes (the failed arm
   just before it); an order tried before is shuffled with the seed;
-* a plan over the makespan target (:func:`makespan_target_s`) is improved, for as long again,
-  with its last arm first in the order, and the shortest plan is kept.
+* a plan over the makespan target (:func:`makespan_target_s`) is improved, for as long again
+  (at most 1 s), with its last arm first in the order, and the shortest plan is kept.
 
 Plans are searched with a quarter of the timeline's Lipschitz margin and re-checked exactly
 (:func:`planner.geometry.timed_collisions`); when the re-check finds a pair too close, the
@@ -224,6 +224,7 @@ def first_order(leg: Leg) -> list[int]:
 # with the bare buffer at the samples is re-checked exactly, and planned again with the full
 # margin if it comes too close between samples
 MARGINS = (0.25, 1.0)
+MAX_IMPROVE_S = 1.0  # at most this long spent improving a plan over the makespan target
 HOLD_STEP_S = 10.0  # a blamed arm's departure is held back by this much more in the next attempt
 MAX_HOLD_S = 40.0
 
@@ -239,7 +240,8 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
     a little longer, so that the other can get out of its way; once held long enough, the
     failed arm goes just before it in the order instead (else first). A state tried before
     gives a shuffled order. A plan longer than :func:`makespan_target_s` is improved with
-    the last arm to arrive first in the order, for as long again as the first plan took."""
+    the last arm to arrive first in the order, for as long again as the first plan took (at
+    most MAX_IMPROVE_S)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(leg.options.seed)
     dt_s = DT_S
@@ -279,7 +281,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
             if best.makespan_s() <= target_s:
                 break
             if improve_until == math.inf:
-                improve_until = time.perf_counter() + (time.perf_counter() - t0)
+                improve_until = time.perf_counter() + min(time.perf_counter() - t0, MAX_IMPROVE_S)
             late = max(leg.enabled, key=lambda k: (found.arrival_s(k), -k))
             order, holds = [late] + [i for i in order if i != late], {}
         else:
