@@ -87,7 +87,7 @@ def test_csp_finds_minimum_makespan():
 def test_delay_plan_has_zero_stops_and_is_verified():
     inst = INST.with_arms_disabled([k for k in range(12) if k not in ER_ARMS])
     start, goal = _goal(ER_START, ER_ARMS), _goal(ER_GOAL, ER_ARMS)
-    plan = plan_motion(inst, start, goal)
+    plan = plan_motion(inst, start, goal, strategies=("delays",))
     assert plan.status == "ok" and plan.stats["strategy"] == "delays"
     assert all(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) == 0 for t in plan.trajectories)
     assert plan.stats["max_stops"] == 0
@@ -96,6 +96,11 @@ def test_delay_plan_has_zero_stops_and_is_verified():
     departs = sorted(float(plan.trajectories[k].t_s[1]) if len(plan.trajectories[k].t_s) > 2 else 0.0
                      for k in ER_ARMS)
     assert departs == [0.0, 6.0]
+    # the default strategies keep a plan at least as short (here the sequenced shorter search,
+    # departures on a 0.1 s grid), with zero stops too
+    best = plan_motion(inst, start, goal)
+    assert best.status == "ok" and best.makespan_s <= plan.makespan_s + 1e-9
+    assert all(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) == 0 for t in best.trajectories)
 
 
 def test_goal_conflict_needs_a_detour():
