@@ -128,13 +128,13 @@ def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPl
     o = leg.options
     best: MotionPlan | None = None
     best_s = cand.makespan_s
+    opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
+    alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
+                  leg.lower_bound_s, dataclasses.replace(leg.cache))
     for searcher, ratio in _shorter_searches(leg, cand.strategy):
         long = best_s > ratio * leg.lower_bound_s or best_s > sh.MAKESPAN_GOAL_S
         if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
             continue
-        opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
-        alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
-                      leg.lower_bound_s, dataclasses.replace(leg.cache))
         t_a = time.perf_counter()
         frac, _ = sh.SHORTER_SEARCH_SHARE
         out = searcher.plan(alt_leg, budget.share(frac, budget.left_s()))

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.kinematics import direct_move_time_s
 from planner.geometry import ArmGeom, timed_collisions
 from planner.strategy import Budget, Leg
 from planner.timeline import MoveSamples, Timeline
@@ -207,11 +208,9 @@ class Attempt:
 
 def direct_times_s(leg: Leg) -> np.ndarray:
     """Each arm's shortest straight move time (thesis eq. 6.23)."""
-    v1 = np.array([g.v1_max for g in leg.geoms])
-    v2 = np.array([g.v2_max for g in leg.geoms])
-    d = np.abs(leg.goal_q - leg.start_q)
-    d[:, 1] = np.minimum(np.mod(d[:, 1], TWO_PI), TWO_PI - np.mod(d[:, 1], TWO_PI))
-    return np.maximum(d[:, 0] / v1, d[:, 1] / v2)
+    inst = leg.instrument
+    return direct_move_time_s(leg.start_q, leg.goal_q, inst.arm_array("joint1_speed_rad_s"),
+                              inst.arm_array("joint2_speed_rad_s"))
 
 
 def first_order(leg: Leg) -> list[int]:
@@ -247,8 +246,14 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
     dt_s = DT_S
     hold_step = int(round(HOLD_STEP_S / dt_s))
     o = leg.options
-    bases = {m: Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s, buffer_mm=leg.buffer_mm,
-                         max_moves=o.max_start_stop + 1, margin=m) for m in MARGINS}
+    bases: dict[float, Timeline] = {}  # one rest state per margin, built when first needed
+
+    def base(margin: float) -> Timeline:
+        if margin not in bases:
+            bases[margin] = Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s,
+                                     buffer_mm=leg.buffer_mm, max_moves=o.max_start_stop + 1, margin=margin)
+        return bases[margin]
+
     order, holds = first_order(leg), {}
     direct_s = direct_times_s(leg)
     stats: dict = {"attempts": 0}
@@ -263,7 +268,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
         tried.add((tuple(order), tuple(sorted(holds.items()))))
         found = None
         for margin in MARGINS:
-            att = Attempt(leg, order, budget, bases[margin], holds, target_s)
+            att = Attempt(leg, order, budget, base(margin), holds, target_s)
             failed = att.run()
             stats["attempts"] += 1
             for key, v in att.stats.items():

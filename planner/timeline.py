@@ -98,16 +98,6 @@ def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, d_lo, 
     return -1
 
 
-@numba.njit(cache=True)
-def _last_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
-    """The last step at which pose ``gs``/``ge`` (one sample) comes closer than ``thr`` to
-    a visible arm; -1 when never."""
-    for m in range(S.shape[1] - 1, -1, -1):
-        if _sample_hits(gs, ge, gr, gbox, gspd, 0, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
-            return m
-    return -1
-
-
 BLOCK = 32  # steps per block of the per-block bounding boxes (rest-pose scans skip whole blocks)
 
 
@@ -406,8 +396,8 @@ class Timeline:
         if not self.visible[k]:  # its rest at the start is not checked yet: it must leave in time
             s0, e0, b0, v0 = ms.begin()
             d_hi = min(d_hi, _first_conflict(s0, e0, r, b0, v0, *w) - 1)
-        s1, e1, b1, v1 = ms.end()
-        last = _last_conflict(s1, e1, r, b1, v1, *w)
+        s1, e1, b1, _ = ms.end()
+        last = int(_last_conflicts(s1, e1, r, b1, *w[:5], self.BBOX, self.BSPD, *w[5:], 1)[0])
         d_lo = max(self.free_step(k), last - n + 1, int(min_step), 0)
         if last >= self.n_steps or d_lo > d_hi:
             return -1, blockers
@@ -452,7 +442,6 @@ def compile_kernels() -> None:
     S, E, B, R, P = z[None], z[None], b[None], r[None], r[None]
     v = np.ones(1, np.bool_)
     _first_departure(z, z, r, b, r, S, E, R, B, P, v, 0, 0, 0, 1, 0.0, 0.0)
-    _last_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
     _last_conflicts(z, z, r, b, S, E, R, B, P, B, P, v, 0, 0.0, 0.0, 1)
     _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
