@@ -13,6 +13,8 @@ against its rest at the start), which is what lets arms move together and in tur
 * when an arm cannot be planned at all, the planned arm in its way is held back at its start
   (so that the other gets out of its way first), then the order changes (the failed arm
   just before it); an order tried before is shuffled with the seed;
+* the search starts from two orders (longest move first; every arm after those whose start
+  its goal blocks), each on the leg and on its time reversal (:func:`search_starts`);
 * a plan over the makespan target (:func:`makespan_target_s`) is improved, for as long again
   (at most 1 s), with its last arm first in the order, and the shortest plan is kept.
 
@@ -32,8 +34,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from models.kinematics import direct_move_time_s
+from planner.clearance import clearance_rows
 from planner.geometry import ArmGeom, timed_collisions
-from planner.strategy import Budget, Leg
+from planner.strategy import Budget, Leg, same_configuration
 from planner.timeline import MoveSamples, Timeline
 
 TWO_PI = 2.0 * np.pi
@@ -49,11 +52,13 @@ RANK_STRIDE = 8  # the way-points' ranking looks at every 8th step
 @dataclass
 class SequencedResult:
     """The timeline of the shortest plan found (None if none), the arms left over by the last
-    failed attempt, and counters."""
+    failed attempt of the leg itself, counters, and whether the timeline is of the reversed
+    leg (goal -> start)."""
 
     timeline: Timeline | None
     failed_arms: tuple[int, ...]
     stats: dict = field(default_factory=dict)
+    reversed: bool = False  # the timeline plans goal -> start
 
 
 def goal_targets(p: np.ndarray, g: np.ndarray) -> list[np.ndarray]:
@@ -219,6 +224,39 @@ def first_order(leg: Leg) -> list[int]:
     return [int(k) for k in sorted(leg.enabled, key=lambda k: (-t[k], k))]
 
 
+def blocks_start(leg: Leg) -> np.ndarray:
+    """``b[k, j]``: arm k resting at its goal comes within the buffer of arm j resting at its
+    start, so j must leave before k arrives."""
+    n = leg.n_arms
+    segs_start = [leg.geoms[k].segments(leg.start_q[k, :1], leg.start_q[k, 1:]) for k in range(n)]
+    segs_goal = [leg.geoms[k].segments(leg.goal_q[k, :1], leg.goal_q[k, 1:]) for k in range(n)]
+    b = np.zeros((n, n), dtype=bool)
+    for k in leg.enabled:
+        for j in leg.enabled:
+            if j != k:
+                c = clearance_rows(*segs_goal[k], leg.geoms[k].radius, *segs_start[j], leg.geoms[j].radius)
+                b[k, j] = float(c.min()) < leg.buffer_mm
+    return b
+
+
+def precedence_order(leg: Leg) -> list[int]:
+    """:func:`first_order` with every arm after the arms it must wait for (those whose start
+    its goal blocks, :func:`blocks_start`): planned first, they leave first, and the arm
+    waits for them. Within a cycle, the longest move first."""
+    b = blocks_start(leg)
+    left, out = first_order(leg), []
+    while left:
+        free = [k for k in left if not any(b[k, j] for j in left if j != k)]
+        k = free[0] if free else left[0]
+        out.append(k)
+        left.remove(k)
+    return out
+
+
+# the initial orders the search starts from, in turn (plan_sequenced)
+ORDERINGS = (first_order, precedence_order)
+
+
 # the Lipschitz margin of the time grid's threshold (planner.timeline.Timeline): a plan found
 # with the bare buffer at the samples is re-checked exactly, and planned again with the full
 # margin if it comes too close between samples
@@ -226,6 +264,7 @@ MARGINS = (0.25, 1.0)
 MAX_IMPROVE_S = 1.0  # at most this long spent improving a plan over the makespan target
 HOLD_STEP_S = 10.0  # a blamed arm's departure is held back by this much more in the next attempt
 MAX_HOLD_S = 40.0
+START_SHARE = 0.5  # each start of search_starts but the last takes this share of the budget left
 
 
 def _collisions(leg: Leg, tl: Timeline) -> list[tuple[int, int]]:
@@ -234,29 +273,83 @@ def _collisions(leg: Leg, tl: Timeline) -> list[tuple[int, int]]:
 
 
 def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> SequencedResult:
-    """Attempts until one plans every arm (module docstring). After a failed attempt, the
-    planned arm in the way of the arm that failed (if there is one) is held back at its start
-    a little longer, so that the other can get out of its way; once held long enough, the
-    failed arm goes just before it in the order instead (else first). A state tried before
-    gives a shuffled order. A plan longer than :func:`makespan_target_s` is improved with
-    the last arm to arrive first in the order, for as long again as the first plan took (at
-    most MAX_IMPROVE_S)."""
+    """The search of :func:`search_from` from each start of :func:`search_starts` in turn
+    (each with an equal part of what is left of the budget and of ``max_attempts``) until
+    one finds a plan. A plan of the time-reversed leg (goal -> start) comes back with
+    ``reversed`` set: played backwards it is a plan of ``leg`` (collisions, the ZoA, speed
+    limits and stops are symmetric in time)."""
+    t0 = time.perf_counter()
+    o = leg.options
+    bases: dict[tuple[bool, float], Timeline] = {}  # one rest state per direction and margin
+
+    def base_of(sub: Leg, rev: bool):
+        def base(margin: float) -> Timeline:
+            if (rev, margin) not in bases:
+                bases[rev, margin] = Timeline(sub.geoms, sub.start_q, horizon_s=o.horizon_s, dt_s=DT_S,
+                                              buffer_mm=sub.buffer_mm, max_moves=o.max_start_stop + 1,
+                                              margin=margin)
+            return bases[rev, margin]
+        return base
+
+    starts = search_starts(leg)
+    stats: dict = {"attempts": 0, "starts": 0}
+    best, failed = None, tuple(leg.enabled)
+    for i, (sub, rev, order) in enumerate(starts):
+        if budget.expired():
+            break
+        share = 1.0 if i == len(starts) - 1 else START_SHARE
+        part = Budget(time.perf_counter() + share * budget.left_s(), budget.total_s, budget.hard_deadline)
+        stats["starts"] += 1
+        best, left = search_from(sub, order, part, max_attempts, base_of(sub, rev), stats)
+        if best is not None:
+            stats["reversed"] = rev
+            stats["compute_s"] = time.perf_counter() - t0
+            stats["makespan_s"] = best.makespan_s()
+            return SequencedResult(best, (), stats, reversed=rev)
+        if not rev:
+            failed = left
+    stats["compute_s"] = time.perf_counter() - t0
+    return SequencedResult(None, failed, stats)
+
+
+def search_starts(leg: Leg) -> list[tuple[Leg, bool, list[int]]]:
+    """Where the search starts: (leg, reversed, initial order) for each order of
+    ``ORDERINGS`` and each direction. Arms spread out from park more easily than they
+    converge onto it (kaiju's premise), so a leg from park is searched forward first and a
+    leg to park reversed first; any other leg takes the directions in turn. An order met
+    before once is enough."""
+    park = leg.instrument.park_configuration
+    fwd, rev = (leg, False), (leg.with_ends(leg.goal_q, leg.start_q), True)
+    if same_configuration(leg.goal_q, park):
+        pairs = [(d, f) for d in (rev, fwd) for f in ORDERINGS]
+    elif same_configuration(leg.start_q, park):
+        pairs = [(d, f) for d in (fwd, rev) for f in ORDERINGS]
+    else:
+        pairs = [(d, f) for f in ORDERINGS for d in (fwd, rev)]
+    out, seen = [], set()
+    for (sub, is_rev), f in pairs:
+        order = f(sub)
+        if (is_rev, tuple(order)) not in seen:
+            seen.add((is_rev, tuple(order)))
+            out.append((sub, is_rev, order))
+    return out
+
+
+def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, base, stats: dict
+                ) -> tuple[Timeline | None, tuple[int, ...]]:
+    """Attempts from ``order`` until one plans every arm (module docstring); the shortest
+    plan found (or None) and the arms the last failed attempt left. After a failed attempt,
+    the planned arm in the way of the arm that failed (if there is one) is held back at its
+    start a little longer, so that the other can get out of its way; once held long enough,
+    the failed arm goes just before it in the order instead (else first). A state tried
+    before gives a shuffled order. A plan longer than :func:`makespan_target_s` is improved
+    with the last arm to arrive first in the order, for as long again as the first plan
+    took (at most MAX_IMPROVE_S). ``base(margin)`` gives the timeline at rest."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(leg.options.seed)
-    dt_s = DT_S
-    hold_step = int(round(HOLD_STEP_S / dt_s))
-    o = leg.options
-    bases: dict[float, Timeline] = {}  # one rest state per margin, built when first needed
-
-    def base(margin: float) -> Timeline:
-        if margin not in bases:
-            bases[margin] = Timeline(leg.geoms, leg.start_q, horizon_s=o.horizon_s, dt_s=dt_s,
-                                     buffer_mm=leg.buffer_mm, max_moves=o.max_start_stop + 1, margin=margin)
-        return bases[margin]
-
-    order, holds = first_order(leg), {}
+    hold_step = int(round(HOLD_STEP_S / DT_S))
+    holds: dict[int, int] = {}
     direct_s = direct_times_s(leg)
-    stats: dict = {"attempts": 0}
     failed: tuple[int, ...] = tuple(leg.enabled)
     tried: set = set()
     best: Timeline | None = None
@@ -266,20 +359,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
         if budget.expired() or time.perf_counter() > improve_until:
             break
         tried.add((tuple(order), tuple(sorted(holds.items()))))
-        found = None
-        for margin in MARGINS:
-            att = Attempt(leg, order, budget, base(margin), holds, target_s)
-            failed = att.run()
-            stats["attempts"] += 1
-            for key, v in att.stats.items():
-                stats[key] = stats.get(key, 0) + v
-            if failed:
-                break
-            if not _collisions(leg, att.tl):
-                found = att.tl
-                break
-            stats["recheck_failures"] = stats.get("recheck_failures", 0) + 1
-            failed = tuple(order)
+        found, failed, blamed = _attempt(leg, order, budget, holds, target_s, base, stats)
         if found is not None:
             if best is None or found.makespan_s() < best.makespan_s() - 1e-9:
                 best = found
@@ -290,8 +370,8 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
             late = max(leg.enabled, key=lambda k: (found.arrival_s(k), -k))
             order, holds = [late] + [i for i in order if i != late], {}
         else:
-            k, j = failed[0], att.blamed
-            held_s = (holds.get(j, 0) + hold_step) * dt_s if j is not None else math.inf
+            k, j = failed[0], blamed
+            held_s = (holds.get(j, 0) + hold_step) * DT_S if j is not None else math.inf
             if j is not None and held_s <= MAX_HOLD_S and held_s + direct_s[j] <= target_s:
                 holds = {**holds, j: holds.get(j, 0) + hold_step}
             else:
@@ -300,11 +380,28 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
                 order.insert(order.index(j) if j is not None else 0, k)
         if (tuple(order), tuple(sorted(holds.items()))) in tried:
             order, holds = [int(i) for i in rng.permutation(order)], {}
-    stats["compute_s"] = time.perf_counter() - t0
-    if best is not None:
-        stats["makespan_s"] = best.makespan_s()
-        return SequencedResult(best, (), stats)
-    return SequencedResult(None, failed, stats)
+    return best, failed
+
+
+def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], target_s: float, base,
+             stats: dict) -> tuple[Timeline | None, tuple[int, ...], int | None]:
+    """One attempt, searched at each margin of MARGINS until the exact re-check passes: the
+    timeline (None if it failed), the arms left over and the arm blamed."""
+    failed: tuple[int, ...] = tuple(order)
+    att = None
+    for margin in MARGINS:
+        att = Attempt(leg, order, budget, base(margin), holds, target_s)
+        failed = att.run()
+        stats["attempts"] += 1
+        for key, v in att.stats.items():
+            stats[key] = stats.get(key, 0) + v
+        if failed:
+            return None, failed, att.blamed
+        if not _collisions(leg, att.tl):
+            return att.tl, (), None
+        stats["recheck_failures"] = stats.get("recheck_failures", 0) + 1
+        failed = tuple(order)
+    return None, failed, None
 
 
 def makespan_target_s(lower_bound_s: float) -> float:

@@ -16,14 +16,26 @@ from models.collision import segment_distance_mm
 from models.instrument import default_instrument
 from planner import plan_motion
 from planner.options import MotionOptions
-from planner.sequenced import Attempt, first_order, goal_targets, plan_sequenced, via_grid
+from planner.sequenced import (
+    Attempt,
+    at_goal,
+    blocks_start,
+    first_order,
+    goal_targets,
+    plan_sequenced,
+    precedence_order,
+    search_starts,
+    via_grid,
+)
 from planner.strategy import Budget, Leg
 from planner.timeline import Timeline
 from planner.verify import verify_trajectories
 
 INST = default_instrument()
 PARK = INST.park_configuration
-LEGS = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())["legs"]
+DATA = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())
+LEGS = DATA["legs"]
+TO_PARK = DATA["to_park_leg"]
 
 
 def _leg(start, goal, **kw) -> Leg:
@@ -80,7 +92,8 @@ def test_earliest_departure_matches_brute_force(leg_index):
             if d >= 0:
                 tl.commit(k, ms, d)
                 break
-    assert checked >= 12
+    moving = sum(not at_goal(leg.start_q[k], leg.goal_q[k]) for k in range(leg.n_arms))
+    assert moving >= 9 and checked >= moving
 
 
 @pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
@@ -163,3 +176,83 @@ def test_long_straight_delay_plan_gets_a_sequenced_shorter_search():
     assert any(s["strategy"] == "sequenced" for s in searches)
     assert plan.makespan_s <= plan.stats["first_makespan_s"]
     assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
+
+
+def _pose_clearance_mm(leg: Leg, k: int, qk: np.ndarray, j: int, qj: np.ndarray) -> float:
+    """Numpy capsule distance (models.collision) between arm k at qk and arm j at qj."""
+    sk, ek = leg.geoms[k].segments(qk[:1], qk[1:])
+    sj, ej = leg.geoms[j].segments(qj[:1], qj[1:])
+    d = segment_distance_mm(sk[0][:, None, :], ek[0][:, None, :], sj[0][None, :, :], ej[0][None, :, :])
+    return float((d - leg.geoms[k].radius[:, None] - leg.geoms[j].radius[None, :]).min())
+
+
+@pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
+def test_blocks_start_matches_numpy_distances(spec):
+    leg = _leg(spec["start_q"], spec["goal_q"])
+    b = blocks_start(leg)
+    for k in range(leg.n_arms):
+        for j in range(leg.n_arms):
+            want = j != k and _pose_clearance_mm(leg, k, leg.goal_q[k], j, leg.start_q[j]) < leg.buffer_mm
+            assert b[k, j] == want, (k, j)
+
+
+def _reaches(b: np.ndarray) -> np.ndarray:
+    """Transitive closure of the relation ``b`` (Floyd-Warshall on booleans)."""
+    r = b.copy()
+    for m in range(len(r)):
+        r |= r[:, m:m + 1] & r[m:m + 1, :]
+    return r
+
+
+@pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
+def test_precedence_order_puts_arms_after_those_they_wait_for(spec):
+    """Arm k waits for arm j (k's goal blocks j's start): outside a cycle, j comes first."""
+    leg = _leg(spec["start_q"], spec["goal_q"])
+    b = blocks_start(leg)
+    order = precedence_order(leg)
+    assert sorted(order) == sorted(leg.enabled)
+    pos = {k: i for i, k in enumerate(order)}
+    r = _reaches(b)
+    for k, j in zip(*np.nonzero(b), strict=True):
+        if not r[j, k]:
+            assert pos[j] < pos[k], (k, j)
+
+
+def test_a_chain_of_waiting_arms_is_ordered_and_planned():
+    """c13 -> c14 of a semi-greedy sequence: arms each waiting for the next to leave."""
+    spec = next(s for s in LEGS if s["name"] == "semigreedy_seed8_field4_chained_13")
+    leg = _leg(spec["start_q"], spec["goal_q"])
+    b = blocks_start(leg)
+    chain = [(k, j) for k, j in zip(*np.nonzero(b), strict=True) if not _reaches(b)[j, k]]
+    assert len(chain) >= 3
+    assert precedence_order(leg) != first_order(leg)
+
+
+def test_search_directions_from_and_to_park():
+    spec = LEGS[0]
+    from_park = _leg(PARK, spec["goal_q"])
+    to_park = _leg(TO_PARK["start_q"], TO_PARK["goal_q"])
+    chained = _leg(spec["start_q"], spec["goal_q"])
+    flags = {name: [r for _, r, _ in search_starts(leg)]
+             for name, leg in (("from", from_park), ("to", to_park), ("chained", chained))}
+    assert flags["from"][0] is False and flags["from"] == sorted(flags["from"])  # forward first
+    assert flags["to"][0] is True and flags["to"] == sorted(flags["to"], reverse=True)  # reversed first
+    assert flags["chained"][:2] == [False, True]  # in turn
+    assert all(True in f and False in f for f in flags.values())
+    for sub, rev, order in search_starts(to_park):
+        want_start = to_park.goal_q if rev else to_park.start_q
+        assert np.array_equal(sub.start_q, want_start) and sorted(order) == sorted(to_park.enabled)
+
+
+def test_leg_to_park_is_planned_reversed_and_verifies():
+    """The time reversal of a leg from park (kaiju): the plan starts exactly where the arms
+    are, ends at park, and passes the exhaustive verifier."""
+    start, goal = np.array(TO_PARK["start_q"]), np.array(TO_PARK["goal_q"])
+    plan = plan_motion(INST, start, goal, strategies=("sequenced",), time_budget_s=30.0)
+    assert plan.status == "ok", plan.stats.get("reasons")
+    assert plan.stats["sequenced"]["reversed"] is True
+    rep = verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1, exhaustive=True)
+    assert rep.ok
+    for tr in plan.trajectories:
+        assert tr.t_s[0] == 0.0
+        assert (tr.theta1_rad[0], tr.theta2_rad[0]) == (start[tr.arm, 0], start[tr.arm, 1])

@@ -38,6 +38,8 @@ def reverse_trajectories(trajectories: Sequence[ArmTrajectory], start_q: np.ndar
         t = T - np.asarray(tr.t_s, float)[::-1]
         q = np.column_stack([np.asarray(tr.theta1_rad, float)[::-1], np.asarray(tr.theta2_rad, float)[::-1]])
         q[:, 1] += TWO_PI * np.round((start_q[tr.arm, 1] - q[0, 1]) / TWO_PI)
+        if np.all(np.abs(q[0] - start_q[tr.arm]) <= 1e-9):  # exactly where the arm is (no rounding)
+            q[0] = start_q[tr.arm]
         if len(t) == 1:
             t = np.zeros(1)
         elif t[0] > 1e-12:  # at rest at the start until the retrace begins

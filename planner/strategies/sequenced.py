@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from planner.commands import arm_trajectory
 from planner.sequenced import plan_sequenced
+from planner.strategies.reversed import reverse_trajectories
 from planner.strategy import Budget, Candidate, Leg, Refusal
 
 NO_ORDER = "no priority order tried let every arm move"
@@ -31,6 +32,8 @@ class Sequenced:
             return Refusal(arms, {k: NO_ORDER for k in arms}, stats)
         tl = res.timeline
         trajs = tuple(arm_trajectory(k, *tl.waypoints(k)) for k in range(leg.n_arms))
+        if res.reversed:
+            trajs = reverse_trajectories(trajs, leg.start_q, tl.makespan_s())
         stats["attempt_log"] = [{"direction": "sequenced"}]
         stats["max_stops"] = max(len(m) for m in tl.moves) - 1 if any(tl.moves) else 0
         return Candidate(trajs, float(tl.makespan_s()), "sequenced", stats)
