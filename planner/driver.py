@@ -136,8 +136,8 @@ def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPl
         if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
             continue
         t_a = time.perf_counter()
-        frac, _ = sh.SHORTER_SEARCH_SHARE
-        out = searcher.plan(alt_leg, budget.share(frac, budget.left_s()))
+        frac, cap_s = sh.SHORTER_SEARCH_SHARE
+        out = searcher.plan(alt_leg, budget.share(frac, min(cap_s, budget.left_s())))
         alt_stats = merge_stats({}, out.stats)
         ok = isinstance(out, Candidate) and _verify(alt_leg, out, alt_stats).ok
         stats["first_makespan_s"] = cand.makespan_s

@@ -42,7 +42,7 @@ SEQUENCED_SHORTER_RATIO = 1.25
 # shorter one whatever their ratio to the lower bound
 MAKESPAN_GOAL_S = 120.0
 CLUSTER_MAKESPAN_RATIO = 1.25
-SHORTER_SEARCH_SHARE = (0.3, math.inf)
+SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0
 
