@@ -284,7 +284,8 @@ def test_synchronous_plan_keeps_its_budget_and_the_event_loop_free(tmp_path: Pat
     assert out["wall_s"] <= limit_s + 2.0, out["wall_s"]
     reasons = {u["reason"] for p in body["pointings"] for u in p["unallocated"]}
     assert "no_time" in reasons, "the budget must have cut the plan short"
-    # a blocked loop would hold /v1/health for the whole plan (>= the 2 s limit)
-    assert len(health_s) >= 5 and max(health_s) < 1.0, health_s
+    # a blocked loop would hold /v1/health for the whole plan (>= the 2 s limit); a loaded
+    # 2-core machine has delayed one answer by just over 1 s
+    assert len(health_s) >= 5 and max(health_s) < 1.5, health_s
     assert float(np.median(health_s)) < 0.2, health_s
     assert max(in_use) == 1  # one request, one slot, whatever it does per pointing
