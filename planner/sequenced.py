@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from models.kinematics import direct_move_time_s
-from planner.clearance import clearance_rows
+from planner.clearance import clearance_to_arms
 from planner.geometry import ArmGeom, timed_collisions
 from planner.strategy import Budget, Leg, same_configuration
 from planner.timeline import MoveSamples, Timeline
@@ -228,14 +228,18 @@ def blocks_start(leg: Leg) -> np.ndarray:
     """``b[k, j]``: arm k resting at its goal comes within the buffer of arm j resting at its
     start, so j must leave before k arrives."""
     n = leg.n_arms
-    segs_start = [leg.geoms[k].segments(leg.start_q[k, :1], leg.start_q[k, 1:]) for k in range(n)]
-    segs_goal = [leg.geoms[k].segments(leg.goal_q[k, :1], leg.goal_q[k, 1:]) for k in range(n)]
+    starts = [leg.geoms[j].segments(leg.start_q[j, :1], leg.start_q[j, 1:]) for j in range(n)]
+    S = np.stack([s for s, _ in starts])  # (n, 1, nb, 2): every arm at its start
+    E = np.stack([e for _, e in starts])
+    R = np.stack([g.radius for g in leg.geoms])
     b = np.zeros((n, n), dtype=bool)
     for k in leg.enabled:
-        for j in leg.enabled:
-            if j != k:
-                c = clearance_rows(*segs_goal[k], leg.geoms[k].radius, *segs_start[j], leg.geoms[j].radius)
-                b[k, j] = float(c.min()) < leg.buffer_mm
+        gs, ge = leg.geoms[k].segments(leg.goal_q[k, :1], leg.goal_q[k, 1:])
+        b[k] = clearance_to_arms(gs, ge, leg.geoms[k].radius, S, E, R)[:, 0] < leg.buffer_mm
+        b[k, k] = False
+    off = np.ones(n, dtype=bool)
+    off[list(leg.enabled)] = False
+    b[:, off] = False
     return b
 
 
@@ -274,8 +278,8 @@ def _collisions(leg: Leg, tl: Timeline) -> list[tuple[int, int]]:
 
 def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> SequencedResult:
     """The search of :func:`search_from` from each start of :func:`search_starts` in turn
-    (each with an equal part of what is left of the budget and of ``max_attempts``) until
-    one finds a plan. A plan of the time-reversed leg (goal -> start) comes back with
+    (each but the last with START_SHARE of the budget left, the last with all of it; each
+    with up to ``max_attempts``) until one finds a plan. A plan of the time-reversed leg (goal -> start) comes back with
     ``reversed`` set: played backwards it is a plan of ``leg`` (collisions, the ZoA, speed
     limits and stops are symmetric in time)."""
     t0 = time.perf_counter()
@@ -293,7 +297,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
 
     starts = search_starts(leg)
     stats: dict = {"attempts": 0, "starts": 0}
-    best, failed = None, tuple(leg.enabled)
+    failed = tuple(leg.enabled)
     for i, (sub, rev, order) in enumerate(starts):
         if budget.expired():
             break
@@ -387,8 +391,6 @@ def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], 
              stats: dict) -> tuple[Timeline | None, tuple[int, ...], int | None]:
     """One attempt, searched at each margin of MARGINS until the exact re-check passes: the
     timeline (None if it failed), the arms left over and the arm blamed."""
-    failed: tuple[int, ...] = tuple(order)
-    att = None
     for margin in MARGINS:
         att = Attempt(leg, order, budget, base(margin), holds, target_s)
         failed = att.run()
@@ -400,8 +402,7 @@ def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], 
         if not _collisions(leg, att.tl):
             return att.tl, (), None
         stats["recheck_failures"] = stats.get("recheck_failures", 0) + 1
-        failed = tuple(order)
-    return None, failed, None
+    return None, tuple(order), None
 
 
 def makespan_target_s(lower_bound_s: float) -> float:
