@@ -214,6 +214,8 @@ def compile_kernels() -> None:
     b, i = np.zeros((1, 4)), np.zeros(1, int)
     lipschitz_clear(z, z, r, b, i, z, z, r, b, i, i, i, 1.0, 0.0, 10)
     clearance_to_arms(z, z, r, z[None], z[None], r[None])
-    from planner.timeline import compile_kernels as timeline_kernels  # it imports this module
+    from planner.geometry import compile_kernels as geometry_kernels  # both import this module
+    from planner.timeline import compile_kernels as timeline_kernels
 
+    geometry_kernels()
     timeline_kernels()

@@ -18,9 +18,11 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from models.instrument import Instrument
@@ -89,7 +91,14 @@ class ArmGeom:
         return out
 
     def segments(self, theta1: np.ndarray, theta2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Capsule axes (start (..., nb, 2), end (..., nb, 2)); radii are ``self.radius``."""
+        """Capsule axes (start (..., nb, 2), end (..., nb, 2)); radii are ``self.radius``.
+        One-dimensional angle arrays go through a compiled kernel (:func:`_segments_1d`, the
+        same formulas as :meth:`joints`): the planner's searches ask for a few poses at a
+        time, where numpy's per-call overhead dominates."""
+        t1, t2 = np.ascontiguousarray(theta1, float), np.ascontiguousarray(theta2, float)
+        if t1.ndim == 1 and t1.shape == t2.shape:
+            return _segments_1d(t1, t2, self.base, self.ex, self.ey, self.d12, self.d13, self.d24, self.d3tip,
+                                self.body_from, self.body_to)
         j = self.joints(theta1, theta2)
         return np.take(j, self.body_from, axis=-2), np.take(j, self.body_to, axis=-2)  # C-contiguous
 
@@ -115,6 +124,32 @@ class ArmGeom:
         """Estimated travel time of a straight edge, both joints at full speed (thesis eq. 6.23)."""
         dq = np.abs(np.asarray(q_to, float) - np.asarray(q_from, float))
         return np.maximum(dq[..., 0] / self.v1_max, dq[..., 1] / self.v2_max)
+
+
+@numba.njit(cache=True)
+def _segments_1d(t1, t2, base, ex, ey, d12, d13, d24, d3tip, body_from, body_to):
+    """:meth:`ArmGeom.segments` of (n,) angle arrays: (n, nb, 2) capsule axis starts and ends
+    (thesis eqs. 3.4-3.16, as :meth:`ArmGeom.joints`)."""
+    n, nb = t1.shape[0], body_from.shape[0]
+    s = np.empty((n, nb, 2))
+    e = np.empty((n, nb, 2))
+    pa = np.zeros(5)
+    pb = np.zeros(5)
+    pa[1] = d12
+    for i in range(n):
+        j3a, j3b = d13 * math.cos(t1[i]), d13 * math.sin(t1[i])
+        j4a, j4b = d12 - d24 * math.cos(t2[i]), d24 * math.sin(t2[i])
+        wa, wb = j4a - j3a, j4b - j3b
+        k = d3tip / math.hypot(wa, wb)
+        pa[2], pa[3], pa[4] = j3a, j4a, j3a + k * wa
+        pb[2], pb[3], pb[4] = j3b, j4b, j3b + k * wb
+        for b in range(nb):
+            f, t = body_from[b], body_to[b]
+            s[i, b, 0] = base[0] + pa[f] * ex[0] + pb[f] * ey[0]
+            s[i, b, 1] = base[1] + pa[f] * ex[1] + pb[f] * ey[1]
+            e[i, b, 0] = base[0] + pa[t] * ex[0] + pb[t] * ey[0]
+            e[i, b, 1] = base[1] + pa[t] * ex[1] + pb[t] * ey[1]
+    return s, e
 
 
 def edges_in_zoa(geom: ArmGeom, q_from: np.ndarray, q_to: np.ndarray, tol_mm: float = 0.01) -> np.ndarray:
@@ -239,3 +274,9 @@ def timed_collisions(geoms: Sequence[ArmGeom], timed: Sequence[tuple[np.ndarray,
 def _segments_at(geom: ArmGeom, tq: tuple[np.ndarray, np.ndarray], ts: np.ndarray):
     t, q = tq
     return geom.segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))
+
+
+def compile_kernels() -> None:
+    """Compile (or load from the on-disk cache) this module's kernel."""
+    z, i = np.zeros(1), np.zeros(1, np.int64)
+    _segments_1d(z, z, np.zeros(2), np.ones(2), np.ones(2), 1.0, 1.0, 1.0, 1.0, i, i)

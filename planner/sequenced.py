@@ -198,17 +198,38 @@ class Attempt:
                 tl.visible[j] = True
         return None
 
-    def run(self) -> tuple[int, ...]:
+    def run(self, prefixes: dict | None = None) -> tuple[int, ...]:
         """Plans every arm in order; returns the arm that could not be planned and those after
-        it (empty: success); ``self.blamed`` is then the planned arm in its way, if one is."""
+        it (empty: success); ``self.blamed`` is then the planned arm in its way, if one is.
+
+        ``prefixes`` keeps the moves of every prefix of the order planned so far, by the arms
+        and their holds: an arm's plan depends only on the arms before it and its own hold, so
+        an attempt takes up where the longest prefix it shares with an earlier one ended."""
         self.blamed: int | None = None
-        for i, k in enumerate(self.order):
+        start = self._resume(prefixes) if prefixes is not None else 0
+        for i, k in enumerate(self.order[start:], start):
             if self.budget.expired():
                 return tuple(self.order[i:])
             if not (self.to_goal(k) or self.detour(k)):
                 self.blamed = self.culprit(k)
                 return tuple(self.order[i:])
+            if prefixes is not None:
+                prefixes[self._prefix_key(i + 1)] = tuple(tuple(self.tl.moves[j]) for j in self.order[:i + 1])
         return ()
+
+    def _prefix_key(self, n: int) -> tuple:
+        return tuple((k, self.holds.get(k, 0)) for k in self.order[:n])
+
+    def _resume(self, prefixes: dict) -> int:
+        """Restores the longest planned prefix of the order; its length."""
+        for n in range(len(self.order), 0, -1):
+            moves = prefixes.get(self._prefix_key(n))
+            if moves is not None:
+                for k, mv in zip(self.order[:n], moves, strict=True):
+                    self.tl.restore(k, mv)
+                self.stats["arms_resumed"] = n
+                return n
+        return 0
 
 
 def direct_times_s(leg: Leg) -> np.ndarray:
@@ -359,11 +380,12 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
     best: Timeline | None = None
     target_s = makespan_target_s(leg.lower_bound_s)
     improve_until = math.inf
+    prefixes: dict[float, dict] = {m: {} for m in MARGINS}  # per margin (Attempt.run)
     for _ in range(max_attempts):
         if budget.expired() or time.perf_counter() > improve_until:
             break
         tried.add((tuple(order), tuple(sorted(holds.items()))))
-        found, failed, blamed = _attempt(leg, order, budget, holds, target_s, base, stats)
+        found, failed, blamed = _attempt(leg, order, budget, holds, target_s, base, stats, prefixes)
         if found is not None:
             if best is None or found.makespan_s() < best.makespan_s() - 1e-9:
                 best = found
@@ -388,12 +410,13 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
 
 
 def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], target_s: float, base,
-             stats: dict) -> tuple[Timeline | None, tuple[int, ...], int | None]:
+             stats: dict, prefixes: dict[float, dict]) -> tuple[Timeline | None, tuple[int, ...], int | None]:
     """One attempt, searched at each margin of MARGINS until the exact re-check passes: the
-    timeline (None if it failed), the arms left over and the arm blamed."""
+    timeline (None if it failed), the arms left over and the arm blamed. ``prefixes``: the
+    planned prefixes of earlier attempts, per margin (:meth:`Attempt.run`)."""
     for margin in MARGINS:
         att = Attempt(leg, order, budget, base(margin), holds, target_s)
-        failed = att.run()
+        failed = att.run(prefixes[margin])
         stats["attempts"] += 1
         for key, v in att.stats.items():
             stats[key] = stats.get(key, 0) + v

@@ -61,34 +61,47 @@ def _box_gap(a, i, b, m):
 
 
 @numba.njit(cache=True)
-def _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, vis, arm, m, buf, hdt):
+def _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, m, buf, hdt, memo):
     """Index of a visible arm closer than the threshold to sample ``i`` of the move at step
     ``m``, else -1. The threshold is the buffer plus the distance both arms can close in half a
-    step at their speed bounds there (zero for an arm at rest)."""
+    step at their speed bounds there (zero for an arm at rest). From step ``REST[j]`` on, arm j
+    rests at its final pose for ever: its verdict against sample i is kept in ``memo[i, j]``
+    (0 not known, 1 clear, 2 too close)."""
     for j in range(S.shape[0]):
         if j == arm or not vis[j]:
             continue
+        rest = m >= REST[j]
+        if rest:
+            known = memo[i, j]
+            if known == 1:
+                continue
+            if known == 2:
+                return j
         thr = buf + hdt * (mspd[i] + SPD[j, m])
-        if _box_gap(mbox, i, BOX[j], m) >= thr:
-            continue
-        if bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m) < thr:
+        hit = _box_gap(mbox, i, BOX[j], m) < thr and bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m) < thr
+        if rest:
+            memo[i, j] = 2 if hit else 1
+        if hit:
             return j
     return -1
 
 
 @numba.njit(cache=True)
-def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, d_lo, d_hi, d_step, buf, hdt):
+def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, d_lo, d_hi, d_step, buf, hdt):
     """The first step D in range(d_lo, d_hi + 1, d_step) at which every sample i of the move
     clears every other arm at step D + i; -1 when there is none. The sample that failed the
     previous D is tried first (it usually fails the next D too)."""
     n1 = ms.shape[0]
+    memo = np.zeros((n1, S.shape[0]), np.int8)
     hint = 0
     D = d_lo
     while D <= d_hi:
-        if _sample_hits(ms, me, mr, mbox, mspd, hint, S, E, R, BOX, SPD, vis, arm, D + hint, buf, hdt) < 0:
+        if _sample_hits(ms, me, mr, mbox, mspd, hint, S, E, R, BOX, SPD, REST, vis, arm, D + hint, buf, hdt,
+                        memo) < 0:
             ok = True
             for i in range(n1):
-                if i != hint and _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, vis, arm, D + i, buf, hdt) >= 0:
+                if i != hint and _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, D + i,
+                                              buf, hdt, memo) >= 0:
                     hint = i
                     ok = False
                     break
@@ -98,31 +111,46 @@ def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, d_lo, 
     return -1
 
 
+SAMPLE_CACHE_BYTES = 64 * 2**20  # sampled moves kept per timeline and its fresh copies
 BLOCK = 32  # steps per block of the per-block bounding boxes (rest-pose scans skip whole blocks)
 
 
 @numba.njit(cache=True)
-def _last_conflicts(vs, ve, vr, vbox, S, E, R, BOX, SPD, BBOX, BSPD, vis, arm, buf, hdt, stride):
+def _last_conflicts(vs, ve, vr, vbox, S, E, R, BOX, SPD, REST, BBOX, BSPD, vis, arm, buf, hdt, stride):
     """For each pose of ``vs``/``ve`` (one per row, at rest), the last step (of every
     ``stride``-th) at which it comes closer than the threshold to a visible arm; -1 when
-    never. Blocks of BLOCK steps whose union box (``BBOX``, fastest speed ``BSPD``) is clear of
-    the pose are skipped."""
+    never. An arm at its final rest (from step ``REST[j]``) is checked once; blocks of BLOCK
+    steps whose union box (``BBOX``, fastest speed ``BSPD``) is clear of the pose are
+    skipped."""
     n_blocks = BBOX.shape[1]
     M = S.shape[1]
     out = np.full(vs.shape[0], -1, np.int64)
     for p in range(vs.shape[0]):
-        for b in range(n_blocks - 1, -1, -1):
+        m_hi = 0  # every arm rests from here on, clear of the pose
+        for j in range(S.shape[0]):
+            if j == arm or not vis[j]:
+                continue
+            r = min(max(REST[j], 0), M - 1)
+            if _box_gap(vbox, p, BOX[j], r) < buf and bodies_clearance(vs, ve, vr, p, S[j], E[j], R[j], r) < buf:
+                out[p] = M - 1
+                break
+            m_hi = max(m_hi, REST[j])
+        if out[p] >= 0:
+            continue
+        for b in range(min(n_blocks, -(-m_hi // BLOCK)) - 1, -1, -1):
             near = False
             for j in range(S.shape[0]):
-                if j != arm and vis[j] and _box_gap(vbox, p, BBOX[j], b) < buf + hdt * BSPD[j, b]:
+                if j != arm and vis[j] and REST[j] > b * BLOCK and _box_gap(vbox, p, BBOX[j], b) < buf + hdt * BSPD[j, b]:
                     near = True
                     break
             if not near:
                 continue
             found = -1
             for m in range(min(M, (b + 1) * BLOCK) - 1, b * BLOCK - 1, -stride):
+                if m >= m_hi:
+                    continue
                 for j in range(S.shape[0]):
-                    if j == arm or not vis[j]:
+                    if j == arm or not vis[j] or m >= REST[j]:
                         continue
                     thr = buf + hdt * SPD[j, m]
                     if _box_gap(vbox, p, BOX[j], m) >= thr:
@@ -139,24 +167,57 @@ def _last_conflicts(vs, ve, vr, vbox, S, E, R, BOX, SPD, BBOX, BSPD, vis, arm, b
 
 
 @numba.njit(cache=True)
-def _first_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
-    """The first step at which pose ``gs``/``ge`` comes closer than ``thr`` to a visible arm;
-    the number of steps + 1 when never."""
-    for m in range(S.shape[1]):
-        if _sample_hits(gs, ge, gr, gbox, gspd, 0, S, E, R, BOX, SPD, vis, arm, m, buf, hdt) >= 0:
-            return m
-    return S.shape[1]
+def _first_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, REST, BBOX, BSPD, vis, arm, buf, hdt):
+    """The first step at which pose ``gs``/``ge`` (at rest) comes closer than the threshold to
+    a visible arm; the number of steps + 1 when never. Arms at their final rest (from step
+    ``REST[j]``) are checked once, and blocks of BLOCK steps in which every moving arm's union
+    box is clear of the pose are skipped."""
+    A, M = S.shape[0], S.shape[1]
+    memo = np.zeros((1, A), np.int8)
+    m_hi = 0
+    for j in range(A):
+        if j != arm and vis[j]:
+            m_hi = max(m_hi, min(REST[j], M - 1))
+            r = min(REST[j], M - 1)
+            thr = buf + hdt * gspd[0]
+            hit = _box_gap(gbox, 0, BOX[j], r) < thr and bodies_clearance(gs, ge, gr, 0, S[j], E[j], R[j], r) < thr
+            memo[0, j] = 2 if hit else 1
+    for b in range(BBOX.shape[1]):
+        lo = b * BLOCK
+        if lo > m_hi:
+            break
+        near = False
+        for j in range(A):
+            if j == arm or not vis[j]:
+                continue
+            if REST[j] <= lo:
+                if memo[0, j] == 2:
+                    near = True
+                    break
+            elif _box_gap(gbox, 0, BBOX[j], b) < buf + hdt * (gspd[0] + BSPD[j, b]):
+                near = True
+                break
+        if not near:
+            continue
+        for m in range(lo, min(lo + BLOCK, m_hi + 1)):
+            if _sample_hits(gs, ge, gr, gbox, gspd, 0, S, E, R, BOX, SPD, REST, vis, arm, m, buf, hdt, memo) >= 0:
+                return m
+    return M  # from m_hi on every arm rests, and at m_hi it was clear
 
 
 @numba.njit(cache=True)
-def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, vis, arm, buf, hdt):
+def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, buf, hdt):
     """Per other arm, the first sample of the move closer than ``thr`` to that arm's final pose
-    (its pose at the last step); -1 when none."""
+    (its pose at the last step); -1 when none. Arms clear of the whole move's box are skipped."""
     A = S.shape[0]
     m = S.shape[1] - 1
     out = np.full(A, -1, np.int64)
+    ub = np.empty((1, 4))
+    ub[0, 0], ub[0, 1] = mbox[:, 0].min(), mbox[:, 1].min()
+    ub[0, 2], ub[0, 3] = mbox[:, 2].max(), mbox[:, 3].max()
+    top = buf + hdt * mspd.max()
     for j in range(A):
-        if j == arm or not vis[j]:
+        if j == arm or not vis[j] or _box_gap(ub, 0, BOX[j], m) >= top:
             continue
         for i in range(ms.shape[0]):
             thr = buf + hdt * mspd[i]
@@ -182,6 +243,22 @@ def _boxes(s, e, r):
             y1 = max(y1, s[i, b, 1] + r[b], e[i, b, 1] + r[b])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x0, y0, x1, y1
     return out
+
+
+@numba.njit(cache=True)
+def _block_boxes(box, spd, b0, bbox, bspd):
+    """Union boxes and fastest speeds of each block of BLOCK steps of one arm's rows, from
+    block ``b0`` on (written into ``bbox``, ``bspd``)."""
+    M = box.shape[0]
+    for b in range(b0, bbox.shape[0]):
+        lo, hi = b * BLOCK, min((b + 1) * BLOCK, M)
+        x0, y0, x1, y1, v = np.inf, np.inf, -np.inf, -np.inf, 0.0
+        for m in range(lo, hi):
+            x0, y0 = min(x0, box[m, 0]), min(y0, box[m, 1])
+            x1, y1 = max(x1, box[m, 2]), max(y1, box[m, 3])
+            v = max(v, spd[m])
+        bbox[b, 0], bbox[b, 1], bbox[b, 2], bbox[b, 3] = x0, y0, x1, y1
+        bspd[b] = v
 
 
 def boxes(s: np.ndarray, e: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -235,6 +312,28 @@ def margin_speeds(n: int, speed_mm_s: float) -> np.ndarray:
     return m
 
 
+class SampleCache:
+    """Sampled moves by (arm, from, to), up to ``max_bytes`` of arrays (then emptied)."""
+
+    def __init__(self, max_bytes: int = SAMPLE_CACHE_BYTES) -> None:
+        self.max_bytes = int(max_bytes)
+        self.n_bytes = 0
+        self._moves: dict[tuple, MoveSamples | None] = {}
+
+    def get(self, key: tuple) -> tuple[bool, MoveSamples | None]:
+        if key in self._moves:
+            return True, self._moves[key]
+        return False, None
+
+    def put(self, key: tuple, ms: MoveSamples | None) -> None:
+        size = 0 if ms is None else ms.s.nbytes + ms.e.nbytes + ms.box.nbytes + ms.speed.nbytes
+        if self.n_bytes + size > self.max_bytes:
+            self._moves.clear()
+            self.n_bytes = 0
+        self._moves[key] = ms
+        self.n_bytes += size
+
+
 class Timeline:
     """Committed moves of every arm on a grid of ``dt_s`` up to ``horizon_s`` (module docstring).
 
@@ -264,11 +363,13 @@ class Timeline:
         self.E = np.empty_like(self.S)
         self.BOX = np.empty((n, self.n_steps + 1, 4))
         self.SPD = np.zeros((n, self.n_steps + 1))
+        self.REST = np.zeros(n, np.int64)  # the step from which each arm rests at its end pose
         n_blocks = -(-(self.n_steps + 1) // BLOCK)
         self.BBOX = np.empty((n, n_blocks, 4))
         self.BSPD = np.zeros((n, n_blocks))
         self.moves: list[list[Move]] = [[] for _ in range(n)]
         self.visible = np.zeros(n, dtype=np.bool_)
+        self.sample_cache = SampleCache()
         for k in range(n):
             self._set_row(k)
         self.keep_rest_state()
@@ -279,13 +380,13 @@ class Timeline:
         t.__dict__.update(self.__dict__)
         t.moves = [[] for _ in self.moves]
         t.visible = np.zeros_like(self.visible)
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST"):
             setattr(t, name, getattr(self, "_rest_" + name).copy())
         return t
 
     def keep_rest_state(self) -> None:
         """Remember the current rows as the state :meth:`fresh` returns to."""
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST"):
             setattr(self, "_rest_" + name, getattr(self, name).copy())
 
     # ------------------------------------------------------------------ state
@@ -330,15 +431,15 @@ class Timeline:
         t, q = self.waypoints(k)
         g = self.geoms[k]
         a = max(0, int(from_step))
-        if len(t) == 1:  # at rest: one pose for every step
-            s, e = g.segments(q[:1, 0], q[:1, 1])
-            self.S[k, a:], self.E[k, a:] = s, e
-            self.BOX[k, a:] = boxes(s, e, g.radius)
-        else:
-            ts = self.times_s[a:]
+        end = max(a, min(self.free_step(k), self.n_steps + 1))  # at rest at q[-1] from here on
+        if end > a:
+            ts = self.times_s[a:end]
             s, e = g.segments(np.interp(ts, t, q[:, 0]), np.interp(ts, t, q[:, 1]))
-            self.S[k, a:], self.E[k, a:] = s, e
-            self.BOX[k, a:] = boxes(s, e, g.radius)
+            self.S[k, a:end], self.E[k, a:end] = s, e
+            self.BOX[k, a:end] = boxes(s, e, g.radius)
+        s, e = g.segments(q[-1:, 0], q[-1:, 1])
+        self.S[k, end:], self.E[k, end:] = s, e
+        self.BOX[k, end:] = boxes(s, e, g.radius)
         spd = np.zeros(self.n_steps + 1)
         for mv in self.moves[k]:
             lo = mv.depart_step
@@ -346,12 +447,8 @@ class Timeline:
             hi = min(lo + len(m), self.n_steps + 1)
             spd[lo:hi] = np.maximum(spd[lo:hi], m[:hi - lo])
         self.SPD[k] = spd
-        nb = self.BBOX.shape[1]
-        pad = nb * BLOCK - (self.n_steps + 1)
-        bx = np.concatenate([self.BOX[k], np.repeat(self.BOX[k, -1:], pad, axis=0)]).reshape(nb, BLOCK, 4)
-        self.BBOX[k, :, :2] = bx[:, :, :2].min(axis=1)
-        self.BBOX[k, :, 2:] = bx[:, :, 2:].max(axis=1)
-        self.BSPD[k] = np.concatenate([spd, np.zeros(pad)]).reshape(nb, BLOCK).max(axis=1)
+        self.REST[k] = self.free_step(k)
+        _block_boxes(self.BOX[k], spd, a // BLOCK, self.BBOX[k], self.BSPD[k])  # blocks before a's unchanged
 
     def _speed(self, k: int, a: np.ndarray, b: np.ndarray, duration_s: float) -> float:
         if duration_s <= 0:
@@ -363,10 +460,21 @@ class Timeline:
 
     def samples(self, k: int, q_to: np.ndarray, q_from: np.ndarray | None = None) -> MoveSamples | None:
         """Arm k's straight move from ``q_from`` (default: its current pose) to ``q_to`` (theta2
-        unwrapped) sampled on the grid; None when it crosses the ZoA or a joint limit."""
-        g = self.geoms[k]
+        unwrapped) sampled on the grid; None when it crosses the ZoA or a joint limit.
+
+        Moves are kept (:class:`SampleCache`, shared by every :meth:`fresh` copy): a search
+        tries the same moves from the same poses attempt after attempt."""
         a = self.pose(k) if q_from is None else np.asarray(q_from, float)
         b = np.asarray(q_to, float)
+        key = (k, float(a[0]), float(a[1]), float(b[0]), float(b[1]))
+        found, ms = self.sample_cache.get(key)
+        if not found:
+            ms = self._sample(k, a, b)
+            self.sample_cache.put(key, ms)
+        return ms
+
+    def _sample(self, k: int, a: np.ndarray, b: np.ndarray) -> MoveSamples | None:
+        g = self.geoms[k]
         if edges_in_zoa(g, a[None], b[None])[0]:
             return None
         T = float(g.move_time_s(a, b))
@@ -378,7 +486,8 @@ class Timeline:
         return MoveSamples(a, b, T, np.ascontiguousarray(s), np.ascontiguousarray(e), boxes(s, e, g.radius), speed)
 
     def _world(self, k: int) -> tuple:
-        return (self.S, self.E, self.R, self.BOX, self.SPD, self.visible, k, self.buffer_mm, self.half_step_margin_s)
+        return (self.S, self.E, self.R, self.BOX, self.SPD, self.REST, self.visible, k, self.buffer_mm,
+                self.half_step_margin_s)
 
     def earliest_departure(self, k: int, ms: MoveSamples, min_step: int = 0) -> tuple[int, set[int]]:
         """The earliest grid step at which arm k can make move ``ms`` (module docstring), -1
@@ -395,13 +504,13 @@ class Timeline:
             d_hi = min(d_hi, self.free_step(j) - int(first[j]) - 1)
         if not self.visible[k]:  # its rest at the start is not checked yet: it must leave in time
             s0, e0, b0, v0 = ms.begin()
-            d_hi = min(d_hi, _first_conflict(s0, e0, r, b0, v0, *w) - 1)
+            d_hi = min(d_hi, _first_conflict(s0, e0, r, b0, v0, *w[:6], self.BBOX, self.BSPD, *w[6:]) - 1)
         s1, e1, b1, _ = ms.end()
-        last = int(_last_conflicts(s1, e1, r, b1, *w[:5], self.BBOX, self.BSPD, *w[5:], 1)[0])
+        last = int(_last_conflicts(s1, e1, r, b1, *w[:6], self.BBOX, self.BSPD, *w[6:], 1)[0])
         d_lo = max(self.free_step(k), last - n + 1, int(min_step), 0)
         if last >= self.n_steps or d_lo > d_hi:
             return -1, blockers
-        d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:7], d_lo, d_hi, 1, *w[7:])
+        d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:8], d_lo, d_hi, 1, *w[8:])
         return int(d), blockers
 
     def free_after(self, k: int, q: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -412,7 +521,7 @@ class Timeline:
         s, e = g.segments(q[:, 0], q[:, 1])
         s, e = np.ascontiguousarray(s), np.ascontiguousarray(e)
         w = self._world(k)
-        return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), *w[:5], self.BBOX, self.BSPD, *w[5:],
+        return _last_conflicts(s, e, self.R[k], boxes(s, e, g.radius), *w[:6], self.BBOX, self.BSPD, *w[6:],
                                int(stride))
 
     def commit(self, k: int, ms: MoveSamples, depart_step: int) -> Move | None:
@@ -426,6 +535,14 @@ class Timeline:
         self.moves[k].append(mv)
         self._set_row(k, mv.depart_step)
         return mv
+
+    def restore(self, k: int, moves: tuple[Move, ...]) -> None:
+        """Arm k (at rest at its start, nothing planned) makes ``moves``, committed before in a
+        timeline of the same start; it is visible."""
+        self.moves[k] = list(moves)
+        self.visible[k] = True
+        if moves:
+            self._set_row(k, moves[0].depart_step)
 
     def undo(self, k: int) -> None:
         """Takes back arm k's last move (invisible again when it was its first)."""
@@ -441,8 +558,10 @@ def compile_kernels() -> None:
     b = np.zeros((1, 4))
     S, E, B, R, P = z[None], z[None], b[None], r[None], r[None]
     v = np.ones(1, np.bool_)
-    _first_departure(z, z, r, b, r, S, E, R, B, P, v, 0, 0, 0, 1, 0.0, 0.0)
-    _first_conflict(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
-    _last_conflicts(z, z, r, b, S, E, R, B, P, B, P, v, 0, 0.0, 0.0, 1)
-    _final_conflicts(z, z, r, b, r, S, E, R, B, P, v, 0, 0.0, 0.0)
+    rest = np.zeros(1, np.int64)
+    _first_departure(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0, 0, 1, 0.0, 0.0)
+    _first_conflict(z, z, r, b, r, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0)
+    _last_conflicts(z, z, r, b, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0, 1)
+    _final_conflicts(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0.0, 0.0)
     _boxes(z, z, r)
+    _block_boxes(b, r, 0, b.copy(), r.copy())

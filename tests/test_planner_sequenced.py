@@ -256,3 +256,58 @@ def test_leg_to_park_is_planned_reversed_and_verifies():
     for tr in plan.trajectories:
         assert tr.t_s[0] == 0.0
         assert (tr.theta1_rad[0], tr.theta2_rad[0]) == (start[tr.arm, 0], start[tr.arm, 1])
+
+
+def _planned(spec, order=None, prefixes=None, holds=None) -> Attempt:
+    leg = _leg(spec["start_q"], spec["goal_q"])
+    base = Timeline(leg.geoms, leg.start_q, horizon_s=leg.options.horizon_s, dt_s=0.1, buffer_mm=leg.buffer_mm,
+                    max_moves=2, margin=0.25)
+    att = Attempt(leg, order or first_order(leg), Budget.of(60.0), base, holds)
+    att.run(prefixes)
+    return att
+
+
+def test_free_after_matches_brute_force_with_two_move_arms():
+    """The last conflict step of poses at rest (the kernel skips arms at their final rest and
+    far blocks) equals a numpy scan of every step, on a timeline whose arms made detours."""
+    spec = next(s for s in LEGS if s["name"] == "examples_m13_c3_to_c4")
+    tl = _planned(spec).tl
+    assert any(len(m) == 2 for m in tl.moves), "the fixture needs an arm with a way-point"
+    rng = np.random.default_rng(3)
+    hdt = tl.half_step_margin_s
+    for k in range(len(tl.geoms)):
+        g = tl.geoms[k]
+        q = np.column_stack([rng.uniform(g.theta1_min, g.theta1_max, 40), rng.uniform(-np.pi, np.pi, 40)])
+        q = np.vstack([q, tl.start_q[k], tl.pose(k)])
+        got = tl.free_after(k, q)
+        s, e = g.segments(q[:, 0], q[:, 1])
+        for p in range(len(q)):
+            last = -1
+            for j in np.flatnonzero(tl.visible):
+                if j == k:
+                    continue
+                d = segment_distance_mm(s[p][None, :, None, :], e[p][None, :, None, :], tl.S[j][:, None], tl.E[j][:, None])
+                c = (d - g.radius[None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+                hit = np.flatnonzero(c < tl.buffer_mm + hdt * tl.SPD[j])
+                last = max(last, int(hit[-1]) if len(hit) else -1)
+            assert got[p] == last, (k, p, got[p], last)
+
+
+def test_resumed_prefixes_give_the_same_plan():
+    """An attempt that takes up an earlier attempt's planned prefix ends with the moves it makes
+    from scratch."""
+    spec = next(s for s in LEGS if s["name"] == "semigreedy_seed8_field4_chained_13")
+    leg = _leg(spec["start_q"], spec["goal_q"])
+    order = first_order(leg)
+    prefixes: dict = {}
+    _planned(spec, order, prefixes)
+    assert prefixes, "the first attempt planned no arm"
+    changed = order[:4] + order[4:][::-1]  # shares the first four arms
+    holds = {order[5]: 50}
+    resumed = _planned(spec, changed, prefixes, holds)
+    fresh = _planned(spec, changed, None, holds)
+    assert resumed.stats.get("arms_resumed", 0) >= 4
+    for k in range(leg.n_arms):
+        a, b = resumed.tl.waypoints(k), fresh.tl.waypoints(k)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]), k
+    assert np.array_equal(resumed.tl.S, fresh.tl.S) and np.array_equal(resumed.tl.BBOX, fresh.tl.BBOX)
