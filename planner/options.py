@@ -17,7 +17,7 @@ from models.errors import InputError
 
 # Budget shares, as (fraction of the leg's time budget, cap in s).
 # the departure-delay CSP's straight moves and detour rounds together
-DELAY_SHARE = (0.3, 3.0)
+DELAY_SHARE = (0.15, 1.5)
 # the cluster strategy, its own share, counted from when it starts
 CLUSTER_SHARE = (0.25, 2.5)
 # the detour rounds after a cluster strategy that found nothing: they rarely succeed where it
@@ -26,7 +26,7 @@ DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
 # the evasion strategy (clear detours and step-aside moves in the delay CSP)
 EVASION_SHARE = (0.4, 4.0)
 # the sequenced strategy (arm-by-arm straight moves and detours on a time grid)
-SEQUENCED_SHARE = (0.6, 6.0)
+SEQUENCED_SHARE = (0.8, 8.0)
 # kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it
 VIA_RESERVE_SHARE = (0.15, 1.5)
 # each leg of the "via" fallback gets at least this budget

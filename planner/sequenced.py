@@ -13,6 +13,9 @@ against its rest at the start), which is what lets arms move together and in tur
 * when an arm cannot be planned at all, the planned arm in its way is held back at its start
   (so that the other gets out of its way first), then the order changes (the failed arm
   just before it); an order tried before is shuffled with the seed;
+* two arms each found in the other's way are planned together: the one planned first steps
+  aside to a way-point clear of the other's straight path, the other moves, then the first
+  goes on to its goal (:meth:`Attempt.step_aside`);
 * the search starts from two orders (longest move first; every arm after those whose start
   its goal blocks), each on the leg and on its time reversal (:func:`search_starts`);
 * a plan over the makespan target (:func:`makespan_target_s`) is improved, for as long again
@@ -46,6 +49,9 @@ VIA_THETA1 = 9  # way-point grid: theta1 values over [theta1_min, theta1_max]
 VIA_THETA2 = 24  # and theta2 values over a full turn
 MAX_VIAS_TRIED = 60  # way-points tried per detour, cheapest first
 MAX_VIAS_LATE = 20  # way-points tried for an arm whose straight move arrives after the target
+MAX_VIAS_ASIDE = 12  # way-points tried for an arm stepping aside for another (Attempt.step_aside)
+ASIDE_PATH_SAMPLES = 40  # poses of the other arm's straight path a way-point must clear
+ASIDE_MARGIN_MM = 0.5  # and by this much more than the buffer (the path between its poses)
 RANK_STRIDE = 8  # the way-points' ranking looks at every 8th step
 
 
@@ -99,7 +105,8 @@ class Attempt:
     """One pass of the search in a given arm order (module docstring)."""
 
     def __init__(self, leg: Leg, order: list[int], budget: Budget, timeline: Timeline,
-                 holds: dict[int, int] | None = None, target_s: float = math.inf) -> None:
+                 holds: dict[int, int] | None = None, target_s: float = math.inf,
+                 yields: dict[int, int] | None = None) -> None:
         self.leg = leg
         self.target_s = float(target_s)
         self.budget = budget
@@ -107,6 +114,8 @@ class Attempt:
         self.tl = timeline.fresh()
         self.order = list(order)
         self.holds = dict(holds or {})  # arm -> the earliest step its first move may depart
+        self.yields = dict(yields or {})  # arm -> the arm it steps aside for (step_aside)
+        self.done: set[int] = set()  # arms planned in this attempt
         for k in set(range(leg.n_arms)) - set(leg.enabled):  # disabled arms rest where they are
             self.tl.visible[k] = True
         self.stats = {"moves_tried": 0, "vias_tried": 0, "detours": 0}
@@ -208,28 +217,81 @@ class Attempt:
         self.blamed: int | None = None
         start = self._resume(prefixes) if prefixes is not None else 0
         for i, k in enumerate(self.order[start:], start):
+            if k in self.done:  # planned with the arm it stepped aside for
+                continue
             if self.budget.expired():
-                return tuple(self.order[i:])
-            if not (self.to_goal(k) or self.detour(k)):
+                return tuple(a for a in self.order[i:] if a not in self.done)
+            yielded = k in self.yields and self.yields[k] not in self.done and self.step_aside(k, self.yields[k])
+            if not (yielded or self.to_goal(k) or self.detour(k)):
                 self.blamed = self.culprit(k)
-                return tuple(self.order[i:])
+                return tuple(a for a in self.order[i:] if a not in self.done)
+            self.done.add(k)
             if prefixes is not None:
-                prefixes[self._prefix_key(i + 1)] = tuple(tuple(self.tl.moves[j]) for j in self.order[:i + 1])
+                prefixes[self._prefix_key(i + 1)] = tuple((j, tuple(self.tl.moves[j])) for j in sorted(self.done))
         return ()
 
     def _prefix_key(self, n: int) -> tuple:
-        return tuple((k, self.holds.get(k, 0)) for k in self.order[:n])
+        return tuple((k, self.holds.get(k, 0), self.yields.get(k, -1)) for k in self.order[:n])
 
     def _resume(self, prefixes: dict) -> int:
         """Restores the longest planned prefix of the order; its length."""
         for n in range(len(self.order), 0, -1):
-            moves = prefixes.get(self._prefix_key(n))
-            if moves is not None:
-                for k, mv in zip(self.order[:n], moves, strict=True):
+            planned = prefixes.get(self._prefix_key(n))
+            if planned is not None:
+                for k, mv in planned:
                     self.tl.restore(k, mv)
-                self.stats["arms_resumed"] = n
+                    self.done.add(k)
+                self.stats["arms_resumed"] = self.stats.get("arms_resumed", 0) + len(planned)
                 return n
         return 0
+
+    # ---------------------------------------------------------------- stepping aside
+
+    def step_aside(self, j: int, k: int) -> bool:
+        """Arm j makes way for arm k: j goes to a way-point clear of k's straight path
+        (:meth:`aside_vias`), k is planned (straight or by a detour), then j goes on to its
+        goal (one stop for j). For two arms each in the other's way whichever goes first."""
+        tl = self.tl
+        if tl.moves[j] or tl.moves_left(j) < 2:
+            return False
+        for v in self.aside_vias(j, k)[:MAX_VIAS_ASIDE]:
+            if self.budget.expired():
+                return False
+            self.stats["asides_tried"] = self.stats.get("asides_tried", 0) + 1
+            first = self._best_move(j, [v])
+            if first is None:
+                continue
+            tl.commit(j, *first)
+            if self.to_goal(k) or self.detour(k):
+                if self.to_goal(j):
+                    self.done.add(k)
+                    self.stats["asides"] = self.stats.get("asides", 0) + 1
+                    return True
+                self._take_back(k)
+            self._take_back(j)
+        return False
+
+    def _take_back(self, k: int) -> None:
+        while self.tl.moves[k]:
+            self.tl.undo(k)
+        self.tl.visible[k] = False
+
+    def aside_vias(self, j: int, k: int) -> np.ndarray:
+        """Way-points of arm j (:func:`via_grid`, by travel time) at which it clears arm k's
+        straight path to its goal and k's goal itself."""
+        tl = self.tl
+        gj, gk = tl.geoms[j], tl.geoms[k]
+        v = via_grid(gj, tl.pose(j), self.goal[j])
+        if len(v) == 0:
+            return v
+        pk = tl.pose(k)
+        tk = goal_targets(pk, self.goal[k])[0]
+        f = np.linspace(0.0, 1.0, ASIDE_PATH_SAMPLES)[:, None]
+        path = pk + f * (tk - pk)
+        ks, ke = gk.segments(path[:, 0], path[:, 1])
+        vs, ve = gj.segments(v[:, 0], v[:, 1])
+        c = clearance_to_arms(vs, ve, gj.radius, ks[:, None], ke[:, None], np.repeat(gk.radius[None], len(path), 0))
+        return v[c.min(axis=0) >= tl.buffer_mm + ASIDE_MARGIN_MM]
 
 
 def direct_times_s(leg: Leg) -> np.ndarray:
@@ -366,14 +428,17 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
     plan found (or None) and the arms the last failed attempt left. After a failed attempt,
     the planned arm in the way of the arm that failed (if there is one) is held back at its
     start a little longer, so that the other can get out of its way; once held long enough,
-    the failed arm goes just before it in the order instead (else first). A state tried
-    before gives a shuffled order. A plan longer than :func:`makespan_target_s` is improved
-    with the last arm to arrive first in the order, for as long again as the first plan
-    took (at most MAX_IMPROVE_S). ``base(margin)`` gives the timeline at rest."""
+    the failed arm goes just before it in the order instead (else first). Two arms each
+    found in the other's way are planned together: the one planned first steps aside for
+    the other (:meth:`Attempt.step_aside`). A state tried before gives a shuffled order. A
+    plan longer than :func:`makespan_target_s` is improved with the last arm to arrive first
+    in the order, for as long again as the first plan took (at most MAX_IMPROVE_S). ``base(margin)`` gives the timeline at rest."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(leg.options.seed)
     hold_step = int(round(HOLD_STEP_S / DT_S))
     holds: dict[int, int] = {}
+    yields: dict[int, int] = {}
+    blames: set[tuple[int, int]] = set()  # (failed arm, the planned arm in its way)
     direct_s = direct_times_s(leg)
     failed: tuple[int, ...] = tuple(leg.enabled)
     tried: set = set()
@@ -384,8 +449,8 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
     for _ in range(max_attempts):
         if budget.expired() or time.perf_counter() > improve_until:
             break
-        tried.add((tuple(order), tuple(sorted(holds.items()))))
-        found, failed, blamed = _attempt(leg, order, budget, holds, target_s, base, stats, prefixes)
+        tried.add(_state(order, holds, yields))
+        found, failed, blamed = _attempt(leg, order, budget, holds, yields, target_s, base, stats, prefixes)
         if found is not None:
             if best is None or found.makespan_s() < best.makespan_s() - 1e-9:
                 best = found
@@ -398,24 +463,33 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
         else:
             k, j = failed[0], blamed
             held_s = (holds.get(j, 0) + hold_step) * DT_S if j is not None else math.inf
-            if j is not None and held_s <= MAX_HOLD_S and held_s + direct_s[j] <= target_s:
+            mutual = j is not None and (j, k) in blames and yields.get(j) != k
+            blames.add((k, j))
+            if mutual:
+                yields, holds = {**yields, j: k}, {}
+            elif j is not None and held_s <= MAX_HOLD_S and held_s + direct_s[j] <= target_s:
                 holds = {**holds, j: holds.get(j, 0) + hold_step}
             else:
                 holds = {}
                 order = [i for i in order if i != k]
                 order.insert(order.index(j) if j is not None else 0, k)
-        if (tuple(order), tuple(sorted(holds.items()))) in tried:
-            order, holds = [int(i) for i in rng.permutation(order)], {}
+        if _state(order, holds, yields) in tried:
+            order, holds, yields = [int(i) for i in rng.permutation(order)], {}, {}
     return best, failed
 
 
-def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], target_s: float, base,
-             stats: dict, prefixes: dict[float, dict]) -> tuple[Timeline | None, tuple[int, ...], int | None]:
+def _state(order: list[int], holds: dict[int, int], yields: dict[int, int]) -> tuple:
+    return tuple(order), tuple(sorted(holds.items())), tuple(sorted(yields.items()))
+
+
+def _attempt(leg: Leg, order: list[int], budget: Budget, holds: dict[int, int], yields: dict[int, int],
+             target_s: float, base, stats: dict, prefixes: dict[float, dict]
+             ) -> tuple[Timeline | None, tuple[int, ...], int | None]:
     """One attempt, searched at each margin of MARGINS until the exact re-check passes: the
     timeline (None if it failed), the arms left over and the arm blamed. ``prefixes``: the
     planned prefixes of earlier attempts, per margin (:meth:`Attempt.run`)."""
     for margin in MARGINS:
-        att = Attempt(leg, order, budget, base(margin), holds, target_s)
+        att = Attempt(leg, order, budget, base(margin), holds, target_s, yields)
         failed = att.run(prefixes[margin])
         stats["attempts"] += 1
         for key, v in att.stats.items():

@@ -53,3 +53,12 @@ def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer
     yield LiveServer(url, db)
     server.should_exit = True
     thread.join(timeout=10)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels() -> None:
+    """The planner's compiled kernels, loaded (or compiled) before any test's time budget starts,
+    as the service and the image do at start-up."""
+    from planner.clearance import compile_kernels
+
+    compile_kernels()
