@@ -27,7 +27,7 @@ from planner.sequenced import (
     search_starts,
     via_grid,
 )
-from planner.strategy import Budget, Leg
+from planner.strategy import STRATEGIES, Budget, Candidate, Leg
 from planner.timeline import Timeline
 from planner.verify import verify_trajectories
 
@@ -99,14 +99,15 @@ def test_earliest_departure_matches_brute_force(leg_index):
 @pytest.mark.parametrize("spec", LEGS, ids=[s["name"] for s in LEGS])
 def test_real_failing_legs_plan_and_verify(spec):
     """Legs of the allocator's own sequences and of the M13 example that the other strategies
-    could not plan."""
+    could not plan. The strategy runs alone with a generous budget (the driver caps its share
+    at a few seconds), so that a slow or shared machine does not decide the outcome."""
     start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
-    plan = plan_motion(INST, start, goal, strategies=("sequenced",), time_budget_s=30.0)
-    assert plan.status == "ok", plan.stats.get("reasons")
-    assert plan.stats["strategy"] == "sequenced"
-    rep = verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1, exhaustive=True)
+    leg = _leg(start, goal)
+    out = STRATEGIES["sequenced"].plan(leg, Budget.of(60.0))
+    assert isinstance(out, Candidate), out.reasons
+    rep = verify_trajectories(INST, out.trajectories, start, goal, max_start_stop=1, exhaustive=True)
     assert rep.ok and rep.min_clearance_mm >= INST.collision_buffer_mm
-    assert plan.makespan_s <= 1.2 * plan.stats["lower_bound_s"]
+    assert out.makespan_s <= 1.2 * leg.lower_bound_s
 
 
 def test_sequenced_plan_is_deterministic_and_within_stops():
