@@ -24,7 +24,7 @@ CLUSTER_SHARE = (0.25, 2.5)
 # failed, so they get at most this much more; the rest goes to the prioritized strategy
 DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
 # the evasion strategy (clear detours and step-aside moves in the delay CSP)
-EVASION_SHARE = (0.4, 4.0)
+EVASION_SHARE = (0.15, 1.5)
 # the sequenced strategy (arm-by-arm straight moves and detours on a time grid)
 SEQUENCED_SHARE = (0.8, 8.0)
 # kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it

@@ -67,6 +67,30 @@ class Counting:
         return out
 
 
+class Refusing:
+    """Refuses every leg, recording that it was asked."""
+
+    def __init__(self, name: str, calls: list) -> None:
+        self.name, self.calls = name, calls
+
+    def plan(self, leg, budget):
+        self.calls.append(self.name)
+        return Refusal()
+
+
+def test_evasion_goes_before_sequenced_on_legs_from_park_only(monkeypatch):
+    calls: list[str] = []
+    for name in ("delays", "sequenced", "evasion", "detours"):
+        monkeypatch.setitem(STRATEGIES, name, Refusing(name, calls))
+    inst, goal = _two_arm()
+    opts = {"strategies": ("delays", "sequenced", "evasion"), "time_budget_s": 5.0}
+    assert plan_motion(inst, PARK, goal, **opts).status == "failed"
+    assert calls == ["delays", "evasion", "sequenced", "detours"]
+    calls.clear()
+    assert plan_motion(inst, goal, PARK, **opts).status == "failed"
+    assert calls == ["delays", "sequenced", "evasion", "detours"]
+
+
 @pytest.fixture
 def counted(monkeypatch):
     """verify_trajectories calls of the driver, and candidates of every registered strategy."""
