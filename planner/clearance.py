@@ -120,63 +120,99 @@ def clearance_rows(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
 
 
 @numba.njit(cache=True, inline="always")
-def _sample_clearance(sa, ea, ra, box_a, i, sb, eb, rb, box_b, j, exact_below):
-    """(clearance or its box-gap lower bound when that is >= exact_below, 1 if exact else 0)."""
+def _box_gap(box_a, i, box_b, j):
+    """Gap between the bounding boxes of arm a at sample i and arm b at sample j: a lower
+    bound of their clearance."""
     gx = max(box_a[i, 0] - box_b[j, 2], box_b[j, 0] - box_a[i, 2])
     gy = max(box_a[i, 1] - box_b[j, 3], box_b[j, 1] - box_a[i, 3])
-    gap = max(gx, gy)
-    if gap >= exact_below:
-        return gap, 0
-    return _bodies_clearance(sa, ea, ra, i, sb, eb, rb, j), 1
+    return max(gx, gy)
+
+
+# a box gap this many Lipschitz steps above the threshold is used as the clearance bound
+# (cheaper than the exact clearance, and it already lets the walk jump that far)
+BOX_GAP_STEPS = 8.0
 
 
 @numba.njit(cache=True)
-def _lipschitz_clear(sa, ea, ra, box_a, ia, sb, eb, rb, box_b, ib, pos, last, lip, thr, stride):
-    n = ia.shape[0]
-    c = np.empty(n)
-    ok = np.ones(n, np.bool_)
+def _walk(sa, ea, ra, box_a, ia0, da, sb, eb, rb, box_b, ib0, db, n, lip, thr, first_only, ok):
+    """Samples p = 0..n-1 of arm a at ia0 + da p against arm b at ib0 + db p (conservative
+    advancement): a sample whose clearance (or box-gap bound) c is at least ``thr`` certifies
+    the next floor((c - thr) / lip) samples, as the clearance changes by at most ``lip`` per
+    sample; the walk jumps over them. ok[p] = False at every sample below ``thr`` (the others
+    are left as they are); with ``first_only`` the walk stops at the first such sample and
+    ``ok`` is not written. Returns (first sample below thr or -1, exact clearances computed)."""
+    far = thr + BOX_GAP_STEPS * lip
+    p = 0
     n_exact = 0
-    below = thr + lip * stride
-    for r in range(n):  # coarse samples: every stride-th of each sequence, and its last
-        if pos[r] % stride == 0 or pos[r] == last[r]:
-            c[r], e = _sample_clearance(sa, ea, ra, box_a, ia[r], sb, eb, rb, box_b, ib[r], below)
-            n_exact += e
-            ok[r] = c[r] >= thr
-    for r in range(n):  # the others: certified from both coarse neighbours, else exact
-        k = pos[r] % stride
-        if k == 0 or pos[r] == last[r]:
+    first = -1
+    while p < n:
+        i = ia0 + da * p
+        j = ib0 + db * p
+        c = _box_gap(box_a, i, box_b, j)
+        if c < far:
+            c = _bodies_clearance(sa, ea, ra, i, sb, eb, rb, j)
+            n_exact += 1
+        if c < thr:
+            if first < 0:
+                first = p
+            if first_only:
+                return first, n_exact
+            ok[p] = False
+            p += 1
+        elif lip > 0.0:
+            p += int(min((c - thr) / lip, float(n))) + 1
+        else:  # neither arm moves: as clear at every sample
+            break
+    return first, n_exact
+
+
+@numba.njit(cache=True)
+def _diagonals_bad(sa, ea, ra, box_a, na, sb, eb, rb, box_b, nb, m, k_lo, k_hi, lip, thr):
+    bad = np.zeros(k_hi - k_lo + 1, np.bool_)
+    scratch = np.ones(1, np.bool_)
+    n_exact = 0
+    for k in range(k_lo, k_hi + 1):
+        a0 = max(0, m * k)
+        a1 = min(na, nb + m * k)
+        if a1 < a0:
             continue
-        prev = r - k
-        nxt = r + min(stride - k, last[r] - pos[r])
-        lb = max(c[prev] - lip * k, c[nxt] - lip * (nxt - r))
-        if lb >= thr:
-            continue
-        v, e = _sample_clearance(sa, ea, ra, box_a, ia[r], sb, eb, rb, box_b, ib[r], below)
+        first, e = _walk(sa, ea, ra, box_a, a0, 1, sb, eb, rb, box_b, a0 - m * k, 1, a1 - a0 + 1, lip, thr,
+                         True, scratch)
         n_exact += e
-        ok[r] = v >= thr
+        bad[k - k_lo] = first >= 0
+    return bad, n_exact
+
+
+def _f(x: np.ndarray) -> np.ndarray:
+    """``x`` as the kernels' one compiled layout (C-contiguous, writable float64), copied only
+    when it is not already."""
+    if x.dtype == np.float64 and x.flags.c_contiguous and x.flags.writeable:
+        return x
+    return np.require(x, float, ("C", "W"))
+
+
+def rest_clear(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, sb: np.ndarray,
+               eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, j: int, lip_mm: float,
+               thr_mm: float) -> tuple[np.ndarray, int]:
+    """ok[i]: arm a at its sample i (every sample of ``sa``/``ea`` (N, nb, 2), boxes ``box_a``)
+    keeps clearance >= ``thr_mm`` to arm b resting at its sample ``j``; the clearance changes
+    by at most ``lip_mm`` per sample of a (:func:`_walk`). Returns (ok, exact clearances)."""
+    ok = np.ones(sa.shape[0], np.bool_)
+    _, n_exact = _walk(_f(sa), _f(ea), _f(ra), _f(box_a), 0, 1, _f(sb), _f(eb), _f(rb), _f(box_b), int(j), 0,
+                       sa.shape[0], float(lip_mm), float(thr_mm), False, ok)
     return ok, n_exact
 
 
-def lipschitz_clear(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, ia: np.ndarray,
-                    sb: np.ndarray, eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, ib: np.ndarray,
-                    pos: np.ndarray, last: np.ndarray, lip_mm: float, thr_mm: float,
-                    stride: int) -> tuple[np.ndarray, int]:
-    """True where sample ``ia[r]`` of arm a and ``ib[r]`` of arm b keep clearance >= ``thr_mm``.
-
-    The rows form sequences consecutive in time (``pos`` the position in its sequence, ``last``
-    the sequence's last position); the clearance changes by at most ``lip_mm`` per sample.
-    Every ``stride``-th sample of a sequence (and its last) is evaluated; a sample in between
-    within Lipschitz reach of both evaluated neighbours is certified, the rest are evaluated.
-    An evaluation is the box-gap lower bound where that reaches ``thr_mm + lip_mm * stride``,
-    the exact clearance otherwise. Returns (ok, number of exact clearances)."""
-    def f(x):
-        return np.require(x, float, ("C", "W"))
-
-    def i(x):
-        return np.require(x, np.int64, ("C", "W"))
-
-    return _lipschitz_clear(f(sa), f(ea), f(ra), f(box_a), i(ia), f(sb), f(eb), f(rb), f(box_b), i(ib),
-                            i(pos), i(last), float(lip_mm), float(thr_mm), int(stride))
+def diagonals_bad(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray, sb: np.ndarray,
+                  eb: np.ndarray, rb: np.ndarray, box_b: np.ndarray, m: int, k_lo: int, k_hi: int,
+                  lip_mm: float, thr_mm: float) -> tuple[np.ndarray, int]:
+    """bad[k - k_lo] for k in [k_lo, k_hi]: with arm b's sample index trailing a's by m k (b
+    departs m k samples after a), some sample while both move (a's samples max(0, m k) ..
+    min(Na, Nb + m k)) comes closer than ``thr_mm``; ``lip_mm`` bounds the change of the
+    clearance per sample of both. Each diagonal stops at its first close sample. Returns
+    (bad, exact clearances)."""
+    return _diagonals_bad(_f(sa), _f(ea), _f(ra), _f(box_a), sa.shape[0] - 1, _f(sb), _f(eb), _f(rb), _f(box_b),
+                          sb.shape[0] - 1, int(m), int(k_lo), int(k_hi), float(lip_mm), float(thr_mm))
 
 
 @numba.njit(cache=True)
@@ -211,8 +247,9 @@ def compile_kernels() -> None:
     z = np.zeros((1, 1, 2))
     r = np.zeros(1)
     clearance_rows(z, z, r, z, z, r)
-    b, i = np.zeros((1, 4)), np.zeros(1, int)
-    lipschitz_clear(z, z, r, b, i, z, z, r, b, i, i, i, 1.0, 0.0, 10)
+    b = np.zeros((1, 4))
+    rest_clear(z, z, r, b, z, z, r, b, 0, 1.0, 0.0)
+    diagonals_bad(z, z, r, b, z, z, r, b, 1, 0, 0, 1.0, 0.0)
     clearance_to_arms(z, z, r, z[None], z[None], r[None])
     from planner.geometry import compile_kernels as geometry_kernels  # both import this module
     from planner.timeline import compile_kernels as timeline_kernels

@@ -3,9 +3,11 @@
 For every arm pair and option pair, the set of collision-free *relative* delays
 tau_j - tau_i is computed vectorised (:func:`pair_table`): both motions sampled every
 dt_col, including the rests before departure and after arrival, clearance >= buffer at
-every sample; exact clearances on a coarse sub-grid, the samples in between certified by a
-Lipschitz bound (clearance of two arms changes no faster than the sum of their body-point
-speed bounds) or computed exactly (:func:`_clear`).
+every sample. Each sequence of samples is walked by conservative advancement
+(:mod:`planner.clearance`): a sample's clearance, or its bounding-box lower bound, certifies
+as many following samples as the clearance cannot lose in that time (two arms' clearance
+changes no faster than the sum of their body-point speed bounds), and the walk jumps over
+them; a sample below the buffer is found exactly.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.clearance import lipschitz_clear
+from planner.clearance import diagonals_bad, rest_clear
 from planner.geometry import ArmGeom, body_speed_bound_mm_s
 
 
@@ -62,11 +64,11 @@ def prepare(option: Option, geom: ArmGeom, dt_col_s: float) -> None:
                          np.interp(t, option.t_rel, option.waypoints[:, 1])])
     option.samples = q
     s, e = geom.segments(q[:, 0], q[:, 1])
-    option.seg = (s, e)
+    option.seg = (np.ascontiguousarray(s, float), np.ascontiguousarray(e, float))  # the kernels' layout
     r = geom.radius[None, :, None]
     lo = np.minimum(s, e) - r
     hi = np.maximum(s, e) + r
-    option.box = np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1)
+    option.box = np.ascontiguousarray(np.concatenate([lo.min(axis=1), hi.max(axis=1)], axis=1))
 
 
 def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
@@ -74,21 +76,12 @@ def _boxes_overlap(ba: np.ndarray, bb: np.ndarray, pad: float) -> np.ndarray:
             & (ba[..., 1] - pad <= bb[..., 3]) & (bb[..., 1] - pad <= ba[..., 3]))
 
 
-def _clear(oa: Option, ga: ArmGeom, ia: np.ndarray, ob: Option, gb: ArmGeom, ib: np.ndarray,
-           pos: np.ndarray, last: np.ndarray, lip_mm: float, thr: float, stats: DelayStats,
-           stride: int = 10) -> np.ndarray:
-    """True where option a at sample ia and option b at sample ib keep clearance >= thr.
-
-    The pairs form sequences consecutive in time (``pos`` the position in its sequence,
-    ``last`` the sequence's last position); clearance changes by at most ``lip_mm`` per
-    sample. Exact clearances are computed on every ``stride``-th sample (or a bounding-box
-    lower bound where that is far enough); a sample within Lipschitz reach of a certified
-    coarse neighbour is certified, the rest are computed exactly.
-    """
-    if len(ia) == 0:
-        return np.ones(0, bool)
-    ok, n_exact = lipschitz_clear(oa.seg[0], oa.seg[1], ga.radius, oa.box, ia, ob.seg[0], ob.seg[1], gb.radius,
-                                  ob.box, ib, pos, last, lip_mm, thr, stride)
+def _rest_ok(om: Option, gm: ArmGeom, orest: Option, grest: ArmGeom, j: int, lip_mm: float, thr: float,
+             stats: DelayStats) -> np.ndarray:
+    """ok[i]: option ``om`` at its sample i keeps clearance >= thr to option ``orest`` resting at
+    its sample j (:func:`planner.clearance.rest_clear`)."""
+    ok, n_exact = rest_clear(om.seg[0], om.seg[1], gm.radius, om.box, orest.seg[0], orest.seg[1], grest.radius,
+                             orest.box, j, lip_mm, thr)
     stats.pair_samples += n_exact
     return ok
 
@@ -99,13 +92,11 @@ def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int,
     at their starts before departure and at their ends after arrival."""
     Na, Nb = oa.n, ob.n
     la, lb = lip
-    ar_a, ar_b = np.arange(Na + 1), np.arange(Nb + 1)
-    fa, fb = np.full(Na + 1, Na), np.full(Nb + 1, Nb)
     # a moving vs b at rest at its start / end, and b moving vs a at rest
-    a_bs = _clear(oa, ga, ar_a, ob, gb, np.zeros(Na + 1, int), ar_a, fa, la, thr, stats)
-    a_be = _clear(oa, ga, ar_a, ob, gb, fb[:1].repeat(Na + 1), ar_a, fa, la, thr, stats)
-    b_as = _clear(ob, gb, ar_b, oa, ga, np.zeros(Nb + 1, int), ar_b, fb, lb, thr, stats)
-    b_ae = _clear(ob, gb, ar_b, oa, ga, fa[:1].repeat(Nb + 1), ar_b, fb, lb, thr, stats)
+    a_bs = _rest_ok(oa, ga, ob, gb, 0, la, thr, stats)
+    a_be = _rest_ok(oa, ga, ob, gb, Nb, la, thr, stats)
+    b_as = _rest_ok(ob, gb, oa, ga, 0, lb, thr, stats)
+    b_ae = _rest_ok(ob, gb, oa, ga, Na, lb, thr, stats)
     cs = lambda ok: np.concatenate([[0], np.cumsum(~ok)])  # noqa: E731 - prefix counts of bad samples
     c_a_bs, c_a_be, c_b_as, c_b_ae = cs(a_bs), cs(a_be), cs(b_as), cs(b_ae)
 
@@ -116,22 +107,13 @@ def pair_table(oa: Option, ga: ArmGeom, ob: Option, gb: ArmGeom, M: int, K: int,
 
     ks = np.arange(-K, K + 1)
     ok = np.ones(2 * K + 1, bool)
-    # moving-moving diagonals a - b = M k
+    # both moving: the diagonals a - b = M k
     kmin, kmax = max(-K, -(Nb // M) - 1), min(K, Na // M + 1)
-    kd = np.arange(kmin, kmax + 1)
-    a0, a1 = np.maximum(0, M * kd), np.minimum(Na, Nb + M * kd)
-    keep = a1 >= a0
-    kd, a0, a1 = kd[keep], a0[keep], a1[keep]
-    if len(kd):
-        length = a1 - a0 + 1
-        start = np.repeat(np.cumsum(length) - length, length)
-        pos = np.arange(int(length.sum())) - start  # position along its diagonal
-        ia = np.repeat(a0, length) + pos
-        kk = np.repeat(kd, length)
-        ib = ia - M * kk
-        mm = _clear(oa, ga, ia, ob, gb, ib, pos, np.repeat(length - 1, length), la + lb, thr, stats)
-        badk = np.bincount(kk[~mm] + K, minlength=2 * K + 1) > 0
-        ok &= ~badk
+    if kmax >= kmin:
+        badk, n_exact = diagonals_bad(oa.seg[0], oa.seg[1], ga.radius, oa.box, ob.seg[0], ob.seg[1], gb.radius,
+                                      ob.box, M, kmin, kmax, la + lb, thr)
+        stats.pair_samples += n_exact
+        ok[kmin + K: kmax + K + 1] &= ~badk
     # a moving while b rests at its start (before b departs) or at its end (after b arrived), and
     # b moving while a rests
     Mk = M * ks

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from models.collision import segment_distance_xy
 from models.instrument import default_instrument
-from planner.clearance import clearance_rows, clearance_to_arms, lipschitz_clear, segment_distance
+from planner.clearance import clearance_rows, clearance_to_arms, diagonals_bad, rest_clear, segment_distance
 from planner.geometry import ArmGeom
 
 INS = default_instrument()
@@ -93,9 +93,9 @@ def test_clearance_to_arms_matches_numpy_per_obstacle_radii():
                                                 for a in range(3)]), atol=1e-9)
 
 
-def test_lipschitz_certification_agrees_with_every_sample_of_real_moves():
-    """Delay-table rows of two neighbours' straight moves (every relative delay of a park ->
-    deep configuration leg): certified or evaluated, ok is exactly clearance >= threshold."""
+def _neighbour_moves():
+    """Two neighbours' straight moves from park to deep configurations (tips near the centre),
+    sampled every 0.1 s, and the Lipschitz bound of their clearance per sample of both."""
     from planner.delay_tables import prepare
     from planner.delays import straight_options
     from planner.geometry import body_speed_bound_mm_s
@@ -106,20 +106,42 @@ def test_lipschitz_certification_agrees_with_every_sample_of_real_moves():
     ob = straight_options(gb, park[5], np.array([1.2422, 3.032]))[0]  # tip at (-40, 0) mm
     for o, g in ((oa, ga), (ob, gb)):
         prepare(o, g, 0.1)
-    M, lip = 20, (body_speed_bound_mm_s(ga, ga.v1_max, ga.v2_max) + body_speed_bound_mm_s(gb, gb.v1_max, gb.v2_max)) * 0.1
-    rows_a, rows_b, pos, last = [], [], [], []
-    for k in range(-oa.n // M, ob.n // M + 1):  # b departs k M samples after a
-        a = np.arange(max(0, M * k), min(oa.n, ob.n + M * k) + 1)
-        if len(a):
-            rows_a.append(a)
-            rows_b.append(a - M * k)
-            pos.append(a - a[0])
-            last.append(np.full(len(a), len(a) - 1))
-    ia, ib, pos, last = (np.concatenate(x) for x in (rows_a, rows_b, pos, last))
-    thr = 5.0
-    ok, n_exact = lipschitz_clear(oa.seg[0], oa.seg[1], ga.radius, oa.box, ia, ob.seg[0], ob.seg[1], gb.radius,
-                                  ob.box, ib, pos, last, lip, thr, 10)
-    ref = numpy_clearance(oa.seg[0][ia], oa.seg[1][ia], ga.radius, ob.seg[0][ib], ob.seg[1][ib], gb.radius)
-    np.testing.assert_array_equal(ok, ref >= thr)
-    assert (~ok).any() and ok.any()  # the moves do meet at some delays
-    assert n_exact < len(ia) // 2  # and most samples were certified, not computed
+    la = body_speed_bound_mm_s(ga, ga.v1_max, ga.v2_max) * 0.1
+    lb = body_speed_bound_mm_s(gb, gb.v1_max, gb.v2_max) * 0.1
+    return oa, ga, ob, gb, la, lb
+
+
+def test_rest_walk_agrees_with_every_sample_of_real_moves():
+    """A moving arm against a neighbour resting at its start, its goal and a pose in between:
+    certified or evaluated, ok is exactly clearance >= threshold at every sample (thresholds
+    that make the walk jump far, and ones it must step through)."""
+    oa, ga, ob, gb, la, _ = _neighbour_moves()
+    checked_bad = 0
+    for j in (0, ob.n // 2, ob.n):
+        ref_c = numpy_clearance(oa.seg[0], oa.seg[1], ga.radius, ob.seg[0][j:j + 1], ob.seg[1][j:j + 1], gb.radius)
+        for thr in (0.0, 5.0, 20.0, 60.0):
+            ok, n_exact = rest_clear(oa.seg[0], oa.seg[1], ga.radius, oa.box, ob.seg[0], ob.seg[1], gb.radius,
+                                     ob.box, j, la, thr)
+            np.testing.assert_array_equal(ok, ref_c >= thr)
+            checked_bad += int((~ok).sum())
+            assert n_exact <= len(ok)
+    assert checked_bad > 0  # some thresholds do find close samples
+
+
+def test_diagonal_walk_agrees_with_every_sample_of_real_moves():
+    """Both arms moving, b departing m k samples after a, for every k: a diagonal is bad
+    exactly when some sample of it is below the threshold; most samples are never computed."""
+    oa, ga, ob, gb, la, lb = _neighbour_moves()
+    m, thr = 20, 5.0
+    k_lo, k_hi = -oa.n // m, ob.n // m + 1
+    bad, n_exact = diagonals_bad(oa.seg[0], oa.seg[1], ga.radius, oa.box, ob.seg[0], ob.seg[1], gb.radius,
+                                 ob.box, m, k_lo, k_hi, la + lb, thr)
+    total = 0
+    for k in range(k_lo, k_hi + 1):
+        a = np.arange(max(0, m * k), min(oa.n, ob.n + m * k) + 1)
+        total += len(a)
+        ref = bool(len(a)) and bool((numpy_clearance(oa.seg[0][a], oa.seg[1][a], ga.radius, ob.seg[0][a - m * k],
+                                                     ob.seg[1][a - m * k], gb.radius) < thr).any())
+        assert bad[k - k_lo] == ref, k
+    assert bad.any() and not bad.all()  # the moves do meet at some delays
+    assert n_exact < total // 4
