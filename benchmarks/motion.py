@@ -71,6 +71,7 @@ FIELD_SIGMAS_MM: tuple[float | None, ...] = (None, 40.0, 60.0, 90.0)  # None: un
 PRIORITY_VALUES = (500, 100, 10, 1)
 PRIORITY_SHARES = (0.1, 0.4, 0.4, 0.1)
 MAKESPAN_GOAL_S = 120.0
+INSTRUMENT = default_instrument()
 LEG_KINDS = ("park_to_configuration", "chained", "to_park")
 THESIS_REFERENCE = {
     "park_to_configuration": {"success_rate": 0.97, "makespan_s_median": 102.55,
@@ -235,6 +236,7 @@ def leg_summary(records: Sequence[LegRecord]) -> dict:
         "makespan_over_lower_bound_p90": _pct(ratio, 90),
         "makespan_le_120s_rate": (float(np.mean(np.array(makespan_s) <= MAKESPAN_GOAL_S))
                                   if makespan_s else None),
+        "over_120s": over_120s(ok),
         "stops_per_arm_max": int(max(stops)) if stops else None,
         "stops_per_arm_mean": float(np.mean(stops)) if stops else None,
         "strategy_counts": dict(sorted(Counter(str(r.strategy) for r in ok).items())),
@@ -243,8 +245,35 @@ def leg_summary(records: Sequence[LegRecord]) -> dict:
     }
 
 
+def positive_sense_s(start_q: np.ndarray, goal_q: np.ndarray) -> np.ndarray:
+    """Each arm's straight move time turning theta2 in the positive sense only (the default
+    instrument's joint speeds)."""
+    speed = np.column_stack([INSTRUMENT.arm_array("joint1_speed_rad_s"), INSTRUMENT.arm_array("joint2_speed_rad_s")])
+    d1 = np.abs(goal_q[:, 0] - start_q[:, 0])
+    d2 = np.mod(goal_q[:, 1] - start_q[:, 1], 2 * np.pi)
+    return np.maximum(d1 / speed[:, 0], d2 / speed[:, 1])
+
+
+def over_120s(ok: Sequence[LegRecord]) -> dict:
+    """The planned legs longer than 120 s, and among those from park the ones where some arm's
+    goal lies more than 120 s of theta2 travel ahead in the positive sense (from park an arm
+    turning the negative way sweeps through its next neighbour: docs/motion.md)."""
+    long = [r for r in ok if r.makespan_s > MAKESPAN_GOAL_S]
+    park = INSTRUMENT.park_configuration
+    from_park = [r for r in long if np.allclose(r.start_q, park)]
+    beyond = [r for r in from_park if positive_sense_s(r.start_q, r.goal_q).max() > MAKESPAN_GOAL_S]
+    return {"legs": len(long), "from_park": len(from_park), "from_park_arm_beyond_positive_reach": len(beyond)}
+
+
 def summaries_by_kind(records: Sequence[LegRecord], kinds: Sequence[str]) -> dict:
-    return {kind: leg_summary([r for r in records if r.kind == kind]) for kind in kinds}
+    out = {kind: leg_summary([r for r in records if r.kind == kind]) for kind in kinds}
+    first = [r for r in records if r.kind == "park_to_configuration" and r.leg == 0]
+    if "park_to_configuration" in out and first:  # the first leg of each field's sequence alone
+        ok = [r for r in first if r.ok]
+        out["park_to_configuration"]["first_configuration"] = {
+            "legs": len(first), "success_rate": len(ok) / len(first),
+            "makespan_le_120s_rate": float(np.mean([r.makespan_s <= MAKESPAN_GOAL_S for r in ok])) if ok else None}
+    return out
 
 
 def fields_without_failed_legs(records: Sequence[LegRecord], n_fields: int) -> dict:
