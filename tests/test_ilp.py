@@ -201,3 +201,77 @@ def test_longest_move_is_minimised_among_optima() -> None:
     assert (a.total_priority, a.arm_yield) == (b.total_priority, b.arm_yield)
     assert a.longest_move_s <= b.longest_move_s + 1e-6
     assert c.longest_move_s == pytest.approx(a.longest_move_s, abs=1e-5)
+
+
+def _positive_sense_s(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+    """Straight move times with theta2 increasing only, from the raw angles."""
+    v = joint_speeds(INS)
+    return np.maximum(np.abs(q_to[:, 0] - q_from[:, 0]) / v[0, 0], np.mod(q_to[:, 1] - q_from[:, 1], 2 * np.pi) / v[0, 1])
+
+
+def test_moves_from_park_count_theta2_the_way_arms_leave_park() -> None:
+    """From park an arm turns theta2 the positive way only (models.instrument,
+    PARK_EXIT_THETA2_SENSE); away from park, the shorter way round."""
+    x, y = _field(np.random.default_rng(11), 40)
+    p = _problem(x, y, np.ones(40, np.int64))
+    a = p.assignments
+    np.testing.assert_allclose(p.move_time_s(), _positive_sense_s(INS.park_configuration[a.arm], a.q), atol=1e-9)
+    assert (p.theta2_sense() == 1).all()
+    some = np.array([3, 17, 29])
+    np.testing.assert_allclose(p.move_time_s(some), p.move_time_s()[some])
+    away = INS.park_configuration + np.array([-0.4, 0.9])  # no arm at park
+    q = ConfigProblem(p.incompatibility, p.priority, p.available, away, joint_speeds(INS))
+    d2 = np.mod(a.q[:, 1] - away[a.arm, 1], 2 * np.pi)
+    v = joint_speeds(INS)
+    shorter = np.maximum(np.abs(a.q[:, 0] - away[a.arm, 0]) / v[0, 0], np.minimum(d2, 2 * np.pi - d2) / v[0, 1])
+    np.testing.assert_allclose(q.move_time_s(), shorter, atol=1e-9)
+    assert (q.theta2_sense() == 0).all()
+    assert (p.move_time_s() > q.move_time_s() + 1.0).any()  # the rule changes some moves
+
+
+def _oracle_longest(x, y, pr) -> tuple[int, int, float]:
+    """(total priority, yield, the smallest longest move from park with theta2 increasing),
+    lexicographically best over every collision-free choice (capsule clearances, not the
+    incompatibility table): depth-first over the arms, pruned only by bounds that no choice
+    of the arms left can beat."""
+    reach = build_assignments(INS, x, y)
+    a = reach.assignments
+    clear = arm_pair_clearance_mm(INS, a.arm[:, None], a.q[:, None, :], a.arm[None, :], a.q[None, :, :])
+    ok = (clear >= INS.collision_buffer_mm) & ~((a.target[:, None] == a.target[None, :]) & (a.target[:, None] >= 0))
+    pr = np.asarray(pr)
+    move = _positive_sense_s(INS.park_configuration[a.arm], a.q)
+    per_arm = [sorted(range(a.arm_start[k], a.arm_start[k + 1]), key=lambda j: move[j]) for k in range(INS.n_arms)]
+    best = [(-1, -1, np.inf)]
+
+    def dfs(k, chosen, used, total, n, longest):
+        b_total, b_n, b_long = best[0]
+        if k == INS.n_arms:
+            if (total, n) > (b_total, b_n) or ((total, n) == (b_total, b_n) and longest < b_long):
+                best[0] = (total, n, longest)
+            return
+        left = [t for t in range(len(pr)) if t not in used]
+        bound = (total + int(pr[left].sum()), n + min(len(left), INS.n_arms - k))
+        if bound < (b_total, b_n) or (bound == (b_total, b_n) and longest >= b_long - 1e-9):
+            return
+        for j in per_arm[k]:
+            t = int(a.target[j])
+            if (t < 0 or t not in used) and all(ok[j, c] for c in chosen):
+                dfs(k + 1, chosen + [j], used | ({t} if t >= 0 else set()), total + (int(pr[t]) if t >= 0 else 0),
+                    n + (t >= 0), max(longest, move[j]))
+
+    dfs(0, [], set(), 0, 0, 0.0)
+    return best[0]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_longest_move_from_park_matches_brute_force(seed: int) -> None:
+    """Both engines minimise the longest move from park (theta2 increasing) among the
+    priority-optimal, yield-optimal choices, as an exhaustive search over every choice."""
+    rng = np.random.default_rng(100 + seed)
+    x, y = _field(rng, 7, radius=90.0)
+    pr = rng.choice([1, 10, 100], size=7)
+    total, n, longest = _oracle_longest(x, y, pr)
+    p = _problem(x, y, pr)
+    for sol in (solve_ilp_cpsat(p, candidates_per_arm=None), solve_ilp_highs(p, candidates_per_arm=None)):
+        assert (sol.total_priority, sol.arm_yield) == (total, n)
+        assert sol.longest_move_s == pytest.approx(longest, abs=1e-5)
