@@ -19,13 +19,6 @@ from typing import Any
 import numpy as np
 
 JOINT_NAMES = ("J1", "J2", "J3", "J4", "tip")
-# The way theta2 turns when an arm leaves park (+1: increasing). With the arms numbered
-# counterclockwise, an arm at park turning theta2 the other way swings its L3 link through
-# its next neighbour: on the thesis protocol's park legs, 425 of 486 such straight moves have
-# no departure delay that clears any straight move of that neighbour, against none of 486
-# turning this way (docs/motion.md, "What makes a leg hard"). The allocator's longest-move
-# criterion counts moves from park this way round (solvers.problem.ConfigProblem).
-PARK_EXIT_THETA2_SENSE = 1
 BODY_SHAPES = ("capsule", "box", "sphere")
 
 

@@ -207,18 +207,10 @@ def joint_distance(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     return np.maximum(np.abs(d1), np.minimum(ccw, -cw))
 
 
-def theta2_travel_rad(ccw: np.ndarray, cw: np.ndarray, sense=0) -> np.ndarray:
-    """|dtheta2| of a move (:func:`joint_displacement`'s ``ccw``/``cw``) turning the given way:
-    +1 counterclockwise, -1 clockwise, 0 the shorter way (per row when an array)."""
-    sense = np.asarray(sense)
-    return np.where(sense > 0, ccw, np.where(sense < 0, -cw, np.minimum(ccw, -cw)))
-
-
-def direct_move_time_s(q_from: np.ndarray, q_to: np.ndarray, v1_rad_s, v2_rad_s, theta2_sense=0) -> np.ndarray:
-    """Time of a straight joint move, both joints at full speed (thesis eq. 5.1); theta2 turns
-    the shorter way, or the way ``theta2_sense`` gives (:func:`theta2_travel_rad`)."""
+def direct_move_time_s(q_from: np.ndarray, q_to: np.ndarray, v1_rad_s, v2_rad_s) -> np.ndarray:
+    """Time of a straight joint move, both joints at full speed, shorter theta2 way (thesis eq. 5.1)."""
     d1, ccw, cw = joint_displacement(q_from, q_to)
-    return np.maximum(np.abs(d1) / v1_rad_s, theta2_travel_rad(ccw, cw, theta2_sense) / v2_rad_s)
+    return np.maximum(np.abs(d1) / v1_rad_s, np.minimum(ccw, -cw) / v2_rad_s)
 
 
 def jacobian(theta1_rad, theta2_rad, links: Links) -> np.ndarray:

@@ -14,11 +14,9 @@ from typing import Literal
 import numpy as np
 
 from models.collision import colliding_arm_pairs
-from models.incompatibility import PARK, Incompatibility
-from models.instrument import PARK_EXIT_THETA2_SENSE, Instrument
-from models.kinematics import direct_move_time_s, joint_displacement
-
-Q_TOL_RAD = 1e-9  # an arm within this of its park location is at park
+from models.incompatibility import Incompatibility
+from models.instrument import Instrument
+from models.kinematics import direct_move_time_s
 
 SolveStatus = Literal["optimal", "feasible", "timeout", "infeasible"]
 
@@ -67,29 +65,11 @@ class ConfigProblem:
         p[real] = self.priority[t[real]]
         return p
 
-    def theta2_sense(self) -> np.ndarray:
-        """(n_arms,) the way each arm's theta2 turns from ``start_q``: PARK_EXIT_THETA2_SENSE for
-        an arm resting at its park location (the one way it can leave park without sweeping
-        its neighbour, models.instrument), 0 (the shorter way) for the others."""
+    def move_time_s(self) -> np.ndarray:
+        """(n_assignments,) direct-move time from the arm's start configuration (eq. 5.1)."""
         a = self.assignments
-        n_arms = len(self.start_q)
-        sense = np.zeros(n_arms, np.int8)
-        park = np.flatnonzero(a.target == PARK)
-        at_park = np.zeros(n_arms, bool)
-        d1, ccw, cw = joint_displacement(self.start_q[a.arm[park]], a.q[park])
-        at_park[a.arm[park][(np.abs(d1) < Q_TOL_RAD) & (np.minimum(ccw, -cw) < Q_TOL_RAD)]] = True
-        sense[at_park] = PARK_EXIT_THETA2_SENSE
-        return sense
-
-    def move_time_s(self, idx: np.ndarray | None = None) -> np.ndarray:
-        """Direct-move time from the arm's start configuration (eq. 5.1) of every assignment, or
-        of the assignments ``idx``; an arm at park turns theta2 the way it leaves park
-        (:meth:`theta2_sense`)."""
-        a = self.assignments
-        idx = np.arange(len(a)) if idx is None else np.asarray(idx, int)
-        arm = a.arm[idx]
-        v = self.joint_speed_rad_s[arm]
-        return direct_move_time_s(self.start_q[arm], a.q[idx], v[:, 0], v[:, 1], self.theta2_sense()[arm])
+        v = self.joint_speed_rad_s[a.arm]
+        return direct_move_time_s(self.start_q[a.arm], a.q, v[:, 0], v[:, 1])
 
 
 @dataclass(frozen=True)

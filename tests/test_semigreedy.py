@@ -174,14 +174,12 @@ def test_lpc_eq_5_5():
 def _independent_greedy(p: ConfigProblem, penalty) -> dict[int, int]:
     """Pure greedy (alpha = 0, gamma = 0, GAS), written without the module's data
     structures: targets by decreasing priority; for each, the arms in order of
-    (penalty, arm, displacement); the first assignment compatible with those made. An arm at
-    park turns theta2 the positive way only (models.instrument.PARK_EXIT_THETA2_SENSE)."""
+    (penalty, arm, displacement); the first assignment compatible with those made."""
     inc = p.incompatibility
     a = p.assignments
     xy = p.target_xy_mm
     pen = point_penalties(penalty, xy[:, 0], xy[:, 1])  # (arms, targets)
     start = p.start_q
-    at_park = np.all(np.abs(start - INST.park_configuration) < 1e-9, axis=1)
     chosen: dict[int, int] = {}
     for t in sorted(range(len(p.priority)), key=lambda t: -int(p.priority[t])):
         if len(chosen) == 12:
@@ -192,8 +190,8 @@ def _independent_greedy(p: ConfigProblem, penalty) -> dict[int, int]:
             if k in chosen or pen[k, t] < 0:
                 continue
             d = abs(a.theta1_rad[i] - start[k, 0])
-            d2 = (a.theta2_rad[i] - start[k, 1]) % (2 * np.pi)
-            opts.append((int(pen[k, t]), k, d + (d2 if at_park[k] else min(d2, 2 * np.pi - d2)), int(i)))
+            d2 = abs(a.theta2_rad[i] - start[k, 1]) % (2 * np.pi)
+            opts.append((int(pen[k, t]), k, d + min(d2, 2 * np.pi - d2), int(i)))
         for _, k, _, i in sorted(opts):
             if all(inc.compatible(i, j) for j in chosen.values()):
                 chosen[k] = i

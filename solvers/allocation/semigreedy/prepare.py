@@ -12,7 +12,7 @@ from scipy.optimize import linear_sum_assignment
 
 from models.errors import InputError
 from models.incompatibility import FIXED, PARK
-from models.kinematics import joint_displacement, theta2_travel_rad
+from models.kinematics import joint_displacement
 from solvers.allocation.options import SemiGreedyOptions
 from solvers.allocation.semigreedy.patrolling import (
     point_penalties,
@@ -255,7 +255,7 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
     zero = allowed & (tgt >= 0) & (prio == 0)
     is_target = (tgt >= 0) & ~zero
     d1, ccw, cw = joint_displacement(problem.start_q[a.arm], a.q)
-    disp = np.abs(d1) + theta2_travel_rad(ccw, cw, problem.theta2_sense()[a.arm])
+    disp = np.abs(d1) + np.minimum(ccw, -cw)
     tok = allowed & is_target & (pen >= 0)
     rest_ok = allowed & ~is_target
     rn_ptr, rn_idx = (fs.rn_ptr, fs.rn_idx) if not zero.any() else rest_neighbours(problem.incompatibility,
@@ -264,10 +264,9 @@ def prepare(problem: ConfigProblem, opts: SemiGreedyOptions) -> Prepared:
     n_t = len(problem.priority)
     h_t = tie_break_weights(problem, fs, opts.crowding_radius_mm) if opts.crowding else np.zeros(n_t, np.int64)
     hw = np.where(is_target, h_t[np.where(is_target, tgt, 0)], 0) if n_t else np.zeros(n_asg, np.int64)
-    # (prio, hw, -disp) as one float: prio + (hw + 1 - disp / (3 pi + 1)) / (max hw + 2),
-    # the fraction in (0, 1) (disp <= 3 pi: theta1 by at most pi, theta2 by less than a turn
-    # when it must leave park one way round); replace moves check the order exactly
-    score = prio + (hw + 1 - disp / (3 * np.pi + 1)) / (int(hw.max(initial=0)) + 2)
+    # (prio, hw, -disp) as one float: prio + (hw + 1 - disp / (2 pi + 1)) / (max hw + 2),
+    # the fraction in (0, 1) (disp <= 2 pi); replace moves check the order exactly
+    score = prio + (hw + 1 - disp / (2 * np.pi + 1)) / (int(hw.max(initial=0)) + 2)
 
     # live targets sorted by decreasing eta_i = p_i + gamma * r_i / n  (eq. 5.4)
     live_mask = np.zeros(n_t, bool)

@@ -67,6 +67,7 @@ import time
 
 import numpy as np
 
+from models.kinematics import direct_move_time_s
 from solvers.allocation.backends import Backend
 from solvers.allocation.options import SemiGreedyOptions
 from solvers.allocation.semigreedy.construct import construct, pad
@@ -93,7 +94,10 @@ def _evaluate_chosen(problem: ConfigProblem, chosen: np.ndarray) -> tuple[int, i
     a = problem.assignments
     t = a.target[chosen]
     real = t >= 0
-    longest = float(problem.move_time_s(chosen).max()) if len(chosen) else 0.0
+    arms = a.arm[chosen]
+    v = problem.joint_speed_rad_s[arms]
+    longest = float(direct_move_time_s(problem.start_q[arms], a.q[chosen], v[:, 0], v[:, 1]).max()) \
+        if len(chosen) else 0.0
     return sum(int(problem.priority[i]) for i in t[real]), int(real.sum()), longest
 
 
