@@ -15,7 +15,13 @@ from hypothesis import strategies as st
 
 from models.collision import segment_distance_xy
 from models.instrument import default_instrument
-from planner.clearance import clearance_rows, clearance_to_arms, diagonals_bad, rest_clear, segment_distance
+from planner.clearance import (
+    clearance_rows,
+    clearance_to_arms,
+    diagonals_bad,
+    rest_clear,
+    segment_distance,
+)
 from planner.geometry import ArmGeom
 
 INS = default_instrument()
