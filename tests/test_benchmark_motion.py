@@ -189,3 +189,32 @@ def test_plan_sequence_section_counts_changes(monkeypatch):
     for (configurations, options), call in zip(fake.calls, alloc.calls, strict=True):
         assert configurations == call["result"].configurations[:2]
         assert options.seed == 0 and options.leg_time_limit_s == 4.0
+
+
+def _record(start_q, goal_q, makespan_s, leg=0):
+    return motion.LegRecord("ilp", 0, leg, "park_to_configuration", "ok", 0.1, makespan_s, 100.0, (0,) * 12,
+                            "delays", (), np.array(start_q, float), np.array(goal_q, float))
+
+
+def test_long_plans_classified_by_the_positive_way_from_park():
+    """A plan over 120 s from park counts as "beyond the positive reach" exactly when some arm's
+    goal is more than 120 s of theta2 travel ahead the positive way (216 degrees at the default
+    speed), whatever the shorter way."""
+    v2 = INST.arm_array("joint2_speed_rad_s")[0]
+    far, near = PARK_Q.copy(), PARK_Q.copy()
+    far[6, 1] = np.deg2rad(250.0)  # -110 degrees the short way, 139 s the positive way
+    near[6, 1] = np.deg2rad(200.0)  # 111 s the positive way
+    assert motion.positive_sense_s(PARK_Q, far)[6] == np.deg2rad(250.0) / v2
+    assert motion.positive_sense_s(PARK_Q, near).max() < 120.0
+    chained = far.copy()
+    chained[:, 0] -= 0.2  # not from park
+    out = motion.over_120s([_record(PARK_Q, far, 139.0), _record(PARK_Q, near, 125.0), _record(PARK_Q, far, 110.0),
+                            _record(chained, far, 130.0)])
+    assert out == {"legs": 3, "from_park": 2, "from_park_arm_beyond_positive_reach": 1}
+
+
+def test_first_configuration_row_counts_leg_zero_only():
+    recs = [_record(PARK_Q, PARK_Q, 100.0, leg=0), _record(PARK_Q, PARK_Q, 130.0, leg=-2),
+            _record(PARK_Q, PARK_Q, 125.0, leg=0)]
+    first = motion.summaries_by_kind(recs, motion.LEG_KINDS[:1])["park_to_configuration"]["first_configuration"]
+    assert first == {"legs": 2, "success_rate": 1.0, "makespan_le_120s_rate": 0.5}
