@@ -62,6 +62,7 @@ sys.path.insert(0, str(ROOT))
 
 import planner.sequence as sequence_module  # noqa: E402
 from models.instrument import Instrument, default_instrument  # noqa: E402
+from models.kinematics import joint_displacement  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
 from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
@@ -248,10 +249,9 @@ def leg_summary(records: Sequence[LegRecord]) -> dict:
 def positive_sense_s(start_q: np.ndarray, goal_q: np.ndarray) -> np.ndarray:
     """Each arm's straight move time turning theta2 in the positive sense only (the default
     instrument's joint speeds)."""
-    speed = np.column_stack([INSTRUMENT.arm_array("joint1_speed_rad_s"), INSTRUMENT.arm_array("joint2_speed_rad_s")])
-    d1 = np.abs(goal_q[:, 0] - start_q[:, 0])
-    d2 = np.mod(goal_q[:, 1] - start_q[:, 1], 2 * np.pi)
-    return np.maximum(d1 / speed[:, 0], d2 / speed[:, 1])
+    d1, ccw, _ = joint_displacement(start_q, goal_q)
+    return np.maximum(np.abs(d1) / INSTRUMENT.arm_array("joint1_speed_rad_s"),
+                      ccw / INSTRUMENT.arm_array("joint2_speed_rad_s"))
 
 
 def over_120s(ok: Sequence[LegRecord]) -> dict:
@@ -269,10 +269,9 @@ def summaries_by_kind(records: Sequence[LegRecord], kinds: Sequence[str]) -> dic
     out = {kind: leg_summary([r for r in records if r.kind == kind]) for kind in kinds}
     first = [r for r in records if r.kind == "park_to_configuration" and r.leg == 0]
     if "park_to_configuration" in out and first:  # the first leg of each field's sequence alone
-        ok = [r for r in first if r.ok]
+        s = leg_summary(first)
         out["park_to_configuration"]["first_configuration"] = {
-            "legs": len(first), "success_rate": len(ok) / len(first),
-            "makespan_le_120s_rate": float(np.mean([r.makespan_s <= MAKESPAN_GOAL_S for r in ok])) if ok else None}
+            k: s[k] for k in ("legs", "success_rate", "makespan_le_120s_rate")}
     return out
 
 

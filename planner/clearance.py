@@ -128,6 +128,9 @@ def _box_gap(box_a, i, box_b, j):
     return max(gx, gy)
 
 
+# the box gap for other compiled modules of the planner (planner.timeline)
+box_gap = _box_gap
+
 # a box gap this many Lipschitz steps above the threshold is used as the clearance bound
 # (cheaper than the exact clearance, and it already lets the walk jump that far)
 BOX_GAP_STEPS = 8.0
@@ -232,12 +235,9 @@ def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
     """(A, n) clearances of one arm's capsules ``cs``/``ce`` ((n, nb, 2), or (1, nb, 2) for a
     fixed pose) to A other arms ``S``/``E`` ((A, n, nb', 2), or (A, 1, nb', 2) for fixed
     poses; radii ``R`` (A, nb'))."""
-    def f(x):
-        return np.require(x, float, ("C", "W"))
-
     if cs.shape[0] != 1 and S.shape[1] != 1 and cs.shape[0] != S.shape[1]:
         raise ValueError(f"sample counts differ: {cs.shape[0]} and {S.shape[1]}")
-    return _to_arms(f(cs), f(ce), f(r), f(S), f(E), f(R))
+    return _to_arms(_f(cs), _f(ce), _f(r), _f(S), _f(E), _f(R))
 
 
 def compile_kernels() -> None:

@@ -35,6 +35,7 @@ import numba
 import numpy as np
 
 from planner.clearance import bodies_clearance
+from planner.clearance import box_gap as _box_gap
 from planner.geometry import ArmGeom, body_speed_bound_mm_s, edges_in_zoa
 
 TWO_PI = 2.0 * np.pi
@@ -51,13 +52,6 @@ class Move:
     depart_step: int
     duration_s: float
     n_steps: int  # grid steps until the arm is at q_to (ceil(duration / dt))
-
-
-@numba.njit(cache=True, inline="always")
-def _box_gap(a, i, b, m):
-    gx = max(a[i, 0] - b[m, 2], b[m, 0] - a[i, 2])
-    gy = max(a[i, 1] - b[m, 3], b[m, 1] - a[i, 3])
-    return max(gx, gy)
 
 
 @numba.njit(cache=True)
