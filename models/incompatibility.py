@@ -13,12 +13,12 @@ skipped per arm pair) and a per-pair bounding-box prefilter; FCL is the oracle i
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
 
+from models import clock
 from models.collision import (
     arm_pair_clearance_mm,
     body_segments_mm,
@@ -406,7 +406,7 @@ def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
 def _deadline_check(deadline_s: float | None, limit_s: float | None):
     """A no-argument check raising TimeLimitExceeded once ``deadline_s`` has passed."""
     def check() -> None:
-        if deadline_s is not None and time.perf_counter() > deadline_s:
+        if deadline_s is not None and clock.now() > deadline_s:
             raise TimeLimitExceeded("incompatibility", limit_s)
     return check
 
@@ -458,18 +458,18 @@ def compute_incompatibility(
     capsule distance on the survivors. Pairs on the same target are marked first and never
     re-tested. Memory is the result (17 bytes per pair) plus one block.
 
-    ``deadline_s`` (a ``time.perf_counter()`` instant; ``time_limit_s`` is only quoted in the
+    ``deadline_s`` (a ``clock.now()`` instant; ``time_limit_s`` is only quoted in the
     error) is checked between blocks: past it, :class:`~models.errors.TimeLimitExceeded`.
     More than ``max_pairs`` pairs raise :class:`~models.errors.StructureTooLarge` (field
     ``targets``) before the memory is spent.
     """
-    t0 = time.perf_counter()
+    t0 = clock.now()
     buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
     asg = reachability.assignments
     check = _deadline_check(deadline_s, time_limit_s)
     check()
     bodies = _bodies(instrument, asg, buffer_mm, check)
-    t_geom = time.perf_counter()
+    t_geom = clock.now()
     found: list[np.ndarray] = []
     total = 0
     starts = asg.arm_start
@@ -490,14 +490,14 @@ def compute_incompatibility(
                                             f"{max_pairs} assignment pairs; split the field into pointings "
                                             "(segmentation) or lower collision_buffer_mm")
     del bodies
-    t_pairs = time.perf_counter()
+    t_pairs = clock.now()
     # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
     pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int32)
     del found
     check()
     same_target = (asg.target[pairs[:, 0]] >= 0) & (asg.target[pairs[:, 0]] == asg.target[pairs[:, 1]])
     indptr, indices = _symmetric_csr(pairs, len(asg), check)
-    t_end = time.perf_counter()
+    t_end = clock.now()
     return Incompatibility(
         reachability=reachability, pairs=pairs, same_target=same_target,
         indptr=indptr, indices=indices, buffer_mm=buffer_mm,
@@ -524,10 +524,10 @@ def incompatibility_for_targets(
 
     ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see :func:`compute_incompatibility`.
     """
-    t0 = time.perf_counter()
+    t0 = clock.now()
     reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
                               blank_per_arm=blank_per_arm, seed=seed)
-    t1 = time.perf_counter()
+    t1 = clock.now()
     inc = compute_incompatibility(instrument, reach, buffer_mm, deadline_s=deadline_s, time_limit_s=time_limit_s,
                                   max_pairs=max_pairs)
     inc.timings_s["reachability"] = t1 - t0

@@ -28,11 +28,11 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from models import clock
 from planner.delays import DelayProblem, DelayStats, Option, solve, trajectory_points
 from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapParams, candidate_paths
@@ -88,7 +88,7 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             combos = (c for c in combos
                       if sum(1 for x, y in itertools.combinations(c, 2) if y in prob.neighbours[x]) >= 2)
         for R in combos:
-            if deadline is not None and time.perf_counter() > deadline:
+            if deadline is not None and clock.now() > deadline:
                 return
             if not all(any(a in h for a in R) for h in hoods):
                 continue
@@ -119,7 +119,7 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             if key in seen or j not in movable or len(key) > max_size:
                 continue
             seen.add(key)
-            if deadline is not None and time.perf_counter() > deadline:
+            if deadline is not None and clock.now() > deadline:
                 return
             if stats is not None:
                 stats.removal_sets.append(list(R) + [j])
@@ -148,7 +148,7 @@ def _greedy_sets(prob: DelayProblem, C: list[int], start_q: np.ndarray, movable:
             yield B, sol
     G = [k for k in C if k in movable]
     while G and len(G) <= max_greedy:
-        if deadline is not None and time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return True
         if stats is not None:
             stats.removal_tests += 1
@@ -235,7 +235,7 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
     # arms of a large set are mostly independent (separate local conflicts): few orders
     orders = list(itertools.permutations(R))[:max_orders if len(R) <= 3 else 2]
     for order in orders:
-        if deadline is not None and time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return None
         obst = ObstacleTime(m=m, n_steps=H, buffer_mm=buffer_mm, nb=nb)
         for k, (t, q) in obs.items():
@@ -245,7 +245,7 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
             obst.add(geoms[k], _sample(t, q, ts), arr)
         plans = {}
         for k in order:
-            if deadline is not None and time.perf_counter() > deadline:
+            if deadline is not None and clock.now() > deadline:
                 return None
             p = plan_arm(geoms[k], paths[k], obst, params, stats)
             if p is None:

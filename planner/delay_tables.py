@@ -13,11 +13,11 @@ them; a sample below the buffer is found exactly.
 from __future__ import annotations
 
 import math
-import time as _time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from models import clock
 from planner.clearance import diagonals_bad, rest_clear
 from planner.geometry import ArmGeom, body_speed_bound_mm_s
 
@@ -159,10 +159,10 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
         b = np.concatenate([o.box for o in options[k]])
         arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
     for i in range(n):
-        if deadline is not None and _time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return None  # out of time: the caller falls back
         for j in range(i + 1, n):
-            if deadline is not None and _time.perf_counter() > deadline:
+            if deadline is not None and clock.now() > deadline:
                 return None
             if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
                 continue
@@ -174,7 +174,7 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
             for a in range(Pi):
                 # detour options multiply the option pairs of one arm pair: honour the
                 # deadline inside a pair too, or one crowded pair overruns the whole budget
-                if a and deadline is not None and _time.perf_counter() > deadline:
+                if a and deadline is not None and clock.now() > deadline:
                     return None
                 for b in range(Pj):
                     if prev is not None and a < prev.shape[0] and b < prev.shape[1]:

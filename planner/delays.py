@@ -28,11 +28,11 @@ wraps it; the driver (:mod:`planner.driver`) verifies its plans before returning
 from __future__ import annotations
 
 import math
-import time as _time
 from dataclasses import dataclass
 
 import numpy as np
 
+from models import clock
 from planner.delay_tables import (  # noqa: F401 - the tables' types and builders, used through this module
     DelayProblem,
     DelayStats,
@@ -174,7 +174,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
         doms = [b & (f <= bound) for b, f in zip(base, finish, strict=True)]
         if any(not d.any() for d in doms):
             return None
-        if deadline is not None and _time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return None
         doms = arc_consistency(prob, doms, blame)
         if doms is None:
@@ -192,7 +192,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
             order = np.lexsort((vals[:, 0], finish[k][vals[:, 0], vals[:, 1]]))
             for p, t in vals[order]:
                 nodes += 1
-                if nodes > node_budget or (deadline is not None and _time.perf_counter() > deadline):
+                if nodes > node_budget or (deadline is not None and clock.now() > deadline):
                     nodes = node_budget + 1
                     return False
                 new = list(doms)
@@ -411,7 +411,7 @@ class DelaySearch:
             if sol is not None:
                 ms = max(self.cur[k][p].duration_s + t * self.dt_s for k, (p, t) in sol.items())
                 return self._end(DelayResult(sol, self.cur, [], rnd + 1, ms, self.straight))
-            timed_out = deadline is not None and _time.perf_counter() > deadline
+            timed_out = deadline is not None and clock.now() > deadline
             if pause and self.straight is not None and not self.extended and (
                     rnd >= 1 or timed_out or not any(len(self.cur[k]) < len(self.opts[k]) for k in self.mv)):
                 self._resume_tail = self.paused = True  # every straight option failed
@@ -449,7 +449,7 @@ class DelaySearch:
     def _tail(self, deadline, prefer, futile) -> str:
         """The end of a failed round: extend the options; "break" when nothing is left to try."""
         rnd, blamed, cur, opts, mv = self.rnd, self.blamed, self.cur, self.opts, self.mv
-        if deadline is not None and _time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return "break"
         if rnd == 0:
             self.seen_blamed += blamed

@@ -24,11 +24,11 @@ vertices are searched vectorised over a grid of the arm's joint space, shortest 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from models import clock
 from planner.delays import DelayProblem, DelayStats, Option, build_problem, solve, straight_options
 from planner.geometry import ArmGeom, clearance_between, edges_in_zoa
 
@@ -249,13 +249,13 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
         if sol is not None:
             return EvasionResult(sol, opts, rnd, log)
-        if time.perf_counter() > deadline or rnd == max_rounds:
+        if clock.now() > deadline or rnd == max_rounds:
             break
         grown = False
         for a, o, b in _blocked_options(prob, opts, mv):
             grown |= _aside_of(geoms, prob, opts, a, o, b, start_q, goal_q, mv, tried, buffer_mm, limit_s,
                                waits, horizon_s, log)
-            if time.perf_counter() > deadline:
+            if clock.now() > deadline:
                 break
         bad = [] if grown else _infeasible_pairs(prob)
         if not grown and not bad and len(blamed) >= 2:  # a cycle of three or more arms: the two most blamed
@@ -263,7 +263,7 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         for i, j in bad:
             grown |= _evade_pair(geoms, prob, opts, i, j, start_q, goal_q, mv, tried, buffer_mm, limit_s,
                                  waits, horizon_s, log)
-            if time.perf_counter() > deadline:
+            if clock.now() > deadline:
                 break
         log.append({"round": rnd, "infeasible_pairs": [list(p) for p in bad], "grown": grown})
         if not grown:

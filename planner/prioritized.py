@@ -12,11 +12,11 @@ The attempt loop with priority rotation is the strategy
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
 
+from models import clock
 from models.collision import body_segments_mm, clearance_mm
 from models.instrument import Instrument
 from models.types import ArmTrajectory
@@ -101,7 +101,7 @@ def plan_in_order(instrument: Instrument, geoms: Sequence[ArmGeom], paths: list[
     Returns (plans per arm, the first arm without a trajectory or None). With ``rpp_params``
     (revised prioritized planning, Cap et al. 2015) an arm first tries to keep clear of the
     arms not yet planned, resting at their starts, so that they can always wait there, and
-    falls back to ignoring them. Past ``deadline`` (``time.perf_counter()``) the next arm
+    falls back to ignoring them. Past ``deadline`` (``clock.now()``) the next arm
     is reported as the one without a trajectory.
     """
     m = params.m
@@ -111,7 +111,7 @@ def plan_in_order(instrument: Instrument, geoms: Sequence[ArmGeom], paths: list[
         obst.add(geoms[k], np.repeat(a_start[k:k + 1], obst.n_samples, axis=0), 0)
     plans: dict[int, ArmPlan] = {k: ArmPlan(k, a_start[k:k + 1].copy(), -1, 1.0) for k in disabled}
     for idx, k in enumerate(order):
-        if deadline is not None and time.perf_counter() > deadline:
+        if deadline is not None and clock.now() > deadline:
             return plans, k
         p = None
         rest = order[idx + 1:]

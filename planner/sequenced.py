@@ -31,11 +31,11 @@ driver verifies it (:mod:`planner.verify`). Each attempt is deterministic.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from models import clock
 from models.kinematics import direct_move_time_s
 from planner.clearance import clearance_to_arms
 from planner.geometry import ArmGeom, timed_collisions
@@ -365,7 +365,7 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
     with up to ``max_attempts``) until one finds a plan. A plan of the time-reversed leg (goal -> start) comes back with
     ``reversed`` set: played backwards it is a plan of ``leg`` (collisions, the ZoA, speed
     limits and stops are symmetric in time)."""
-    t0 = time.perf_counter()
+    t0 = clock.now()
     o = leg.options
     bases: dict[tuple[bool, float], Timeline] = {}  # one rest state per direction and margin
 
@@ -385,17 +385,17 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
         if budget.expired():
             break
         share = 1.0 if i == len(starts) - 1 else START_SHARE
-        part = Budget(time.perf_counter() + share * budget.left_s(), budget.total_s, budget.hard_deadline)
+        part = Budget(clock.now() + share * budget.left_s(), budget.total_s, budget.hard_deadline)
         stats["starts"] += 1
         best, left = search_from(sub, order, part, max_attempts, base_of(sub, rev), stats)
         if best is not None:
             stats["reversed"] = rev
-            stats["compute_s"] = time.perf_counter() - t0
+            stats["compute_s"] = clock.now() - t0
             stats["makespan_s"] = best.makespan_s()
             return SequencedResult(best, (), stats, reversed=rev)
         if not rev:
             failed = left
-    stats["compute_s"] = time.perf_counter() - t0
+    stats["compute_s"] = clock.now() - t0
     return SequencedResult(None, failed, stats)
 
 
@@ -433,7 +433,7 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
     the other (:meth:`Attempt.step_aside`). A state tried before gives a shuffled order. A
     plan longer than :func:`makespan_target_s` is improved with the last arm to arrive first
     in the order, for as long again as the first plan took (at most MAX_IMPROVE_S). ``base(margin)`` gives the timeline at rest."""
-    t0 = time.perf_counter()
+    t0 = clock.now()
     rng = np.random.default_rng(leg.options.seed)
     hold_step = int(round(HOLD_STEP_S / DT_S))
     holds: dict[int, int] = {}
@@ -447,7 +447,7 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
     improve_until = math.inf
     prefixes: dict[float, dict] = {m: {} for m in MARGINS}  # per margin (Attempt.run)
     for _ in range(max_attempts):
-        if budget.expired() or time.perf_counter() > improve_until:
+        if budget.expired() or clock.now() > improve_until:
             break
         tried.add(_state(order, holds, yields))
         found, failed, blamed = _attempt(leg, order, budget, holds, yields, target_s, base, stats, prefixes)
@@ -457,7 +457,7 @@ def search_from(leg: Leg, order: list[int], budget: Budget, max_attempts: int, b
             if best.makespan_s() <= target_s:
                 break
             if improve_until == math.inf:
-                improve_until = time.perf_counter() + min(time.perf_counter() - t0, MAX_IMPROVE_S)
+                improve_until = clock.now() + min(clock.now() - t0, MAX_IMPROVE_S)
             late = max(leg.enabled, key=lambda k: (found.arrival_s(k), -k))
             order, holds = [late] + [i for i in order if i != late], {}
         else:

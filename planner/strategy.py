@@ -12,13 +12,13 @@ driver owns.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from models import clock
 from models.collision import colliding_arm_pairs
 from models.errors import InputError
 from models.instrument import Instrument
@@ -101,7 +101,7 @@ class Leg:
 
 
 class Budget:
-    """A deadline on ``time.perf_counter()``; ``total_s`` is the budget the shares refer to;
+    """A deadline on ``clock.now()``; ``total_s`` is the budget the shares refer to;
     ``hard_deadline`` the whole leg's deadline, which a strategy's share never extends (a
     strategy may finish work it cannot do without, such as the straight-move tables the
     later strategies start from, up to it)."""
@@ -114,17 +114,17 @@ class Budget:
     @staticmethod
     def of(seconds: float) -> Budget:
         """A budget of ``seconds`` from now."""
-        return Budget(time.perf_counter() + seconds, seconds)
+        return Budget(clock.now() + seconds, seconds)
 
     def left_s(self) -> float:
-        return self.deadline - time.perf_counter()
+        return self.deadline - clock.now()
 
     def expired(self) -> bool:
-        return time.perf_counter() > self.deadline
+        return clock.now() > self.deadline
 
     def share(self, fraction: float, cap_s: float) -> Budget:
         """A sub-deadline: ``min(fraction * total_s, cap_s)`` from now, within this budget."""
-        d = time.perf_counter() + min(fraction * self.total_s, cap_s)
+        d = clock.now() + min(fraction * self.total_s, cap_s)
         return Budget(min(d, self.deadline), self.total_s, self.hard_deadline)
 
     def keep(self, seconds: float) -> Budget:
@@ -236,7 +236,7 @@ def stage_budget(name: str, leg: Leg, budget: Budget) -> Budget:
         d = leg.cache.delay_deadline if leg.cache.delay_deadline is not None else budget.deadline
         if leg.cache.cluster_s is not None:  # the cluster's time is its own, not the delay stage's
             f, cap = sh.DETOURS_AFTER_CLUSTER_SHARE
-            d = min(d + leg.cache.cluster_s, time.perf_counter() + min(f * budget.total_s, cap))
+            d = min(d + leg.cache.cluster_s, clock.now() + min(f * budget.total_s, cap))
         return Budget(d, budget.total_s, budget.hard_deadline)
     if name == "prioritized" and o.via is not None and o.max_start_stop >= 1:
         f, cap = sh.VIA_RESERVE_SHARE

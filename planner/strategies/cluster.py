@@ -10,8 +10,7 @@ back into the cache for the detour rounds (:mod:`planner.strategies.delays`).
 
 from __future__ import annotations
 
-import time
-
+from models import clock
 from models.types import ArmTrajectory
 from planner.cluster import ClusterStats, plan_cluster, removal_sets
 from planner.commands import arm_trajectory, stop_count
@@ -51,16 +50,16 @@ class Cluster:
         search = leg.cache.delay_search
         if leg.options.max_start_stop < 1 or search is None or not search.paused or search.straight is None:
             return Refusal()
-        t_c = time.perf_counter()
+        t_c = clock.now()
         try:
             return self.plan_straight(leg, search.straight, list(search.blamed), budget.deadline)
         finally:
-            leg.cache.cluster_s = time.perf_counter() - t_c
+            leg.cache.cluster_s = clock.now() - t_c
 
     def plan_straight(self, leg: Leg, straight, blamed: list[int], deadline: float) -> Candidate | Refusal:
         """The strategy on a given straight-move problem (:class:`planner.delays.DelayProblem`)
         and the arms the delay CSP blamed; removal sets stored in ``leg.cache``."""
-        t_c = time.perf_counter()
+        t_c = clock.now()
         params, rparams = search_params(leg)
         params, rparams = self.params or params, self.rparams or rparams
         cst, st = ClusterStats(), SearchStats()
@@ -69,9 +68,9 @@ class Cluster:
                                  deadline=deadline, stats=cst))
         leg.cache.removal_sets = [R for R, _ in sets]
         # the search was neither cut short nor left undecided by the node budget
-        leg.cache.removal_complete = time.perf_counter() <= deadline and cst.inconclusive == 0
+        leg.cache.removal_complete = clock.now() <= deadline and cst.inconclusive == 0
         for lead, rev, R, rest in [(lead, rev, R, rest) for lead, rev in TRIES for R, rest in sets]:
-            if time.perf_counter() > deadline:
+            if clock.now() > deadline:
                 break
             cst.attempts += 1
             out = plan_cluster(list(leg.geoms), leg.start_q, leg.goal_q, straight, R, rest, buffer_mm=leg.buffer_mm,
@@ -87,7 +86,7 @@ class Cluster:
                 break
         stats = {"collision_checks": st.collision_checks, "states_explored": st.states_explored,
                  "cluster": {"removal_tests": cst.removal_tests, "removal_sets": cst.removal_sets,
-                             "attempts": cst.log, "compute_s": time.perf_counter() - t_c}}
+                             "attempts": cst.log, "compute_s": clock.now() - t_c}}
         if out_c is None:
             stats["attempt_log"] = [{"direction": "cluster", "verified": False}]
             return Refusal((), {}, stats)

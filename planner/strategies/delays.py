@@ -18,8 +18,7 @@ verifies the result.
 
 from __future__ import annotations
 
-import time
-
+from models import clock
 from models.types import ArmTrajectory
 from planner.commands import arm_trajectory
 from planner.delays import DelayResult, DelaySearch, DelayStats, trajectory_points
@@ -56,7 +55,7 @@ def _report(search: DelaySearch, stats: dict) -> None:
     search._reported = (dst.pair_samples, dst.nodes)
     rounds = search.result.rounds if search.result is not None else search.rnd + 1
     stats["delay_csp"] = {"pair_tables": dst.tables, "nodes": dst.nodes, "repairs": dst.repairs,
-                          "rounds": rounds, "compute_s": time.perf_counter() - search.t0}
+                          "rounds": rounds, "compute_s": clock.now() - search.t0}
 
 
 def finish(leg: Leg, search: DelaySearch, res: DelayResult) -> Candidate | Refusal:
@@ -84,7 +83,7 @@ class Delays:
         search = DelaySearch(list(leg.geoms), leg.start_q, leg.goal_q, dt_s=o.dt_s, dt_col_s=o.dt_col_s,
                              horizon_s=o.horizon_s, buffer_mm=leg.buffer_mm, max_start_stop=o.max_start_stop,
                              movable=list(leg.enabled), stats=DelayStats(), grid=o.grid, check=collision_check(leg))
-        search.t0 = time.perf_counter()
+        search.t0 = clock.now()
         search.finished = False
         leg.cache.delay_search = search
         leg.cache.delay_deadline = budget.deadline

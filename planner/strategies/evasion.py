@@ -11,8 +11,7 @@ strategy does); the driver verifies the result.
 
 from __future__ import annotations
 
-import time
-
+from models import clock
 from planner.delays import DelayStats
 from planner.evasion import plan_evasion
 from planner.strategies.delays import NO_SCHEDULE, delay_trajectories
@@ -28,7 +27,7 @@ class Evasion:
         o = leg.options
         if o.max_start_stop < 1:
             return Refusal()
-        t0 = time.perf_counter()
+        t0 = clock.now()
         dst = DelayStats()
         search = leg.cache.delay_search  # the "delays" strategy's straight problem, if it ran
         initial = getattr(search, "straight", None) if search is not None else None
@@ -36,7 +35,7 @@ class Evasion:
                            horizon_s=o.horizon_s, buffer_mm=leg.buffer_mm, movable=list(leg.enabled),
                            stats=dst, deadline=budget.deadline, initial=initial)
         stats = {"collision_checks": dst.pair_samples, "states_explored": dst.nodes,
-                 "evasion": {"rounds": res.rounds, "log": res.log, "compute_s": time.perf_counter() - t0}}
+                 "evasion": {"rounds": res.rounds, "log": res.log, "compute_s": clock.now() - t0}}
         if res.assignment is None:
             stats["attempt_log"] = [{"direction": "evasion", "failed": True}]
             return Refusal((), {}, stats)

@@ -33,13 +33,13 @@ the largest open bound (or falls back to CP-SAT, see
 
 from __future__ import annotations
 
-import time
 import weakref
 from dataclasses import dataclass
 
 import numpy as np
 from scipy import sparse
 
+from models import clock
 from solvers.model import coarse_weights, conflict_adjacency, safe_weights
 from solvers.problem import ConfigProblem
 
@@ -226,7 +226,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
         def dfs(dom: list[int], free: list[int], cur: int, bests: dict, pick: list) -> None:
             state["nodes"] += 1
             if state["nodes"] > state["limit"] or (deadline is not None and not state["nodes"] & 1023
-                                                    and time.perf_counter() > deadline):
+                                                    and clock.now() > deadline):
                 raise _Limit
             if not free:
                 if target >= 0:

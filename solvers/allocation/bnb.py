@@ -9,10 +9,10 @@ stage 1 is not proven within the node limit.
 from __future__ import annotations
 
 import dataclasses
-import time
 
 import numpy as np
 
+from models import clock
 from solvers.allocation.backends import Backend, get_backend
 from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
 from solvers.allocation.options import BnbOptions, CpsatOptions, SemiGreedyOptions
@@ -44,13 +44,13 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
     configurations; the node-limited incumbent is then returned as ``feasible`` + gap.
     """
     validate_problem(problem)
-    t0 = time.perf_counter()
+    t0 = clock.now()
     if problem.time_limit_s < fallback_min_s:
         fallback = None
     n_arms = len(problem.assignments.arm_start) - 1
     deadline = t0 + problem.time_limit_s
     f = prepare_field(problem)
-    stats: dict = {"backend": "bnb", "prepare_s": time.perf_counter() - t0}
+    stats: dict = {"backend": "bnb", "prepare_s": clock.now() - t0}
     h = None
     if hint == "semigreedy":
         sg = get_backend("semigreedy").solve(problem, SemiGreedyOptions(n_iter=WARM_START_ITERATIONS))
@@ -60,19 +60,19 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
     r = solve_bnb_chosen(problem, node_limit=node_limit, deadline=t0 + (0.3 if fallback else 1.0)
                          * problem.time_limit_s, **kw)
     stats["nodes"] = r["nodes"]
-    if not r["proved"] and fallback == "cpsat" and deadline - time.perf_counter() > 0.05:
+    if not r["proved"] and fallback == "cpsat" and deadline - clock.now() > 0.05:
         # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
         cols = None
         if r["chosen"] is not None:
             # exact column fixing against the incumbent: the CP-SAT model shrinks to the
             # assignments that can still reach the incumbent's priority/yield
-            tp = time.perf_counter()
+            tp = clock.now()
             inc_c = sum(f.coarse[k][int(f.pos[r["chosen"][k]])] for k in range(n_arms))
             cols = prune_columns(problem, inc_c, f)
             cols[np.asarray(r["chosen"], np.int64)] = True
-            stats.update(prune_s=time.perf_counter() - tp, columns=int(cols.sum()),
+            stats.update(prune_s=clock.now() - tp, columns=int(cols.sum()),
                          columns_allowed=int(problem.allowed().sum()))
-        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - time.perf_counter(), 0.05))
+        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - clock.now(), 0.05))
         sol = get_backend("cpsat").solve(coarse, CpsatOptions(minimize_move=minimize_move, candidates_per_arm=None),
                                          hint=r["chosen"], columns=cols)
         stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
@@ -89,7 +89,7 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
             r = {**r, "chosen": g}
             stats["fallback"] = "greedy"
     stats.update(move_optimal=bool(r["move_proved"]), tie_optimal=bool(r["tie_proved"]),
-                 total_s=time.perf_counter() - t0)
+                 total_s=clock.now() - t0)
     if r["chosen"] is None:
         return ConfigSolution(np.full(n_arms, -1), "infeasible" if r["proved"] else "timeout", 0, 0, 0.0, None, stats)
     total, yld, longest = evaluate(problem, r["chosen"])

@@ -7,10 +7,9 @@ integer microseconds.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from models import clock
 from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
@@ -28,7 +27,7 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
     from ortools.sat.python import cp_model
 
     def solve(m: ModelArrays, stage: int, w1, time_limit_s: float, hint=None):
-        t0 = time.perf_counter()
+        t0 = clock.now()
         model = cp_model.CpModel()
         n_arms = len(m.eq_indptr) - 1
         x = [model.NewBoolVar("") for _ in range(m.n_vars)]
@@ -53,7 +52,7 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
         if start is not None:
             for j in range(m.n_vars):
                 model.AddHint(x[j], bool(start[j]))
-        build_s = time.perf_counter() - t0
+        build_s = clock.now() - t0
         solver = cp_model.CpSolver()
         p = solver.parameters
         p.max_time_in_seconds = float(max(time_limit_s, 0.001))
@@ -62,7 +61,7 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
         p.linearization_level = int(linearization_level)
         p.relative_gap_limit = float(problem.mip_rel_gap)
         code = solver.Solve(model)
-        s = {"solve_s": time.perf_counter() - t0 - build_s, "cp_build_s": build_s,
+        s = {"solve_s": clock.now() - t0 - build_s, "cp_build_s": build_s,
              "solver_status": solver.StatusName(code), "branches": int(solver.NumBranches())}
         if code == cp_model.INFEASIBLE or code == cp_model.MODEL_INVALID:
             return "infeasible", None, None, s

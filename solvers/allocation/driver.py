@@ -13,12 +13,12 @@ the rotation with the fewest configurations, then highest priority completeness,
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from models import clock
 from models.errors import InputError, TimeLimitExceeded
 from models.incompatibility import build_assignments, incompatibility_for_targets
 from models.instrument import Instrument
@@ -156,15 +156,15 @@ def allocate(
     def run(tgts: PlaneTargets) -> AllocationResult:
         # the structure build counts against the call's limit: it gets the same deadline
         # and the sequence only what is left
-        t0 = time.perf_counter()
+        t0 = clock.now()
         try:
             inc = incompatibility_for_targets(
                 instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
                 blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
                 deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s)
         except TimeLimitExceeded:
-            return timed_out_result(instrument, tgts, fixed, time.perf_counter() - t0)
-        left_s = max(time_limit_s - (time.perf_counter() - t0), 1e-3)
+            return timed_out_result(instrument, tgts, fixed, clock.now() - t0)
+        left_s = max(time_limit_s - (clock.now() - t0), 1e-3)
         return sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
                                        buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),
                                        progress=progress, incompatibility=inc, exact_one=exact_one,

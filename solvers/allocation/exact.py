@@ -37,12 +37,12 @@ the previous stage is rejected.
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from models import clock
 from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
 from solvers.allocation.cliques import CliqueOptions, clique_rows, exclusion_matrix
 from solvers.model import (
@@ -118,7 +118,7 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
     1 needs no model), the pruning is left to the caller (``stats["pruned"]`` False, every
     allowed column returned): most configurations of a dense sequence then need no model
     of their stage 1 or 2 at all."""
-    t0 = time.perf_counter()
+    t0 = clock.now()
     f = prepare_field(problem)
     allowed = problem.allowed()
     incumbent = None
@@ -131,13 +131,13 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
         # finds the better incumbent at a tier transition
         r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=True, field=f, tie_node_limit=1000,
                              move_node_limit=INCUMBENT_MOVE_NODES,
-                             deadline=min(deadline, time.perf_counter() + 0.2 * problem.time_limit_s))
+                             deadline=min(deadline, clock.now() + 0.2 * problem.time_limit_s))
         if r["chosen"] is not None:
             incumbent = np.asarray(r["chosen"], np.int64)
             # when the dive's exact longest-move search completed, its longest move is the
             # minimum among the solutions of its coarse weight (solvers.allocation.bitset)
             move_proved = bool(r["move_proved"])
-    stats = {"incumbent_s": time.perf_counter() - t0, "incumbent_move_proved": move_proved}
+    stats = {"incumbent_s": clock.now() - t0, "incumbent_move_proved": move_proved}
     if incumbent is None:
         return allowed, None, stats
     inc_c = _coarse_total(problem, incumbent)
@@ -145,10 +145,10 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
     if defer and inc_c >= _kept_arm_bound(problem, allowed):
         stats.update(pruned=False, columns=int(allowed.sum()))
         return allowed, incumbent, stats
-    tp = time.perf_counter()
+    tp = clock.now()
     cols = prune_columns(problem, inc_c, f) & allowed
     cols[incumbent] = True
-    stats.update(prune_s=time.perf_counter() - tp, columns=int(cols.sum()))
+    stats.update(prune_s=clock.now() - tp, columns=int(cols.sum()))
     return cols, incumbent, stats
 
 
@@ -208,14 +208,14 @@ def build_exact_model(problem: ConfigProblem, columns: np.ndarray, options: Exac
     optional clique rows — not when ``incumbent_coarse`` already meets the per-arm bound
     (the LP bound cannot be tighter than that, and the engine proves it at the root).
     Returns (model, stats)."""
-    t0 = time.perf_counter()
+    t0 = clock.now()
     m = build_model_arrays(problem, options.form, np.asarray(columns, bool), wildcards=False)
     m = dataclasses.replace(m, weight=coarse_weights(problem, m.var))
     n_cliques = 0
     if options.cliques and (incumbent_coarse is None or incumbent_coarse < _arm_bound(m)):
         m, n_cliques = add_clique_rows(problem, m, options.clique_options)
     return m, {"n_vars": m.n_vars, "n_rows": m.n_rows, "nnz": m.nnz, "clique_rows": n_cliques,
-               "model_build_s": time.perf_counter() - t0}
+               "model_build_s": clock.now() - t0}
 
 
 def relaxation_bound(problem: ConfigProblem, m: ModelArrays) -> float:
@@ -312,9 +312,9 @@ class _StageModels:
     def full(self) -> ModelArrays:
         if self._full is None:
             if not self.stats.get("pruned", True):  # deferred by presolve_columns: prune now
-                tp = time.perf_counter()
+                tp = clock.now()
                 self.cols = self.cols & prune_columns(self.problem, self.incumbent_coarse, prepare_field(self.problem))
-                self.stats.update(pruned=True, prune_s=time.perf_counter() - tp, columns=int(self.cols.sum()))
+                self.stats.update(pruned=True, prune_s=clock.now() - tp, columns=int(self.cols.sum()))
             self._full, s = build_exact_model(self.problem, self.cols, self.options, self.incumbent_coarse)
             self.stats.update(s)
         return self._full
@@ -364,7 +364,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     ``columns``: a column mask the caller has PROVEN to hold every solution at least as good
     as ``hint`` (used as given, no further pruning).  ``large``: see ``ExactOptions.max_columns``."""
     validate_problem(problem)
-    t0 = time.perf_counter()
+    t0 = clock.now()
     deadline = t0 + problem.time_limit_s
     n_arms = len(problem.assignments.arm_start) - 1
     stats: dict = {"backend": backend, "form": options.form, "presolve": options.presolve,
@@ -383,7 +383,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     stats["hint"] = incumbent is not None
 
     def finish(chosen, status, gap):
-        stats["total_s"] = time.perf_counter() - t0
+        stats["total_s"] = clock.now() - t0
         stats.setdefault("move_optimal", False)
         stats.setdefault("tie_optimal", False)
         if chosen is None:
@@ -392,7 +392,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
 
     if large is not None and columns is None and stats.get("pruned", True) and int(cols.sum()) > options.max_columns:
-        rest = deadline - time.perf_counter()
+        rest = deadline - clock.now()
         if rest > 0.005:
             sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
             sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
@@ -408,7 +408,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
                          stats)
 
     def run(model: ModelArrays, stage: int, w1, start, name: str):
-        remaining = (deadline - time.perf_counter()) * LATER_TIER_SHARE.get(name, 1.0)
+        remaining = (deadline - clock.now()) * LATER_TIER_SHARE.get(name, 1.0)
         if remaining <= 0.005:
             return "timeout", None, None
         status, x, gap, r = stage_solver(model, stage, w1, remaining, start)

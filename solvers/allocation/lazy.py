@@ -10,10 +10,9 @@ expands the candidates of its arms and is re-solved.  The engine is a *stage sol
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
+from models import clock
 from solvers.model import (
     build_model_arrays,
     chosen_columns,
@@ -48,7 +47,7 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     restricted to them without wildcards (no lazy expansion) and remains exact.
     """
     validate_problem(problem)
-    t_start = time.perf_counter()
+    t_start = clock.now()
     a = problem.assignments
     n_arms = len(a.arm_start) - 1
     stats: dict = {"backend": backend, "form": form, "rounds": []}
@@ -68,7 +67,7 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     stats["hint"] = hint is not None
 
     def finish(chosen, status, gap):
-        stats["total_s"] = time.perf_counter() - t_start
+        stats["total_s"] = clock.now() - t_start
         if chosen is None:
             return ConfigSolution(np.full(n_arms, -1), status, 0, 0, 0.0, None, stats)
         total, yld, longest = evaluate(problem, chosen)
@@ -80,15 +79,15 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     status1, gap1 = "timeout", None
     relax_bound = None  # optimum of the last wildcard relaxation: a valid upper bound
     while True:
-        tb = time.perf_counter()
+        tb = clock.now()
         rounds1 += stage == 1
-        if stage == 1 and cand is not None and (rounds1 > max_rounds or time.perf_counter() - t_start
+        if stage == 1 and cand is not None and (rounds1 > max_rounds or clock.now() - t_start
                                                   > 0.4 * problem.time_limit_s):
             # the relaxation keeps asking for more candidates (dense, collision-bound fields):
             # solve the restricted model without wildcards — feasible for the full problem,
             # not proven optimal; the last relaxation optimum bounds the gap honestly
             m = build_model_arrays(problem, form, cand, wildcards=False)
-            remaining = deadline - time.perf_counter()
+            remaining = deadline - clock.now()
             if remaining < 0.05:
                 break
             status, x, gap, s = solve_arrays(m, 1, None, remaining, hint)
@@ -103,10 +102,10 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
             break
         m = build_model_arrays(problem, form, cand) if columns is None or cand is not None else \
             build_model_arrays(problem, form, np.asarray(columns, bool), wildcards=False)
-        build_s = time.perf_counter() - tb
+        build_s = clock.now() - tb
         if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
             return finish(None, "infeasible", None)
-        remaining = deadline - time.perf_counter()
+        remaining = deadline - clock.now()
         if remaining <= 0.005:
             break
         status, x, gap, s = solve_arrays(m, stage, w1, remaining, best[0] if best is not None else hint)

@@ -20,12 +20,12 @@ The time each gets is computed by :class:`solvers.sequencing.budget.SequenceBudg
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
+from models import clock
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import INNER_DISCS_MM, configuration_lp_bound, crowding_lower_bound
 from solvers.sequencing.budget import BUDGET, Clock
@@ -62,7 +62,7 @@ class RescuePass:
                 and (mc is None or len(s.steps) < mc))
 
     def run(self, s: SequenceState, ctx: PassContext) -> None:
-        tr = time.perf_counter()
+        tr = clock.now()
         mc = ctx.options.sequence.max_configurations
         q_last = s.steps[-1].problem.assignments.q[s.steps[-1].chosen] if s.steps else s.q
         s.extra = rescue_conflicts(s.instrument, s.targets, s.priority, np.flatnonzero(s.pending),
@@ -70,7 +70,7 @@ class RescuePass:
                                    s.speeds, len(s.steps), ctx.clock.deadline_s,
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
                                    None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one)
-        s.timers["rescue_s"] = time.perf_counter() - tr
+        s.timers["rescue_s"] = clock.now() - tr
         for c in s.extra:
             s.pending[observed(c)] = False
         s.stop_reason = "complete" if not s.pending.any() else "conflict"
@@ -83,7 +83,7 @@ class RepairPass:
         return ctx.options.repair.enabled and s.finished_normally() and s.n_configurations > s.lower_bound
 
     def run(self, s: SequenceState, ctx: PassContext) -> None:
-        tr = time.perf_counter()
+        tr = clock.now()
         n0 = s.n_configurations
         rescued_t = [observed(c) for c in s.extra]
         new, absorbed_g = absorb_configurations(s.inc, [st.chosen for st in s.steps], s.priority,
@@ -91,7 +91,7 @@ class RepairPass:
                                                 loose=rescued_t, min_keep=s.lower_bound)
         s.steps = rebuild(s.instrument, s.inc, s.priority, s.steps, new, s.speeds, s.xy, s.tie, s.q_start)
         s.extra = [c for c, g in zip(s.extra, absorbed_g, strict=True) if not g]
-        s.timers["repair_s"] = time.perf_counter() - tr
+        s.timers["repair_s"] = clock.now() - tr
         s.timers["repair_saved"] = n0 - s.n_configurations
 
 
@@ -102,7 +102,7 @@ class BulkPackingPass:
         return ctx.options.packing.enabled and s.finished_normally() and s.n_configurations > s.lower_bound
 
     def run(self, s: SequenceState, ctx: PassContext) -> None:
-        tr = time.perf_counter()
+        tr = clock.now()
         pk = ctx.options.packing
         budget = BUDGET.repack_s(ctx.clock, pk.attempt_time_limit_s, pk.max_window)
         n0 = len(s.steps)
@@ -110,9 +110,9 @@ class BulkPackingPass:
             s.steps = repack_bulk(s.instrument, s.inc, s.priority, s.steps, s.lower_bound, s.speeds, s.xy, s.tie,
                                   min(BUDGET.bulk_fraction * budget, BUDGET.bulk_attempts * pk.attempt_time_limit_s),
                                   s.seed, s.threads)
-        s.timers["repack_bulk_s"] = time.perf_counter() - tr
+        s.timers["repack_bulk_s"] = clock.now() - tr
         s.timers["repack_bulk_saved"] = n0 - len(s.steps)
-        s.repack_budget_s = min(ctx.clock.left_s(), budget - (time.perf_counter() - tr))
+        s.repack_budget_s = min(ctx.clock.left_s(), budget - (clock.now() - tr))
         s.rescued = [observed(c) for c in s.extra]
         s.repack_t0, s.repack_n1 = tr, s.n_configurations
 
@@ -127,18 +127,18 @@ class BoundsPass:
     def run(self, s: SequenceState, ctx: PassContext) -> None:
         budget = s.repack_budget_s
         n1 = s.repack_n1
-        tc = time.perf_counter()
+        tc = clock.now()
         s.crowd_bound, _ = crowding_lower_bound(s.inc, s.xy, ~s.unreachable,
                                                 time_limit_s=min(BUDGET.crowding_max_s,
                                                                  budget * BUDGET.crowding_fraction),
                                                 radii_mm=INNER_DISCS_MM)
-        s.timers["crowding_bound_s"] = time.perf_counter() - tc
+        s.timers["crowding_bound_s"] = clock.now() - tc
         floor = max(s.lower_bound, s.flow_bound, s.crowd_bound)
         obs = [observed_chosen(s.inc, st.chosen) for st in s.steps]
         if n1 > floor:
             floor = self._pack_at_floor(s, obs, floor, n1, budget, tc)
         lp_s = min(ctx.options.packing.lp_bound_time_limit_s, BUDGET.lp_fraction * budget,
-                   budget - BUDGET.lp_margin_s - (time.perf_counter() - tc))
+                   budget - BUDGET.lp_margin_s - (clock.now() - tc))
         if s.n_configurations > floor and lp_s > BUDGET.lp_min_s:
             # the LP bound finds crowded clusters anywhere (not only about the centre); it
             # stops once it proves the current count, and then nothing is left to repack
@@ -147,7 +147,7 @@ class BoundsPass:
                 mask[o] = True
             s.lp_bound, _ = configuration_lp_bound(s.inc, mask, time_limit_s=lp_s, columns=obs + s.rescued,
                                                    stop_at=n1, seed=s.seed, threads=s.threads)
-        s.timers["lower_bounds_s"] = time.perf_counter() - tc
+        s.timers["lower_bounds_s"] = clock.now() - tc
         s.repack_budget_s -= s.timers["lower_bounds_s"]
 
     @staticmethod
@@ -157,7 +157,7 @@ class BoundsPass:
         search over the whole field first (the one-at-a-time prefix is given up for it; the
         packed configurations are ordered by total priority).  Returns the floor, one higher
         when CP-SAT proves the floor infeasible."""
-        ts = time.perf_counter()
+        ts = clock.now()
         pool = np.concatenate(obs + s.rescued)
         hint = [st.chosen for st in s.steps]
         tabu_s = min(BUDGET.tabu_fraction * budget, BUDGET.tabu_max_s)
@@ -170,7 +170,7 @@ class BoundsPass:
             # packing at the floor plus its leftovers in one more configuration usually gets
             # one above (weak 192 at 0.6 of the budget and nothing else: fields 4 and 8 kept
             # 18, the repacking to 17 had too little time left after it)
-            left = budget - (time.perf_counter() - tc)
+            left = budget - (clock.now() - tc)
             st: dict = {}
             partial: list = []
             limit = max(left - BUDGET.cover_margin_s if n1 == floor + 1 else BUDGET.cover_fraction * left, tabu_s)
@@ -180,7 +180,7 @@ class BoundsPass:
             if packed is None and partial and n1 > floor + 1:
                 packed = complete_partial(s.inc, pool, partial, n1 - 1, time_limit_s=min(
                     BUDGET.complete_partial_max_s,
-                    budget - (time.perf_counter() - tc) - BUDGET.complete_partial_margin_s),
+                    budget - (clock.now() - tc) - BUDGET.complete_partial_margin_s),
                     seed=s.seed, threads=s.threads)
             if st["infeasible"] and (not s.rescued or len(pool) >= s.n_active * floor):
                 s.floor_proof = floor = floor + 1
@@ -188,9 +188,9 @@ class BoundsPass:
             packed = tabu_pack(s.inc, pool, floor, seed=s.seed, time_limit_s=tabu_s, hint=hint)
         if packed is not None:
             s.steps = replace_tail(s.instrument, s.inc, s.priority, s.steps, len(s.steps), packed, s.speeds, s.xy,
-                                   s.tie, time.perf_counter() - ts, s.q_start)
+                                   s.tie, clock.now() - ts, s.q_start)
             s.extra, s.rescued = [], []
-        s.timers["packing_at_bound_s"] = time.perf_counter() - ts
+        s.timers["packing_at_bound_s"] = clock.now() - ts
         return floor
 
 
@@ -208,7 +208,7 @@ class PrefixPackingPass:
             rescued=s.rescued)
         if absorbed:
             s.extra = []
-        s.timers["repack_s"] = time.perf_counter() - s.repack_t0
+        s.timers["repack_s"] = clock.now() - s.repack_t0
         s.timers["repack_saved"] = s.repack_n1 - s.n_configurations
 
 

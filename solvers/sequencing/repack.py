@@ -12,10 +12,10 @@ fewer at a time (:func:`repack_prefix`).  Their constants are those of
 from __future__ import annotations
 
 import math
-import time
 
 import numpy as np
 
+from models import clock
 from solvers.sequencing.bounds import matching_lower_bound
 from solvers.sequencing.budget import BUDGET
 from solvers.sequencing.packing import pack_targets
@@ -33,7 +33,7 @@ def repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie
     packed by :func:`pack_targets` into as few configurations as the b-matching bound
     (:func:`matching_lower_bound`) allows, then one more at a time while it fails.
     """
-    t0 = time.perf_counter()
+    t0 = clock.now()
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
     yields = [int((a.target[ch] >= 0).sum()) for _, ch, _, _ in configs]
@@ -52,15 +52,15 @@ def repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie
                lower_bound - (len(configs) - window))
     c = need
     while c < window:
-        left = budget_s - (time.perf_counter() - t0)
+        left = budget_s - (clock.now() - t0)
         if left <= BUDGET.min_attempt_s:
             break
-        ts = time.perf_counter()
+        ts = clock.now()
         packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), BUDGET.min_attempt_s)),
                               seed=seed + BUDGET.bulk_seed_offset + c, threads=threads, hint=[ch for _, ch, _, _ in tail])
         if packed is not None:
             return replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
-                                 time.perf_counter() - ts)
+                                 clock.now() - ts)
         c += 1
     return configs
 
@@ -73,7 +73,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     prefix of the original configurations that still allows that count is searched by
     bisection (feasibility is monotone in the prefix length).  Returns None when nothing was
     tried, else (configurations, proven lower bound, packed?)."""
-    t0 = time.perf_counter()
+    t0 = clock.now()
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
     n_active = len(active_arms(inc, n_arms))
@@ -106,16 +106,16 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     # configurations found, not necessarily the fewest that exist)
     lo, hi = max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n - 1
     while lo <= hi:
-        left = budget_s - (time.perf_counter() - t0)
+        left = budget_s - (clock.now() - t0)
         if left <= BUDGET.min_attempt_s:
             break
         count = (lo + hi) // 2
-        ts = time.perf_counter()
+        ts = clock.now()
         # the attempts the bisection still needs share what is left (at least attempt_s each)
         share = left / max(1, math.ceil(math.log2(hi - lo + 2)))
         packed, pool, infeasible = attempt(h0, count, min(left, max(attempt_s, share)))
         if packed is not None:
-            best = (h0, count, packed, pool, time.perf_counter() - ts)
+            best = (h0, count, packed, pool, clock.now() - ts)
             hi = count - 1
         else:
             lo = count + 1
@@ -130,14 +130,14 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     fits = np.flatnonzero(suffix[:n_main] <= n_arms * (count - np.arange(n_main)))
     h_hi = int(fits.max()) if len(fits) else h_lo
     while h_lo < h_hi:  # keep as many maximum-priority configurations as the count allows
-        left = budget_s - (time.perf_counter() - t0)
+        left = budget_s - (clock.now() - t0)
         if left <= BUDGET.min_attempt_s:
             break
         mid = (h_lo + h_hi + 1) // 2
-        ts = time.perf_counter()
+        ts = clock.now()
         packed, pool, _ = attempt(mid, count, min(left, refine_s))
         if packed is not None:
-            best, h_lo = (mid, count, packed, pool, time.perf_counter() - ts), mid
+            best, h_lo = (mid, count, packed, pool, clock.now() - ts), mid
         else:
             h_hi = mid - 1
     h, count, packed, pool, dt = best
@@ -165,7 +165,7 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
     h = 0, cannot be packed into n - 1, CP-SAT proves n optimal) and whether the rescued
     targets were absorbed into ``configs`` (then the rescue configurations are void).
     """
-    t0 = time.perf_counter()
+    t0 = clock.now()
     a = inc.assignments
     n_arms = len(a.arm_start) - 1
     n_active = len(active_arms(inc, n_arms))
@@ -176,7 +176,7 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
     # bottom-up first: the fewest configurations the suffix that fits the model can reach
     for use_extra in ((True, False) if extra else (False,)):
         # at most half the budget: when the big model times out, small windows still help
-        left = BUDGET.fewest_fraction * budget_s - (time.perf_counter() - t0)
+        left = BUDGET.fewest_fraction * budget_s - (clock.now() - t0)
         res = pack_fewest(instrument, inc, priority, configs, extra if use_extra else [],
                            max(lower_bound, proven) - (0 if use_extra else len(extra)), speeds, xy, tie,
                            BUDGET.fewest_attempt_factor * attempt_s, attempt_s, left, seed, threads, bottom_pool, q0)
@@ -204,19 +204,19 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
             break
         found = False
         for h in range(int(fits.max()), -1, -1):
-            left = budget_s - (time.perf_counter() - t0)
+            left = budget_s - (clock.now() - t0)
             if left <= BUDGET.min_attempt_s or suffix[h] > max_pool:
                 return configs, proven, not (extra or kept)
             pool = np.concatenate(per[h:])
             st: dict = {}
-            ts = time.perf_counter()
+            ts = clock.now()
             n_attempts += 1  # a seed per attempt, as in pack_fewest
             packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s),
                                   seed=seed + BUDGET.prefix_seed_offset + BUDGET.attempt_seed_stride * n_attempts, threads=threads,
                                   hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
             if packed is not None:
                 configs = replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie,
-                                        time.perf_counter() - ts, q0)
+                                        clock.now() - ts, q0)
                 extra, found = [], True
                 break
             if h == 0 and st["infeasible"] and (not extra or len(pool) >= n_active * (n - 1)):

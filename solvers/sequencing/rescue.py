@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
-import time
 from collections.abc import Callable
 
 import numpy as np
 
+from models import clock
 from models.incompatibility import incompatibility_for_targets
 from models.types import Configuration
 from solvers.problem import ConfigProblem, ConfigSolution
@@ -64,16 +64,16 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     sub_targets = targets.subset(sub)
     out: list[Configuration] = []
     while pend[:nl].any() and (max_configs is None or len(out) < max_configs):
-        remaining = deadline - time.perf_counter()
+        remaining = deadline - clock.now()
         if remaining <= BUDGET.min_solve_s:
             break
         avail = pend.copy()
         avail[nl:] = True
         prob = ConfigProblem(inc, pr, avail, q, speeds, time_limit_s=min(config_time_limit_s, remaining),
                              threads=threads, seed=seed + first_index + len(out), target_xy_mm=xy)
-        ts = time.perf_counter()
+        ts = clock.now()
         sol = solve_one(prob)
-        dt = time.perf_counter() - ts
+        dt = clock.now() - ts
         if sol.status in ("timeout", "infeasible") or (sol.chosen < 0).any():
             break
         verify(instrument, prob, sol.chosen)
@@ -101,13 +101,13 @@ def _one_target_at_a_time(instrument, prob: ConfigProblem, pend: np.ndarray, nl:
     """The first leftover target (of the ``nl`` leading ones still ``pend``-ing) that an exact
     solve can place alone: (problem, solution, leftover targets observed), or None."""
     for i in np.flatnonzero(pend[:nl]):
-        if deadline - time.perf_counter() <= BUDGET.min_solve_s:
+        if deadline - clock.now() <= BUDGET.min_solve_s:
             break
         av1 = np.zeros(len(pend), bool)
         av1[i] = True
         av1[nl:] = True
         p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
-                                                                      deadline - time.perf_counter()))
+                                                                      deadline - clock.now()))
         s1 = exact_one(p1)  # exact, small
         if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
                 i in p1.assignments.target[s1.chosen]:

@@ -1,0 +1,99 @@
+"""The clock every time budget of the allocator and the motion planner reads.
+
+By default :func:`now` is the wall clock (``time.perf_counter``), and a budget ends when its
+seconds have passed, so what a time-limited search finds depends on how busy the machine was.
+
+Inside :func:`effort`, :func:`now` is an *effort clock* instead: it advances only by the
+work the code reports through :func:`charge`, in reference seconds (what that work costs on
+the reference machine, two cores of the development host; the costs are the constants
+below, measured once), plus :data:`TICK_S` for every reading. The same call with the same
+inputs then stops every search at the same point on any machine and under any load, so a
+plan depends only on its request and seed: the same plan whatever the number of workers.
+
+A wall-clock guard keeps the effort clock honest: past ``wall_limit_s`` real seconds, every
+reading jumps :data:`PAST_WALL_S` ahead, so that every deadline set before it has passed and
+the work stops at its next check. Then, and only then, the answer depends on the machine's
+speed again; ``overran()`` says whether it happened.
+
+Engines that keep their own clock (CP-SAT, HiGHS) read :func:`effort_limits` to run on their
+deterministic limits instead of seconds, and :func:`charge` what they report having done.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import dataclass
+
+__all__ = [
+    "EffortClock", "PAST_WALL_S", "TICK_S", "charge", "effort", "effort_clock", "in_effort",
+    "now",
+]
+
+#: Every reading of the effort clock costs this much (it bounds every loop that only reads
+#: the clock, and stands for the bookkeeping between two readings).
+TICK_S = 20e-6
+#: How far every reading jumps once the wall-clock guard has passed.
+PAST_WALL_S = 1e9
+
+
+@dataclass
+class EffortClock:
+    """Reference seconds charged so far (``t_s``); the wall-clock guard ``wall_end`` (a
+    ``time.perf_counter`` instant, or None); ``overran`` once the guard has fired."""
+
+    t_s: float = 0.0
+    wall_end: float | None = None
+    overran: bool = False
+
+    def read(self) -> float:
+        self.t_s += TICK_S
+        if self.wall_end is not None and time.perf_counter() > self.wall_end:
+            self.overran = True
+            self.t_s += PAST_WALL_S
+        return self.t_s
+
+
+_CLOCK: ContextVar[EffortClock | None] = ContextVar("mxs_effort_clock", default=None)
+
+
+def now() -> float:
+    """Seconds on the current clock: the wall clock, or inside :func:`effort` the reference
+    seconds of work charged so far. Only differences and comparisons of two readings of the
+    same clock mean anything."""
+    c = _CLOCK.get()
+    return time.perf_counter() if c is None else c.read()
+
+
+def charge(t_s: float) -> None:
+    """Report work just done that costs ``t_s`` reference seconds (no-op on the wall clock)."""
+    c = _CLOCK.get()
+    if c is not None:
+        c.t_s += t_s
+
+
+def in_effort() -> bool:
+    """True inside :func:`effort`."""
+    return _CLOCK.get() is not None
+
+
+def effort_clock() -> EffortClock | None:
+    """The current effort clock (None on the wall clock)."""
+    return _CLOCK.get()
+
+
+@contextmanager
+def effort(wall_limit_s: float | None = None) -> Iterator[EffortClock]:
+    """Run the block on a fresh effort clock, starting at 0; past ``wall_limit_s`` real
+    seconds (None: no guard) every deadline of the block has passed."""
+    end = None if wall_limit_s is None or math.isinf(wall_limit_s) else (
+        time.perf_counter() + max(float(wall_limit_s), 0.0))
+    clock = EffortClock(0.0, end)
+    token = _CLOCK.set(clock)
+    try:
+        yield clock
+    finally:
+        _CLOCK.reset(token)
