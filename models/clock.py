@@ -39,6 +39,14 @@ TICK_S = 20e-6
 #: How far every reading jumps once the wall-clock guard has passed.
 PAST_WALL_S = 1e9
 
+# ------------------------------------------------------------------ costs of the planner
+# (reference seconds per unit of work, charged by planner/)
+
+# ---------------------------------------------------------------- costs of the allocator
+# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py)
+
+# ------------------------------------------------------------------------------------------
+
 
 @dataclass
 class EffortClock:
