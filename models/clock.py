@@ -29,8 +29,8 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 
 __all__ = [
-    "EffortClock", "PAST_WALL_S", "TICK_S", "charge", "effort", "effort_clock", "in_effort",
-    "now",
+    "EffortClock", "PAST_WALL_S", "PLANNER_WORK_S", "TICK_S", "charge", "effort", "effort_clock", "in_effort",
+    "now", "work",
 ]
 
 #: Every reading of the effort clock costs this much (it bounds every loop that only reads
@@ -41,6 +41,22 @@ PAST_WALL_S = 1e9
 
 # ------------------------------------------------------------------ costs of the planner
 # (reference seconds per unit of work, charged by planner/)
+
+#: Reference seconds of each kind of planner work, as (per call, per unit), reported through
+#: :func:`work`; fitted by ``python benchmarks/effort.py`` (least squares of the CPU seconds
+#: of real legs on the counts of each kind).
+PLANNER_WORK_S: dict[str, tuple[float, float]] = {
+    "departure": (0.0, 1.1e-06),  # planner.timeline: one earliest departure; unit: move samples
+    "free_after": (0.0, 0.0),  # planner.timeline: a rest check; unit: poses
+    "move_samples": (0.0, 0.0),  # planner.timeline: a straight move sampled; unit: samples
+    "clearance_rows": (0.0, 3.9e-08),  # planner.clearance: unit: rows of body pairs
+    "clearance_to_arms": (9.7e-05, 0.0),  # planner.clearance: unit: arm x sample clearances
+    "walk": (0.0, 1.1e-06),  # planner.clearance: delay-table walks; unit: exact clearances
+    "segments": (7.6e-05, 5.8e-07),  # planner.geometry: forward kinematics; unit: poses
+    "zoa_edges": (0.0, 1.9e-06),  # planner.geometry: ZoA test of straight edges; unit: edges
+    "csp_nodes": (3.2e-05, 0.0),  # planner.delays: unit: search nodes
+    "verify": (0.0, 6.8e-06),  # planner.verify: unit: pair samples computed
+}
 
 # ---------------------------------------------------------------- costs of the allocator
 # (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py)
@@ -56,8 +72,11 @@ class EffortClock:
     t_s: float = 0.0
     wall_end: float | None = None
     overran: bool = False
+    tally: dict[str, tuple[int, float]] | None = None  # calls and units per kind of work
+    reads: int = 0
 
     def read(self) -> float:
+        self.reads += 1
         self.t_s += TICK_S
         if self.wall_end is not None and time.perf_counter() > self.wall_end:
             self.overran = True
@@ -83,6 +102,17 @@ def charge(t_s: float) -> None:
         c.t_s += t_s
 
 
+def work(kind: str, units: float = 0.0) -> None:
+    """Report planner work of ``kind`` (a key of :data:`PLANNER_WORK_S`) and size ``units``."""
+    c = _CLOCK.get()
+    if c is not None:
+        per_call_s, per_unit_s = PLANNER_WORK_S[kind]
+        c.t_s += per_call_s + per_unit_s * units
+        if c.tally is not None:
+            n, u = c.tally.get(kind, (0, 0.0))
+            c.tally[kind] = (n + 1, u + units)
+
+
 def in_effort() -> bool:
     """True inside :func:`effort`."""
     return _CLOCK.get() is not None
@@ -94,12 +124,13 @@ def effort_clock() -> EffortClock | None:
 
 
 @contextmanager
-def effort(wall_limit_s: float | None = None) -> Iterator[EffortClock]:
+def effort(wall_limit_s: float | None = None, *, tally: bool = False) -> Iterator[EffortClock]:
     """Run the block on a fresh effort clock, starting at 0; past ``wall_limit_s`` real
-    seconds (None: no guard) every deadline of the block has passed."""
+    seconds (None: no guard) every deadline of the block has passed. ``tally``: count the
+    calls and units of every kind of :func:`work` (for calibration)."""
     end = None if wall_limit_s is None or math.isinf(wall_limit_s) else (
         time.perf_counter() + max(float(wall_limit_s), 0.0))
-    clock = EffortClock(0.0, end)
+    clock = EffortClock(0.0, end, tally={} if tally else None)
     token = _CLOCK.set(clock)
     try:
         yield clock

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from models import clock
+
 _EPS = 1e-12  # as models.collision
 
 
@@ -110,6 +112,7 @@ def clearance_rows(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray,
     n = int(np.prod(lead, dtype=np.int64))
     if n == 0:
         return np.empty(lead)
+    clock.work("clearance_rows", n)
 
     def rows(x: np.ndarray) -> np.ndarray:  # C-contiguous and writable: one compiled signature
         return np.require(np.broadcast_to(x, lead + x.shape[-2:]).reshape(n, *x.shape[-2:]), float, ("C", "W"))
@@ -203,6 +206,7 @@ def rest_clear(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndarray
     ok = np.ones(sa.shape[0], np.bool_)
     _, n_exact = _walk(_f(sa), _f(ea), _f(ra), _f(box_a), 0, 1, _f(sb), _f(eb), _f(rb), _f(box_b), int(j), 0,
                        sa.shape[0], float(lip_mm), float(thr_mm), False, ok)
+    clock.work("walk", n_exact)
     return ok, n_exact
 
 
@@ -214,8 +218,11 @@ def diagonals_bad(sa: np.ndarray, ea: np.ndarray, ra: np.ndarray, box_a: np.ndar
     min(Na, Nb + m k)) comes closer than ``thr_mm``; ``lip_mm`` bounds the change of the
     clearance per sample of both. Each diagonal stops at its first close sample. Returns
     (bad, exact clearances)."""
-    return _diagonals_bad(_f(sa), _f(ea), _f(ra), _f(box_a), sa.shape[0] - 1, _f(sb), _f(eb), _f(rb), _f(box_b),
-                          sb.shape[0] - 1, int(m), int(k_lo), int(k_hi), float(lip_mm), float(thr_mm))
+    bad, n_exact = _diagonals_bad(_f(sa), _f(ea), _f(ra), _f(box_a), sa.shape[0] - 1, _f(sb), _f(eb), _f(rb),
+                                  _f(box_b), sb.shape[0] - 1, int(m), int(k_lo), int(k_hi), float(lip_mm),
+                                  float(thr_mm))
+    clock.work("walk", n_exact)
+    return bad, n_exact
 
 
 @numba.njit(cache=True)
@@ -237,6 +244,7 @@ def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
     poses; radii ``R`` (A, nb'))."""
     if cs.shape[0] != 1 and S.shape[1] != 1 and cs.shape[0] != S.shape[1]:
         raise ValueError(f"sample counts differ: {cs.shape[0]} and {S.shape[1]}")
+    clock.work("clearance_to_arms", S.shape[0] * max(cs.shape[0], S.shape[1]))
     return _to_arms(_f(cs), _f(ce), _f(r), _f(S), _f(E), _f(R))
 
 

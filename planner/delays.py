@@ -192,6 +192,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
             order = np.lexsort((vals[:, 0], finish[k][vals[:, 0], vals[:, 1]]))
             for p, t in vals[order]:
                 nodes += 1
+                clock.work("csp_nodes", 1)
                 if nodes > node_budget or (deadline is not None and clock.now() > deadline):
                     nodes = node_budget + 1
                     return False

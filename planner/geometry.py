@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from models import clock
 from models.instrument import Instrument
 from models.kinematics import THETA1_TOL_RAD
 from planner.clearance import clearance_rows
@@ -96,6 +97,7 @@ class ArmGeom:
         same formulas as :meth:`joints`): the planner's searches ask for a few poses at a
         time, where numpy's per-call overhead dominates."""
         t1, t2 = np.ascontiguousarray(theta1, float), np.ascontiguousarray(theta2, float)
+        clock.work("segments", t1.size)
         if t1.ndim == 1 and t1.shape == t2.shape:
             return _segments_1d(t1, t2, self.base, self.ex, self.ey, self.d12, self.d13, self.d24, self.d3tip,
                                 self.body_from, self.body_to)
@@ -167,6 +169,7 @@ def edges_in_zoa(geom: ArmGeom, q_from: np.ndarray, q_to: np.ndarray, tol_mm: fl
     q1 = np.atleast_2d(np.asarray(q_to, float))
     q0, q1 = np.broadcast_arrays(q0, q1)
     n = len(q0)
+    clock.work("zoa_edges", n)
     dq = q1 - q0
     lip = geom.d13 * np.abs(dq[:, 0]) + geom.d24 * np.abs(dq[:, 1])
     hit = ~geom.theta1_ok(q0[:, 0]) | ~geom.theta1_ok(q1[:, 0])

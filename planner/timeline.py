@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from models import clock
 from planner.clearance import bodies_clearance
 from planner.clearance import box_gap as _box_gap
 from planner.geometry import ArmGeom, body_speed_bound_mm_s, edges_in_zoa
@@ -473,6 +474,7 @@ class Timeline:
             return None
         T = float(g.move_time_s(a, b))
         n = int(math.ceil(T / self.dt_s - 1e-9))
+        clock.work("move_samples", n + 1)
         f = np.minimum(np.arange(n + 1) * self.dt_s / T, 1.0) if T > 0 else np.ones(1)
         q = a + (b - a) * f[:, None]
         s, e = g.segments(q[:, 0], q[:, 1])
@@ -489,6 +491,7 @@ class Timeline:
         the way of the move (it must pass before they get there). ``min_step``: the earliest
         departure allowed."""
         n = ms.n_steps
+        clock.work("departure", n)
         w = self._world(k)
         r = self.R[k]
         first = _final_conflicts(ms.s, ms.e, r, ms.box, ms.speed, *w)
@@ -512,6 +515,7 @@ class Timeline:
         BLOCK steps, the block's last included) at which arm k resting there would come too
         close to a visible arm (-1: never; the last step: for ever)."""
         g = self.geoms[k]
+        clock.work("free_after", len(q))
         s, e = g.segments(q[:, 0], q[:, 1])
         s, e = np.ascontiguousarray(s), np.ascontiguousarray(e)
         w = self._world(k)

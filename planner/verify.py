@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models import clock
 from models.collision import body_segments_mm, clearance_mm
 from models.instrument import Instrument
 from models.kinematics import THETA1_TOL_RAD, Links, d34_mm
@@ -216,6 +217,7 @@ def verify_trajectories(
                                  f"clearance {c[i]:.3f} mm < buffer {buffer_mm} mm"))
     min_clear = min(min_clear, coarse_min)
     out = _dedupe(vio)
+    clock.work("verify", int(checked))
     return VerificationReport(not out, tuple(out), float(min_clear), N, int(checked))
 
 

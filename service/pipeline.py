@@ -15,12 +15,13 @@ import math
 import re
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
+from models import clock
 from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
@@ -50,6 +51,10 @@ log = logging.getLogger("service")
 # MIN_POINTING_S is not attempted (its targets are `no_time`). RESERVE_SHARE of the whole
 # deadline (at most RESERVE_MAX_S) is kept for building the answer.
 ALLOCATION_SHARE = 0.5
+#: A pointing's searches get this share of its wall-clock share in effort seconds
+#: (:func:`plan_pointing`); the rest is the margin by which a machine may be slower than the
+#: effort clock's reference before the wall-clock limit stops the searches instead.
+EFFORT_SHARE = 0.6
 MIN_POINTING_S = 0.5
 RESERVE_SHARE, RESERVE_MAX_S = 0.05, 0.5
 
@@ -236,10 +241,11 @@ class PointingTask:
 
 
 class _Deadline:
-    """The wall-clock end of a plan (None: no limit), ``reserve_s`` before ``limit_s``."""
+    """The end of a plan or a pointing on the current clock (:mod:`models.clock`; None: no
+    limit), ``reserve_s`` before ``limit_s``."""
 
     def __init__(self, limit_s: float | None, reserve_s: float = 0.0) -> None:
-        self.t0 = time.monotonic()
+        self.t0 = clock.now()
         self.end = None if limit_s is None else self.t0 + limit_s - reserve_s
 
     @classmethod
@@ -248,10 +254,10 @@ class _Deadline:
         return cls(limit_s, 0.0 if limit_s is None else min(RESERVE_SHARE * limit_s, RESERVE_MAX_S))
 
     def left_s(self) -> float:
-        return math.inf if self.end is None else self.end - time.monotonic()
+        return math.inf if self.end is None else self.end - clock.now()
 
     def elapsed_s(self) -> float:
-        return time.monotonic() - self.t0
+        return clock.now() - self.t0
 
 
 def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float | None:
@@ -301,8 +307,23 @@ def pointing_task(req: PlanRequest, seg: Segmentation, index: int, share_s: floa
 
 def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop) -> PointingPlan:
     """Allocation (all configurations) then the executable motion sequence of one pointing,
-    within ``task.share_s`` seconds (thesis ch. 5 and 6)."""
-    deadline = _Deadline(None if math.isinf(task.share_s) else task.share_s)
+    within ``task.share_s`` seconds (thesis ch. 5 and 6).
+
+    Every budget inside runs on the effort clock (:func:`models.clock.effort`), and the
+    pointing's searches get :data:`EFFORT_SHARE` of its share in effort seconds: the plan
+    then depends only on the task (the same on any machine, under any load, whatever the
+    number of workers). ``task.share_s`` stays the wall-clock limit: a machine so slow that
+    it is reached stops the searches there, and ``stats["effort"]["overran"]`` says so."""
+    t0 = time.monotonic()
+    with clock.effort(wall_limit_s=task.share_s) as effort:
+        plan = _plan_pointing(task, inst, progress)
+    stats = {k: v for k, v in plan.stats.items() if k != "effort_s"}
+    return replace(plan, stats={**stats, "compute_s": time.monotonic() - t0, "effort": {
+        "effort_s": effort.t_s, "overran": effort.overran}})
+
+
+def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> PointingPlan:
+    deadline = _Deadline(None if math.isinf(task.share_s) else EFFORT_SHARE * task.share_s)
     p = task.pointing
     ra = p.ra_deg % 360.0
     targets = sky_plane_targets(task.members, ra, p.dec_deg, inst, task.position_angle_deg)
@@ -313,7 +334,7 @@ def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _no
             "motion": {"legs": len(seq.legs), "leg_budget_s": 0.0, "compute_s": 0.0}})
     result = allocate(inst, targets, method=task.method, solver=task.solver,
                       configurations="all", seed=task.seed,
-                      time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * task.share_s),
+                      time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * EFFORT_SHARE * task.share_s),
                       progress=_report(progress, 0.0, 0.5))
     progress(0.5)
     motion_s = deadline.left_s()
@@ -334,7 +355,7 @@ def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _no
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs,
                         "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm},
-             "compute_s": deadline.elapsed_s()}
+             "effort_s": deadline.elapsed_s()}
     return PointingPlan(p, ra, targets, result, seq, err, stats)
 
 

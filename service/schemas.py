@@ -547,7 +547,11 @@ class PlanPointing(PointingOut):
                          "before the motion planner's changes, over the pointing's targets); "
                          "`motion` holds legs, leg_budget_s, compute_s, "
                          "failed_legs, targets_moved, legs_via_park, configurations_added, "
-                         "targets_dropped.")
+                         "targets_dropped; `compute_s` is the pointing's wall time; `effort` "
+                         "holds effort_s (the work its searches were budgeted on, in reference "
+                         "seconds) and overran (true when its wall-clock share, not its effort "
+                         "budget, stopped them: only then can the same request give another "
+                         "plan).")
 
 
 class PlanResponse(Response):
