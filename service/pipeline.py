@@ -54,7 +54,7 @@ ALLOCATION_SHARE = 0.5
 #: A pointing's searches get this share of its wall-clock share in effort seconds
 #: (:func:`plan_pointing`); the rest is the margin by which a machine may be slower than the
 #: effort clock's reference before the wall-clock limit stops the searches instead.
-EFFORT_SHARE = 0.6
+EFFORT_SHARE = 0.75
 MIN_POINTING_S = 0.5
 RESERVE_SHARE, RESERVE_MAX_S = 0.05, 0.5
 
@@ -267,6 +267,23 @@ def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float | None:
     return float(min(limits)) if limits else None
 
 
+def pointing_shares(limit_s: float | None, n: int) -> list[float]:
+    """The wall-clock share of each of ``n`` pointings of a plan limited to ``limit_s`` (a
+    plan job or a synchronous plan alike): an even split of the limit (less the answer's
+    reserve), fixed in advance, so that a pointing's plan does not depend on how long the
+    others took; when that is below
+    :data:`MIN_POINTING_S`, the first pointings get that minimum and the others none (their
+    targets ``no_time``), as in the synchronous plan."""
+    if limit_s is None:
+        return [math.inf] * n
+    usable = max(limit_s - min(RESERVE_SHARE * limit_s, RESERVE_MAX_S), 0.0)
+    even = usable / max(n, 1)
+    if even >= MIN_POINTING_S:
+        return [even] * n
+    fit = int(usable // MIN_POINTING_S)
+    return [MIN_POINTING_S if i < fit else 0.0 for i in range(n)]
+
+
 def pointing_seed(seed: int, index: int) -> int:
     """The seed of pointing ``index`` of a plan seeded ``seed``: a fixed function of the two
     (pointing 0 keeps ``seed``), so a pointing's plan does not depend on which worker computes
@@ -376,21 +393,21 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     the configurations so that every leg can be executed).
 
     The whole plan ends within :func:`plan_limit_s` (the request's time limit, capped by
-    ``budget_s``): what is left is shared out over the pointings still to do, each split
-    between its allocation and its motion legs; ``time_limit_s`` also caps every single
-    solver call. A pointing reached after the time ran out gets no configurations (its
-    targets ``no_time``)."""
+    ``budget_s``): what is left after the segmentation is split evenly over the pointings in
+    advance (:func:`pointing_shares`, as in a plan job), each split between its allocation
+    and its motion legs; ``time_limit_s`` also caps every single solver call. A pointing
+    whose share is below :data:`MIN_POINTING_S` gets no configurations (its targets
+    ``no_time``)."""
     deadline = _Deadline.of_plan(plan_limit_s(req, budget_s))
     seg = segment_plan(req, inst)
     progress(0.05)
     n = max(len(seg.pointings), 1)
+    shares = pointing_shares(plan_limit_s(req, budget_s), len(seg.pointings))
     out = []
     for i in range(len(seg.pointings)):
         lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
-        left = deadline.left_s()
-        # an even share of what is left, but at least what a pointing needs: when time is
-        # short the first pointings are planned and the last ones report `no_time`
-        share = min(max(left / (n - i), MIN_POINTING_S), left)
+        # the fixed share, unless a slow machine left less (then the limit comes first)
+        share = min(shares[i], max(deadline.left_s(), 0.0))
         out.append(pointing_result(pointing_task(req, seg, i, share, time_limit_s), inst,
                                    lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f)))
         progress(hi)

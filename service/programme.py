@@ -4,7 +4,7 @@ committed as soon as it is computed, then the answer assembled in pointing order
 The pointings run on a :class:`~service.runners.PointingRunner` (this process, or a Dask
 cluster). Each pointing's plan depends only on the request, the pointing and its index:
 its seed is :func:`service.pipeline.pointing_seed` of the job's seed, and its wall-clock share
-is fixed before any pointing runs (:func:`job_shares`), so the plan is the same whatever the
+is fixed before any pointing runs (:func:`service.pipeline.pointing_shares`), so the plan is the same whatever the
 number of workers, their order or the attempt that computed a pointing, and equal to the
 synchronous ``POST /v1/plans`` answer whenever no time limit cuts a computation short.
 
@@ -16,7 +16,6 @@ index, other targets) is dropped and recomputed.
 
 from __future__ import annotations
 
-import math
 import threading
 import time
 from typing import Any
@@ -24,24 +23,8 @@ from typing import Any
 from models.instrument import Instrument
 from service import adapters, pipeline
 from service.jobs import JobStore, pointing_progress
-from service.pipeline import MIN_POINTING_S, RESERVE_MAX_S, RESERVE_SHARE
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
-
-
-def job_shares(limit_s: float | None, n: int) -> list[float]:
-    """The wall-clock share of each of ``n`` pointings of a job limited to ``limit_s``: an
-    even split of the limit (less the answer's reserve), fixed in advance; when that is below
-    :data:`MIN_POINTING_S`, the first pointings get that minimum and the others none (their
-    targets ``no_time``), as in the synchronous plan."""
-    if limit_s is None:
-        return [math.inf] * n
-    usable = max(limit_s - min(RESERVE_SHARE * limit_s, RESERVE_MAX_S), 0.0)
-    even = usable / max(n, 1)
-    if even >= MIN_POINTING_S:
-        return [even] * n
-    fit = int(usable // MIN_POINTING_S)
-    return [MIN_POINTING_S if i < fit else 0.0 for i in range(n)]
 
 
 def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
@@ -71,7 +54,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     if stale:
         store.drop_pointings(job_id, stale)
     resumed = len(done) - len(stale)
-    shares = job_shares(limit, n)
+    shares = pipeline.pointing_shares(limit, n)
     todo = [pipeline.pointing_task(req, seg, i, shares[i], time_limit_s)
             for i in range(n) if i not in done or i in stale]
     committed = [resumed]

@@ -20,7 +20,6 @@ from fastapi.testclient import TestClient
 from service import jobs, pipeline
 from service.app import create_app
 from service.errors import json_safe
-from service.programme import job_shares
 from service.runners import DaskRunner, LocalPoolRunner
 from service.schemas import PlanRequest
 from service.settings import Settings
@@ -102,11 +101,11 @@ def test_pointing_seeds_are_fixed_per_index() -> None:
     assert seeds == [pipeline.pointing_seed(3, i) for i in range(100)]
 
 
-def test_job_shares_are_fixed_and_within_the_limit() -> None:
-    assert job_shares(None, 3) == [float("inf")] * 3
-    shares = job_shares(100.0, 4)
+def test_pointing_shares_are_fixed_and_within_the_limit() -> None:
+    assert pipeline.pointing_shares(None, 3) == [float("inf")] * 3
+    shares = pipeline.pointing_shares(100.0, 4)
     assert len(set(shares)) == 1 and 0.9 * 100 <= sum(shares) <= 100.0
-    short = job_shares(1.2, 5)  # 1.2 s cannot give 5 pointings 0.5 s each: 2 get it, 3 none
+    short = pipeline.pointing_shares(1.2, 5)  # 1.2 s cannot give 5 pointings 0.5 s each: 2 get it, 3 none
     assert short == [pipeline.MIN_POINTING_S] * 2 + [0.0] * 3
 
 

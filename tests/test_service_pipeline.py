@@ -15,6 +15,7 @@ from unittest import mock
 import numpy as np
 import pytest
 
+from models import clock
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import AllocationResult, ArmAssignment, Configuration, MotionPlan, PlaneTargets
@@ -111,9 +112,16 @@ def _configuration(index: int, targets: PlaneTargets) -> Configuration:
     return Configuration(index, assignments, 0, 0, "feasible")
 
 
+def _use(budget_s: float) -> None:
+    clock.charge(budget_s)
+    time.sleep(budget_s / pipeline.EFFORT_SHARE)
+
+
 class SlowStages:
-    """allocate / plan_sequence fakes that take every second they are allowed (as a solver
-    that does not stop early would), recording what they were given."""
+    """allocate / plan_sequence fakes that use their whole budget (as a solver that does not
+    stop early would) on a machine as slow as the effort clock's margin allows: every
+    effort second they are given takes 1 / EFFORT_SHARE wall seconds. They record what they
+    were given."""
 
     def __init__(self) -> None:
         self.allocation_limits: list[float] = []
@@ -122,18 +130,18 @@ class SlowStages:
     def allocate(self, inst: Any, targets: PlaneTargets, *, time_limit_s: float, **_: Any
                  ) -> AllocationResult:
         self.allocation_limits.append(time_limit_s)
-        time.sleep(time_limit_s)
+        _use(time_limit_s)
         return AllocationResult((_configuration(0, targets), _configuration(1, targets)), ())
 
     def plan_sequence(self, inst: Any, configurations: Any, options: SequenceOptions, *,
                       targets: Any = None, progress: Any = None) -> SequencePlan:
         self.sequence_limits.append((options.leg_time_limit_s, options.time_limit_s))
-        time.sleep(options.time_limit_s if options.time_limit_s is not None else 0.0)
+        _use(options.time_limit_s if options.time_limit_s is not None else 0.0)
         legs = tuple(MotionPlan("ok", 0.0, ()) for _ in range(len(configurations) + 1))
         return SequencePlan(tuple(configurations), legs)
 
 
-@pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (4.0, 0.2)])
+@pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (5.0, 0.2)])
 def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spread_deg) -> None:
     fake = SlowStages()
     monkeypatch.setattr(pipeline, "allocate", fake.allocate)
