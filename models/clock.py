@@ -70,7 +70,7 @@ SEMIGREEDY_PREPARE_COLUMN_S = 0.7e-6  # one assignment in the per-configuration 
 SEMIGREEDY_ITERATION_S = 1.6e-3  # one construction + padding
 SEMIGREEDY_PASS_S = 0.35e-3  # one local-search pass
 # sequencing post-passes (solvers.sequencing)
-TABU_MOVE_S = 20e-6  # one move of the packing tabu search
+TABU_MOVE_S = 60e-6  # one move of the packing tabu search
 TABU_CELL_S = 5e-9  # one cell of the cost arrays a move reads or updates
 REPAIR_STEP_S = 180e-6  # one frontier target expanded by an ejection chain
 LP_SOLVE_S = 2e-3  # one master LP of the column generation (scipy HiGHS) ...

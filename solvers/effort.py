@@ -24,9 +24,13 @@ import time
 
 from models import clock
 
-__all__ = ["HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S", "charge_literals", "cpsat_solve",
+__all__ = ["CPSAT_INTERLEAVED_SKIP", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S", "charge_literals", "cpsat_solve",
            "wall_guard_s"]
 
+# the interleaved search of OR-Tools 9.15 aborts the process (``Check failed:
+# heuristics.fixed_search != nullptr``) in this subsolver on some models with an incomplete
+# hint (an infeasible exact-cover packing with the sequence as hint); it runs without it
+CPSAT_INTERLEAVED_SKIP = "max_lp"
 SIMPLEX_INTERRUPT = 1  # highspy.cb.HighsCallbackType.kCallbackSimplexInterrupt, as the callback gets it
 # without a wall-clock guard on the effort clock, an engine still stops after this many
 # times its budget (plus WALL_GUARD_MIN_S) of real seconds: a limit no healthy run reaches
@@ -61,6 +65,8 @@ def cpsat_solve(solver, model, time_limit_s: float):
         return solver.Solve(model)
     p.max_deterministic_time = limit_s / clock.CPSAT_DETERMINISTIC_S
     p.interleave_search = True
+    if CPSAT_INTERLEAVED_SKIP not in p.ignore_subsolvers:
+        p.ignore_subsolvers.append(CPSAT_INTERLEAVED_SKIP)
     p.max_time_in_seconds = wall_guard_s(limit_s, effort)
     code = solver.Solve(model)
     effort.t_s += clock.CPSAT_SOLVE_S + float(solver.response_proto.deterministic_time) * clock.CPSAT_DETERMINISTIC_S
