@@ -43,7 +43,7 @@ PAST_WALL_S = 1e9
 # (reference seconds per unit of work, charged by planner/)
 
 #: Reference seconds of each kind of planner work, as (per call, per unit), reported through
-#: :func:`work`; fitted by ``python benchmarks/effort.py`` (least squares of the CPU seconds
+#: :func:`work`; fitted by ``python benchmarks/effort_motion.py`` (least squares of the CPU seconds
 #: of real legs on the counts of each kind).
 PLANNER_WORK_S: dict[str, tuple[float, float]] = {
     "departure": (0.0, 1.1e-06),  # planner.timeline: one earliest departure; unit: move samples
@@ -60,6 +60,43 @@ PLANNER_WORK_S: dict[str, tuple[float, float]] = {
 
 # ---------------------------------------------------------------- costs of the allocator
 # (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py)
+# bitset branch-and-bound (solvers.allocation.bitset)
+BNB_NODE_S = 24e-6  # one node of the depth-first search
+BNB_TABLE_BIT_S = 1.1e-9  # one bit of the per-arm conflict bitsets built for the search
+BNB_TABLE_ROW_S = 1.6e-6  # one (location, arm) bitset turned into a Python int
+PRUNE_PROBE_S = 6e-6  # one column probed by the exact column pruning
+# the exact model (solvers.model, solvers.allocation.cliques, solvers.allocation.exact)
+MODEL_NONZERO_S = 0.04e-6  # one non-zero of the model arrays built
+MODEL_COLUMN_S = 0.5e-6  # one column of the model arrays built
+CLIQUE_STEP_S = 8e-6  # one column added to a greedy clique
+CLIQUE_DISC_S = 10e-6  # one seed disc of the clique rows
+CLIQUE_CELL_S = 2e-9  # one cell of the dense exclusion matrix read or built
+# OR-Tools CP-SAT (every model of solvers/)
+CPSAT_LITERAL_S = 0.8e-6  # one literal added to a model from Python
+CPSAT_DETERMINISTIC_S = 1.3  # one unit of CP-SAT's deterministic time
+CPSAT_SOLVE_S = 2e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
+# HiGHS (solvers.allocation.highs, exact.relaxation_bound)
+HIGHS_RUN_S = 1e-3  # the fixed cost of one run
+HIGHS_NONZERO_S = 0.2e-6  # one non-zero of the matrix passed to HiGHS
+HIGHS_SIMPLEX_ITERATION_S = 20e-6  # one simplex iteration (LP or inside the MIP)
+HIGHS_MIP_NODE_S = 1e-3  # one branch-and-bound node
+HIGHS_CALLBACK_NONZERO_S = 1.8e-6  # per non-zero of the matrix, the MIP work between two callbacks
+# semi-greedy heuristic (solvers.allocation.semigreedy)
+SEMIGREEDY_PREPARE_COLUMN_S = 0.7e-6  # one assignment in the per-configuration preparation
+SEMIGREEDY_ITERATION_S = 1.6e-3  # one construction + padding
+SEMIGREEDY_PASS_S = 0.35e-3  # one local-search pass
+# sequencing post-passes (solvers.sequencing)
+TABU_MOVE_S = 60e-6  # one move of the packing tabu search
+TABU_CELL_S = 5e-9  # one cell of the cost arrays a move reads or updates
+REPAIR_STEP_S = 180e-6  # one frontier target expanded by an ejection chain
+LP_SOLVE_S = 2e-3  # one master LP of the column generation (scipy HiGHS) ...
+LP_CELL_S = 50e-9  # ... and per cell of its dense matrix
+VERIFY_CONFIGURATION_S = 2e-3  # one configuration checked on the geometry
+CONFIGURATION_BUILD_S = 0.6e-3  # one configuration turned into its result record
+# incompatibility structure (models.incompatibility)
+INCOMPATIBILITY_PAIR_S = 0.06e-6  # one candidate pair of locations checked
+INCOMPATIBILITY_ASSIGNMENT_S = 60e-6  # one reachable location built
+INCOMPATIBILITY_FOUND_PAIR_S = 0.45e-6  # one incompatible pair stored (CSR assembly)
 
 # ------------------------------------------------------------------------------------------
 

@@ -468,6 +468,7 @@ def compute_incompatibility(
     asg = reachability.assignments
     check = _deadline_check(deadline_s, time_limit_s)
     check()
+    clock.charge(len(asg) * clock.INCOMPATIBILITY_ASSIGNMENT_S)  # the reach and the bodies
     bodies = _bodies(instrument, asg, buffer_mm, check)
     t_geom = clock.now()
     found: list[np.ndarray] = []
@@ -482,6 +483,7 @@ def compute_incompatibility(
             body_pairs = _body_pairs_that_can_meet(instrument, k, kk, bodies.thr_mm)
             step = max(1, chunk_pairs // (b1 - b0))
             for r0 in range(a0, a1, step):
+                clock.charge((min(a1, r0 + step) - r0) * (b1 - b0) * clock.INCOMPATIBILITY_PAIR_S)
                 found.append(_chunk_pairs(bodies, body_pairs, asg.target, k, kk, a0, r0, min(a1, r0 + step), b0, b1,
                                           check))
                 total += len(found[-1])
@@ -494,6 +496,7 @@ def compute_incompatibility(
     # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
     pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int32)
     del found
+    clock.charge(len(pairs) * clock.INCOMPATIBILITY_FOUND_PAIR_S)
     check()
     same_target = (asg.target[pairs[:, 0]] >= 0) & (asg.target[pairs[:, 0]] == asg.target[pairs[:, 1]])
     indptr, indices = _symmetric_csr(pairs, len(asg), check)

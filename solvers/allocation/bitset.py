@@ -79,6 +79,7 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
         if not len(rows):
             continue
         block = adj[rows][:, perm].toarray()
+        clock.charge(block.size * clock.BNB_TABLE_BIT_S + len(rows) * n_arms * clock.BNB_TABLE_ROW_S)
         per_arm = []
         start = 0
         for kk in range(n_arms):
@@ -189,7 +190,12 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
            "nodes": 0}
     if any(d == 0 for d in dom0):
         return out
-    state = {"best": -1, "sol": None, "nodes": 0, "limit": 0}
+    state = {"best": -1, "sol": None, "nodes": 0, "limit": 0, "charged": 0}
+
+    def settle() -> None:
+        """Charge the nodes searched since the last charge."""
+        clock.charge((state["nodes"] - state["charged"]) * clock.BNB_NODE_S)
+        state["charged"] = state["nodes"]
 
     class _Found(Exception):
         pass
@@ -225,9 +231,12 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
 
         def dfs(dom: list[int], free: list[int], cur: int, bests: dict, pick: list) -> None:
             state["nodes"] += 1
-            if state["nodes"] > state["limit"] or (deadline is not None and not state["nodes"] & 1023
-                                                    and clock.now() > deadline):
+            if state["nodes"] > state["limit"]:
                 raise _Limit
+            if not state["nodes"] & 1023:
+                settle()
+                if deadline is not None and clock.now() > deadline:
+                    raise _Limit
             if not free:
                 if target >= 0:
                     state["best"], state["sol"] = cur, list(pick)
@@ -278,6 +287,8 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
             return False, state["best"], state["sol"]
         except _Found:
             return True, state["best"], state["sol"]
+        finally:
+            settle()
         return True, state["best"], state["sol"]
 
     def full_w(ch) -> int:
@@ -398,6 +409,7 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
     dom = [_mask(allowed[f.order[k]]) for k in range(n_arms)]
     if any(d == 0 for d in dom):
         return allowed.copy()
+    probes = 0
     for _ in range(max_passes):
         changed = False
         for k in range(n_arms):
@@ -416,6 +428,7 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
                 if wv + rest_max < incumbent_coarse:
                     break  # weight order: every later value is pruned as well
                 nc = f.nconf[int(ok[i])]
+                probes += 1
                 tot = wv
                 for j in others:
                     x = dom[j] & nc[j]
@@ -429,9 +442,11 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
                 changed = True
                 dom[k] = keep
                 if not keep:
+                    clock.charge(probes * clock.PRUNE_PROBE_S)
                     return np.zeros(len(allowed), bool)
         if not changed:
             break
+    clock.charge(probes * clock.PRUNE_PROBE_S)
     out = np.zeros(len(allowed), bool)
     for k in range(n_arms):
         bits = np.unpackbits(np.frombuffer(dom[k].to_bytes((len(f.order[k]) + 7) // 8, "little"), np.uint8),

@@ -14,6 +14,7 @@ from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
 from solvers.allocation.options import CpsatOptions
+from solvers.effort import charge_literals, cpsat_solve
 from solvers.model import ModelArrays, hint_vector
 from solvers.problem import ConfigProblem, ConfigSolution
 
@@ -52,15 +53,17 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
         if start is not None:
             for j in range(m.n_vars):
                 model.AddHint(x[j], bool(start[j]))
+        # the Python loops above: one literal per column, row member and hint (twice in stage 2)
+        charge_literals(m.n_vars * (2 if start is not None else 1) + len(m.eq_indices) + len(m.le_indices)
+                        + (0 if stage == 1 else 2 * m.n_vars))
         build_s = clock.now() - t0
         solver = cp_model.CpSolver()
         p = solver.parameters
-        p.max_time_in_seconds = float(max(time_limit_s, 0.001))
         p.num_workers = max(MIN_WORKERS, int(workers if workers is not None else problem.threads))
         p.random_seed = int(problem.seed)
         p.linearization_level = int(linearization_level)
         p.relative_gap_limit = float(problem.mip_rel_gap)
-        code = solver.Solve(model)
+        code = cpsat_solve(solver, model, max(time_limit_s, 0.001))
         s = {"solve_s": clock.now() - t0 - build_s, "cp_build_s": build_s,
              "solver_status": solver.StatusName(code), "branches": int(solver.NumBranches())}
         if code == cp_model.INFEASIBLE or code == cp_model.MODEL_INVALID:

@@ -13,6 +13,7 @@ the rotation with the fewest configurations, then highest priority completeness,
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -173,6 +174,28 @@ def allocate(
     if not position_angles_deg:
         return run(targets)
     angles = [float(a) for a in position_angles_deg]
+    return _best_angle(angles, _rotations(run, targets, angles))
+
+
+def _rotations(run: Callable[[PlaneTargets], AllocationResult], targets: PlaneTargets,
+               angles: list[float]) -> list[AllocationResult]:
+    """``run`` on every rotation of ``targets``, in parallel threads.  In effort mode each
+    rotation runs on an effort clock of its own (same wall-clock guard), so that its budget
+    does not depend on how the threads interleave, and the work of all of them is then
+    charged to the caller's clock."""
+    parent = clock.effort_clock()
+
+    def one(angle: float) -> tuple[AllocationResult, clock.EffortClock | None]:
+        if parent is None:
+            return run(rotate_targets(targets, angle)), None
+        wall_s = None if parent.wall_end is None else parent.wall_end - time.perf_counter()
+        with clock.effort(wall_limit_s=wall_s) as own:
+            return run(rotate_targets(targets, angle)), own
+
     with ThreadPoolExecutor(max_workers=min(len(angles), MAX_ANGLE_THREADS)) as ex:
-        results = list(ex.map(lambda a: run(rotate_targets(targets, a)), angles))
-    return _best_angle(angles, results)
+        done = list(ex.map(one, angles))
+    for _, own in done:
+        if parent is not None and own is not None:
+            parent.t_s += own.t_s
+            parent.overran |= own.overran
+    return [r for r, _ in done]

@@ -45,6 +45,7 @@ import numpy as np
 from models import clock
 from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
 from solvers.allocation.cliques import CliqueOptions, clique_rows, exclusion_matrix
+from solvers.effort import HighsMeter
 from solvers.model import (
     ModelArrays,
     build_model_arrays,
@@ -233,7 +234,9 @@ def relaxation_bound(problem: ConfigProblem, m: ModelArrays) -> float:
     h.addRows(A.shape[0], lo, hi, len(A.data), A.indptr[:-1].astype(np.int32), A.indices.astype(np.int32),
               A.data.astype(float))
     h.changeObjectiveSense(highspy.ObjSense.kMaximize)
+    meter = HighsMeter(nnz=len(A.data))
     h.run()
+    meter.finish(h.getInfo())
     return float(h.getInfo().objective_function_value)
 
 

@@ -17,6 +17,7 @@ from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
 from solvers.allocation.options import HighsOptions
+from solvers.effort import HighsMeter
 from solvers.model import ModelArrays, hint_vector, stage_matrix
 from solvers.problem import ConfigProblem, ConfigSolution
 
@@ -51,7 +52,10 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
     h.setOptionValue("presolve", presolve)
-    h.setOptionValue("time_limit", float(time_limit_s))
+    meter = HighsMeter(nnz=len(A.data))
+    # in effort mode HiGHS' own limit is the wall-clock guard; the callback stops the run
+    wall_s = float(time_limit_s) if meter.effort is None else meter.wall_guard_s(time_limit_s)
+    h.setOptionValue("time_limit", wall_s)
     h.setOptionValue("mip_rel_gap", float(problem.mip_rel_gap))
     # integer objective coefficients: any solution within < 1 of the bound is optimal
     h.setOptionValue("mip_abs_gap", 0.5 if np.all(cost == np.round(cost)) else 1e-6)
@@ -76,12 +80,13 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
         sol.col_value = list(start)
         sol.value_valid = True
         h.setSolution(sol)
-    t0 = clock.now()
-    interrupted = interrupt_at(h, t0 + float(time_limit_s))
+    t0 = meter.now()
+    interrupted = interrupt_at(h, t0 + float(time_limit_s), meter)
     h.run()
-    solve_s = clock.now() - t0
-    ms = h.getModelStatus()
     info = h.getInfo()
+    meter.finish(info)
+    solve_s = meter.now() - t0
+    ms = h.getModelStatus()
     has_sol = info.primal_solution_status == 2  # kSolutionStatusFeasible
     x = np.asarray(h.getSolution().col_value) if has_sol else None
     gap = float(info.mip_gap) if has_sol else None
@@ -95,16 +100,23 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
                             "interrupted": bool(interrupted[0])}
 
 
-def interrupt_at(h, deadline: float) -> list[bool]:
-    """Stop the HiGHS instance ``h`` at the wall-clock ``deadline`` inside its simplex, IPM and
-    MIP loops (their interrupt callbacks), not only where HiGHS checks its own ``time_limit``.
-    Returns a one-element flag, set when the callback stopped the run."""
+def interrupt_at(h, deadline: float, meter: HighsMeter | None = None) -> list[bool]:
+    """Stop the HiGHS instance ``h`` at ``deadline`` (a :func:`models.clock.now` instant)
+    inside its simplex, IPM and MIP loops (their interrupt callbacks), not only where HiGHS
+    checks its own ``time_limit``.  ``meter`` (default: one made here, on the caller's
+    clock) charges the work each callback reports to the effort clock and reads it, so
+    that in effort mode the run stops after the same work on any machine.  Returns a
+    one-element flag, set when the callback stopped the run."""
     import highspy
 
     fired = [False]
+    meter = HighsMeter() if meter is None else meter
 
     def callback(callback_type, message, data_out, data_in, user_data):
-        if data_in is not None and clock.now() > deadline:
+        if data_in is None:
+            return
+        meter.on_callback(callback_type, data_out)
+        if meter.now() > deadline:
             data_in.user_interrupt = True
             fired[0] = True
 

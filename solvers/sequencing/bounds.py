@@ -27,6 +27,7 @@ import numpy as np
 
 from models import clock
 from models.incompatibility import Incompatibility
+from solvers.effort import charge_literals, cpsat_solve
 
 # discs about the centre where crowding binds; the larger default discs cost more than they tell
 INNER_DISCS_MM = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0)
@@ -103,6 +104,7 @@ def _independent_set_model(inc: Incompatibility, in_subset: np.ndarray):
                 model.AddAtMostOne([x[i] for i in grp])
     for i, j in col_of[p[keep]].tolist():
         model.AddBoolOr([x[i].Not(), x[j].Not()])
+    charge_literals(3 * len(cols) + 4 * int(keep.sum()))  # a Not() costs about a literal
     return model, x, cols
 
 
@@ -125,10 +127,9 @@ def max_simultaneous_targets(inc: Incompatibility, subset: np.ndarray, *, time_l
         return 0, True
     model.Maximize(sum(x))
     solver = cp_model.CpSolver()
-    solver.parameters.max_time_in_seconds = float(time_limit_s)
     solver.parameters.num_workers = max(2, threads)
     solver.parameters.random_seed = int(seed)
-    code = solver.Solve(model)
+    code = cpsat_solve(solver, model, time_limit_s)
     if code == cp_model.OPTIMAL:
         return int(round(solver.ObjectiveValue())), True
     n_arms = len(inc.assignments.arm_start) - 1
@@ -219,10 +220,11 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
                       method="highs")
         pi = np.maximum(-res.ineqlin.marginals, 0.0)[row_of]  # a group's dual on each of its targets
         info["lp_value"] = float(res.fun)
+        clock.charge(clock.LP_SOLVE_S + clock.LP_CELL_S * n_rows * len(col_rows))
         w = np.floor(pi * scale).astype(np.int64)
         model.Maximize(sum(int(w[t]) * x[i] for i, t in enumerate(tl_of_col.tolist()) if w[t] > 0))
-        solver.parameters.max_time_in_seconds = float(min(left, price_time_limit_s))
-        code = solver.Solve(model)
+        charge_literals(2 * len(x))
+        code = cpsat_solve(solver, model, min(left, price_time_limit_s))
         info["iterations"] += 1
         if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
             if price_time_limit_s >= left:

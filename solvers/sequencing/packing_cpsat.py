@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.incompatibility import Incompatibility
+from solvers.effort import charge_literals, cpsat_solve
 from solvers.model import ModelArrays, build_model_arrays
 from solvers.problem import ConfigProblem
 
@@ -62,6 +63,8 @@ def _configurations(model, m: ModelArrays, n_configs: int, n_arms: int):
     """Boolean x[c][j] per configuration and column with eqs. 5.13 and 5.15 per configuration
     (the target rows, eq. 5.14, are replaced by the callers' cover rows across configurations)."""
     x = [[model.NewBoolVar("") for _ in range(m.n_vars)] for _ in range(n_configs)]
+    # per configuration: its columns, rows and the callers' cover rows over the same columns
+    charge_literals(n_configs * (2 * m.n_vars + len(m.eq_indices) + len(m.le_indices)))
     li = m.le_indices.tolist()
     for c in range(n_configs):
         for k in range(n_arms):
@@ -83,11 +86,10 @@ def _solve(model, time_limit_s: float, seed: int, threads: int, light_presolve: 
         solver.parameters.cp_model_probing_level = 0
         solver.parameters.max_presolve_iterations = 1
         solver.parameters.symmetry_level = 0
-    solver.parameters.max_time_in_seconds = float(max(time_limit_s, 0.05))
     # one worker stalls on mid-size instances (brief, known traps)
     solver.parameters.num_workers = max(2, threads)
     solver.parameters.random_seed = int(seed)
-    return solver, solver.Solve(model)
+    return solver, cpsat_solve(solver, model, max(time_limit_s, 0.05))
 
 
 def _read(solver, x, m: ModelArrays, n_configs: int, n_arms: int) -> list[np.ndarray]:

@@ -113,6 +113,7 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
             if clock.now() - t0 > budget_s:
                 return None
             nxt = []
+            clock.charge(len(frontier) * clock.REPAIR_STEP_S)
             for v in frontier:
                 m = base.copy()
                 m[list(on_path[v])] = False

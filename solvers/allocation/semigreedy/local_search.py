@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from models import clock
 from solvers.allocation.semigreedy.prepare import DISP_EPS, Prepared, State
 
 
@@ -212,15 +213,18 @@ def local_search(st: Prepared, s: State, rng: np.random.Generator, max_moves: in
     nothing. Every move strictly improves the lexicographic key. Returns #moves.
     ``swaps=False``: no swap moves; ``eject_trials``: ejection moves evaluated per pass
     (0: none)."""
-    moves = 0
+    moves = passes = 0
     while moves < max_moves:
         made = 0
         while swaps and moves + made < max_moves and swap_pass(st, s, rng):
             made += 1
+        passes += made + (1 if swaps else 0) + 1
         made += replace_pass(st, s, rng)
         if not made and eject_trials > 0:
+            passes += 1
             made += eject_pass(st, s, rng, max_trials=eject_trials)
         moves += made
         if not made:  # a replace can enable new swaps: repeat until a quiet round
             break
+    clock.charge(passes * clock.SEMIGREEDY_PASS_S)
     return moves

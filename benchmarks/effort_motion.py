@@ -9,7 +9,7 @@ call took (``time.process_time``, which another process on the machine hardly mo
 a least-squares fit of every kind of work's cost on these legs (what the constants in
 :mod:`models.clock` come from).
 
-    python benchmarks/effort.py --fields 4 --seed 5
+    python benchmarks/effort_motion.py --fields 4 --seed 5
 
 Prints JSON.
 """
