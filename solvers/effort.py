@@ -64,6 +64,10 @@ def cpsat_solve(solver, model, time_limit_s: float):
         p.max_time_in_seconds = limit_s
         return solver.Solve(model)
     p.max_deterministic_time = limit_s / clock.CPSAT_DETERMINISTIC_S
+    # OR-Tools 9.15's interleaved search aborts the process (``Check failed:
+    # heuristics.fixed_search != nullptr``) on some models with an incomplete hint, in more
+    # than one subsolver: in effort mode a model is solved without its hint
+    model.ClearHints()
     p.interleave_search = True
     if CPSAT_INTERLEAVED_SKIP not in p.ignore_subsolvers:
         p.ignore_subsolvers.append(CPSAT_INTERLEAVED_SKIP)

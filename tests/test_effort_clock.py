@@ -157,11 +157,13 @@ def _pointing(share_s: float) -> dict:
 
 
 def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None:
-    """A pointing with a short share (its motion legs' budgets bind): the same plan when the
-    machine is slower, and the wall-clock share was not what stopped it."""
-    fast = _pointing(6.0)
+    """A pointing with a short share (its budgets bind: a longer share gives another plan):
+    the same plan when the machine is slower, and the wall-clock share was not what stopped
+    it."""
+    fast = _pointing(12.0)
+    assert _content(fast) != _content(_pointing(30.0))
     monkeypatch.setattr(timeline_module, "_first_departure", _slowed(timeline_module._first_departure))
-    slowed = _pointing(6.0)
+    slowed = _pointing(12.0)
     assert not fast["stats"]["effort"]["overran"] and not slowed["stats"]["effort"]["overran"]
     assert slowed["stats"]["compute_s"] > fast["stats"]["compute_s"]
     assert _content(slowed) == _content(fast)
@@ -170,6 +172,6 @@ def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None
 
 def _slowed(fn):
     def slow(*args):
-        time.sleep(0.001)
+        time.sleep(0.0003)
         return fn(*args)
     return slow
