@@ -57,8 +57,8 @@ CLIQUE_DISC_S = 10e-6  # one seed disc of the clique rows
 CLIQUE_CELL_S = 2e-9  # one cell of the dense exclusion matrix read or built
 # OR-Tools CP-SAT (every model of solvers/)
 CPSAT_LITERAL_S = 0.8e-6  # one literal added to a model from Python
-CPSAT_DETERMINISTIC_S = 1.3  # one unit of CP-SAT's deterministic time
-CPSAT_SOLVE_S = 2e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
+CPSAT_DETERMINISTIC_S = 0.6  # one unit of CP-SAT's deterministic time
+CPSAT_SOLVE_S = 5e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
 # HiGHS (solvers.allocation.highs, exact.relaxation_bound)
 HIGHS_RUN_S = 1e-3  # the fixed cost of one run
 HIGHS_NONZERO_S = 0.2e-6  # one non-zero of the matrix passed to HiGHS
@@ -80,7 +80,7 @@ CONFIGURATION_BUILD_S = 0.6e-3  # one configuration turned into its result recor
 # incompatibility structure (models.incompatibility)
 INCOMPATIBILITY_PAIR_S = 0.06e-6  # one candidate pair of locations checked
 INCOMPATIBILITY_ASSIGNMENT_S = 60e-6  # one reachable location built
-INCOMPATIBILITY_FOUND_PAIR_S = 0.45e-6  # one incompatible pair stored (CSR assembly)
+INCOMPATIBILITY_FOUND_PAIR_S = 0.15e-6  # one incompatible pair stored (CSR assembly)
 
 # ------------------------------------------------------------------------------------------
 
