@@ -43,7 +43,9 @@ PAST_WALL_S = 1e9
 # (reference seconds per unit of work, charged by planner/)
 
 # ---------------------------------------------------------------- costs of the allocator
-# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py)
+# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py;
+# measured with ``python -m benchmarks.effort``, which compares the effort seconds of whole
+# allocate calls with the CPU seconds they used on the thesis fields)
 # bitset branch-and-bound (solvers.allocation.bitset)
 BNB_NODE_S = 24e-6  # one node of the depth-first search
 BNB_TABLE_BIT_S = 1.1e-9  # one bit of the per-arm conflict bitsets built for the search
@@ -81,6 +83,7 @@ CONFIGURATION_BUILD_S = 0.6e-3  # one configuration turned into its result recor
 INCOMPATIBILITY_PAIR_S = 0.06e-6  # one candidate pair of locations checked
 INCOMPATIBILITY_ASSIGNMENT_S = 60e-6  # one reachable location built
 INCOMPATIBILITY_FOUND_PAIR_S = 0.15e-6  # one incompatible pair stored (CSR assembly)
+INCOMPATIBILITY_BLANK_S = 1.3e-3  # one blank-sky pose sampled for an arm
 
 # ------------------------------------------------------------------------------------------
 
