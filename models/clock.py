@@ -69,8 +69,8 @@ HIGHS_MIP_NODE_S = 1e-3  # one branch-and-bound node
 HIGHS_CALLBACK_NONZERO_S = 1.8e-6  # per non-zero of the matrix, the MIP work between two callbacks
 # semi-greedy heuristic (solvers.allocation.semigreedy)
 SEMIGREEDY_PREPARE_COLUMN_S = 0.7e-6  # one assignment in the per-configuration preparation
-SEMIGREEDY_ITERATION_S = 1.6e-3  # one construction + padding
-SEMIGREEDY_PASS_S = 0.35e-3  # one local-search pass
+SEMIGREEDY_ITERATION_S = 1.3e-3  # one construction + padding
+SEMIGREEDY_PASS_S = 0.28e-3  # one local-search pass
 # sequencing post-passes (solvers.sequencing)
 TABU_MOVE_S = 60e-6  # one move of the packing tabu search
 TABU_CELL_S = 5e-9  # one cell of the cost arrays a move reads or updates
