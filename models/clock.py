@@ -59,7 +59,9 @@ PLANNER_WORK_S: dict[str, tuple[float, float]] = {
 }
 
 # ---------------------------------------------------------------- costs of the allocator
-# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py)
+# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py;
+# measured with ``python -m benchmarks.effort``, which compares the effort seconds of whole
+# allocate calls with the CPU seconds they used on the thesis fields)
 # bitset branch-and-bound (solvers.allocation.bitset)
 BNB_NODE_S = 24e-6  # one node of the depth-first search
 BNB_TABLE_BIT_S = 1.1e-9  # one bit of the per-arm conflict bitsets built for the search
@@ -73,8 +75,8 @@ CLIQUE_DISC_S = 10e-6  # one seed disc of the clique rows
 CLIQUE_CELL_S = 2e-9  # one cell of the dense exclusion matrix read or built
 # OR-Tools CP-SAT (every model of solvers/)
 CPSAT_LITERAL_S = 0.8e-6  # one literal added to a model from Python
-CPSAT_DETERMINISTIC_S = 1.3  # one unit of CP-SAT's deterministic time
-CPSAT_SOLVE_S = 2e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
+CPSAT_DETERMINISTIC_S = 0.6  # one unit of CP-SAT's deterministic time
+CPSAT_SOLVE_S = 5e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
 # HiGHS (solvers.allocation.highs, exact.relaxation_bound)
 HIGHS_RUN_S = 1e-3  # the fixed cost of one run
 HIGHS_NONZERO_S = 0.2e-6  # one non-zero of the matrix passed to HiGHS
@@ -83,8 +85,8 @@ HIGHS_MIP_NODE_S = 1e-3  # one branch-and-bound node
 HIGHS_CALLBACK_NONZERO_S = 1.8e-6  # per non-zero of the matrix, the MIP work between two callbacks
 # semi-greedy heuristic (solvers.allocation.semigreedy)
 SEMIGREEDY_PREPARE_COLUMN_S = 0.7e-6  # one assignment in the per-configuration preparation
-SEMIGREEDY_ITERATION_S = 1.6e-3  # one construction + padding
-SEMIGREEDY_PASS_S = 0.35e-3  # one local-search pass
+SEMIGREEDY_ITERATION_S = 1.3e-3  # one construction + padding
+SEMIGREEDY_PASS_S = 0.28e-3  # one local-search pass
 # sequencing post-passes (solvers.sequencing)
 TABU_MOVE_S = 60e-6  # one move of the packing tabu search
 TABU_CELL_S = 5e-9  # one cell of the cost arrays a move reads or updates
@@ -96,7 +98,8 @@ CONFIGURATION_BUILD_S = 0.6e-3  # one configuration turned into its result recor
 # incompatibility structure (models.incompatibility)
 INCOMPATIBILITY_PAIR_S = 0.06e-6  # one candidate pair of locations checked
 INCOMPATIBILITY_ASSIGNMENT_S = 60e-6  # one reachable location built
-INCOMPATIBILITY_FOUND_PAIR_S = 0.45e-6  # one incompatible pair stored (CSR assembly)
+INCOMPATIBILITY_FOUND_PAIR_S = 0.15e-6  # one incompatible pair stored (CSR assembly)
+INCOMPATIBILITY_BLANK_S = 1.3e-3  # one blank-sky pose sampled for an arm
 
 # ------------------------------------------------------------------------------------------
 

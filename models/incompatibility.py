@@ -220,6 +220,7 @@ def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) ->
 
     if n <= 0:
         return np.zeros((0, 2))
+    clock.charge(n * clock.INCOMPATIBILITY_BLANK_S)
     rng = np.random.default_rng([seed, arm])
     links = Links.of(instrument, arm)
     a = instrument.arms[arm]

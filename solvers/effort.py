@@ -6,9 +6,9 @@ machine's load, so:
 
 * **CP-SAT** runs on ``max_deterministic_time`` (the budget in reference seconds over
   :data:`~models.clock.CPSAT_DETERMINISTIC_S`) with ``interleave_search`` (a search that
-  does not depend on the number of workers or on thread timing); ``max_time_in_seconds``
-  becomes the wall-clock guard only.  After the solve, its reported deterministic time is
-  charged.
+  does not depend on the number of workers or on thread timing; without the subsolver
+  :data:`CPSAT_INTERLEAVED_SKIP`); ``max_time_in_seconds`` becomes the wall-clock guard
+  only.  After the solve, its reported deterministic time is charged.
 * **HiGHS** is stopped by its interrupt callback (:class:`HighsMeter`), which charges the
   branch-and-bound nodes and callbacks since the last call to the caller's effort clock and
   compares it with the deadline; HiGHS' own ``time_limit`` becomes the wall-clock guard.
@@ -24,8 +24,8 @@ import time
 
 from models import clock
 
-__all__ = ["CPSAT_INTERLEAVED_SKIP", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S", "charge_literals", "cpsat_solve",
-           "wall_guard_s"]
+__all__ = ["CPSAT_INTERLEAVED_SKIP", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S", "charge_literals",
+           "cpsat_solve", "wall_guard_s"]
 
 # the interleaved search of OR-Tools 9.15 aborts the process (``Check failed:
 # heuristics.fixed_search != nullptr``) in this subsolver on some models with an incomplete

@@ -19,7 +19,7 @@ __all__ = ["BUDGET", "Clock", "SequenceBudget"]
 
 @dataclass(frozen=True)
 class Clock:
-    """The call's clock: started at ``t0_s`` (``time.perf_counter``) with ``limit_s``."""
+    """The call's clock: started at ``t0_s`` (a :func:`models.clock.now` reading) with ``limit_s``."""
 
     t0_s: float
     limit_s: float
