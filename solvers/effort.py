@@ -28,8 +28,9 @@ __all__ = ["CPSAT_INTERLEAVED_SKIP", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GU
            "cpsat_solve", "wall_guard_s"]
 
 # the interleaved search of OR-Tools 9.15 aborts the process (``Check failed:
-# heuristics.fixed_search != nullptr``) in this subsolver on some models with an incomplete
-# hint (an infeasible exact-cover packing with the sequence as hint); it runs without it
+# heuristics.fixed_search != nullptr``) on some models with an incomplete hint (an
+# infeasible exact-cover packing with the sequence as hint), in this subsolver and in others:
+# it runs without this one, and every model is solved without its hint (:func:`cpsat_solve`)
 CPSAT_INTERLEAVED_SKIP = "max_lp"
 SIMPLEX_INTERRUPT = 1  # highspy.cb.HighsCallbackType.kCallbackSimplexInterrupt, as the callback gets it
 # without a wall-clock guard on the effort clock, an engine still stops after this many
