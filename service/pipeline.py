@@ -54,7 +54,7 @@ ALLOCATION_SHARE = 0.5
 #: A pointing's searches get this share of its wall-clock share in effort seconds
 #: (:func:`plan_pointing`); the rest is the margin by which a machine may be slower than the
 #: effort clock's reference before the wall-clock limit stops the searches instead.
-EFFORT_SHARE = 0.75
+EFFORT_SHARE = 0.5
 MIN_POINTING_S = 0.5
 RESERVE_SHARE, RESERVE_MAX_S = 0.05, 0.5
 

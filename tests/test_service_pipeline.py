@@ -141,7 +141,7 @@ class SlowStages:
         return SequencePlan(tuple(configurations), legs)
 
 
-@pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (5.0, 0.2)])
+@pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (7.0, 0.2)])
 def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spread_deg) -> None:
     fake = SlowStages()
     monkeypatch.setattr(pipeline, "allocate", fake.allocate)
