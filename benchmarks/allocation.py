@@ -32,7 +32,12 @@ SIGMA_MM = {"uniform": None, "heavy": 30.0, "weak": 60.0}
 
 
 def make_field(n: int, dist: str, rng: np.random.Generator, radius_mm: float = 125.0) -> PlaneTargets:
-    sig = SIGMA_MM[dist]
+    return sigma_field(n, SIGMA_MM[dist], rng, radius_mm)
+
+
+def sigma_field(n: int, sig: float | None, rng: np.random.Generator, radius_mm: float = 125.0) -> PlaneTargets:
+    """``n`` targets with the thesis priority mix, uniform in the FOV (``sig`` None) or
+    Gaussian of ``sig`` mm about its centre (clipped to the FOV)."""
     if sig is None:
         r = radius_mm * np.sqrt(rng.random(n))
         a = rng.random(n) * 2 * np.pi

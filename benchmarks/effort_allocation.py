@@ -18,6 +18,7 @@ import time
 
 import numpy as np
 
+from benchmarks.allocation import sigma_field
 from models import clock
 from models.instrument import default_instrument
 from models.types import PlaneTargets
@@ -28,21 +29,9 @@ METHODS = {"bnb": ("ilp", "bnb"), "highs": ("ilp", "highs"), "cpsat": ("ilp", "c
 DISTRIBUTIONS = {"uniform": None, "gauss40": 40.0, "gauss60": 60.0}
 
 
-def thesis_field(n: int, sigma_mm: float | None, seed: int, radius_mm: float = 125.0) -> PlaneTargets:
+def thesis_field(n: int, sigma_mm: float | None, seed: int) -> PlaneTargets:
     """``n`` targets, uniform in the FOV (``sigma_mm`` None) or Gaussian about its centre."""
-    rng = np.random.default_rng(seed)
-    if sigma_mm is None:
-        r = radius_mm * np.sqrt(rng.random(n))
-        a = rng.random(n) * 2 * np.pi
-        x, y = r * np.cos(a), r * np.sin(a)
-    else:
-        pts = np.zeros((0, 2))
-        while len(pts) < n:
-            p = rng.normal(0.0, sigma_mm, (2 * n, 2))
-            pts = np.vstack([pts, p[np.hypot(p[:, 0], p[:, 1]) <= radius_mm]])
-        x, y = pts[:n, 0], pts[:n, 1]
-    pr = rng.choice([500, 100, 10, 1], size=n, p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
-    return PlaneTargets.from_lists([f"t{i}" for i in range(n)], x, y, pr)
+    return sigma_field(n, sigma_mm, np.random.default_rng(seed))
 
 
 def measure(method: str, targets: PlaneTargets, configurations: str, limit_s: float, seed: int = 0) -> dict:

@@ -93,6 +93,21 @@ def test_past_the_wall_limit_every_earlier_deadline_has_passed() -> None:
 # ------------------------------------------------------------------- the motion planner
 
 
+def _slow_departures(monkeypatch, sleep_s: float) -> list[int]:
+    """The planner's departure search made ``sleep_s`` slower per call (as on a busy
+    machine); the returned list counts the calls."""
+    original = timeline_module._first_departure
+    calls = [0]
+
+    def slow(*args):
+        calls[0] += 1
+        time.sleep(sleep_s)
+        return original(*args)
+
+    monkeypatch.setattr(timeline_module, "_first_departure", slow)
+    return calls
+
+
 def _signature(plan) -> tuple:
     """Everything a plan says, as comparable values (NaN-free)."""
     trajectories = tuple((tr.arm, tuple(np.round(tr.t_s, 9)), tuple(np.round(tr.theta1_rad, 9)),
@@ -116,15 +131,7 @@ def test_a_leg_on_the_effort_clock_is_the_same_on_a_slower_machine(index, monkey
     leg = LEGS[index]
     fast = _plan(leg, 1.0)
     assert _signature(fast) != _signature(_plan(leg, 3.0))  # the budget binds
-    original = timeline_module._first_departure
-    calls = [0]
-
-    def slow(*args):
-        calls[0] += 1
-        time.sleep(0.002)
-        return original(*args)
-
-    monkeypatch.setattr(timeline_module, "_first_departure", slow)
+    calls = _slow_departures(monkeypatch, 0.002)
     t0 = time.perf_counter()
     slowed = _plan(leg, 1.0)
     assert calls[0] > 50 and time.perf_counter() - t0 > 0.1  # really slowed down
@@ -163,15 +170,7 @@ def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None
     monkeypatch.setattr(pipeline, "EFFORT_SHARE", 0.25)
     fast = _pointing(36.0)
     assert _content(fast) != _content(_pointing(120.0))
-    original = timeline_module._first_departure
-    calls = [0]
-
-    def slow(*args):
-        calls[0] += 1
-        time.sleep(0.003)
-        return original(*args)
-
-    monkeypatch.setattr(timeline_module, "_first_departure", slow)
+    calls = _slow_departures(monkeypatch, 0.003)
     slowed = _pointing(36.0)
     assert calls[0] * 0.003 > 0.5  # at least half a second slower
     assert not fast["stats"]["effort"]["overran"] and not slowed["stats"]["effort"]["overran"]
