@@ -334,8 +334,7 @@ def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _no
     t0 = time.monotonic()
     with clock.effort(wall_limit_s=task.share_s) as effort:
         plan = _plan_pointing(task, inst, progress)
-    stats = {k: v for k, v in plan.stats.items() if k != "effort_s"}
-    return replace(plan, stats={**stats, "compute_s": time.monotonic() - t0, "effort": {
+    return replace(plan, stats={**plan.stats, "compute_s": time.monotonic() - t0, "effort": {
         "effort_s": effort.t_s, "overran": effort.overran}})
 
 
@@ -371,8 +370,7 @@ def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> 
                                    progress=lambda f: progress(0.5 + 0.5 * f))
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs,
-                        "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm},
-             "effort_s": deadline.elapsed_s()}
+                        "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm}}
     return PointingPlan(p, ra, targets, result, seq, err, stats)
 
 

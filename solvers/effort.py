@@ -7,7 +7,8 @@ machine's load, so:
 * **CP-SAT** runs on ``max_deterministic_time`` (the budget in reference seconds over
   :data:`~models.clock.CPSAT_DETERMINISTIC_S`) with ``interleave_search`` (a search that
   does not depend on the number of workers or on thread timing; without the subsolver
-  :data:`CPSAT_INTERLEAVED_SKIP`); ``max_time_in_seconds`` becomes the wall-clock guard
+  :data:`CPSAT_INTERLEAVED_SKIP`, and without the model's hint); ``max_time_in_seconds``
+  becomes the wall-clock guard
   only.  After the solve, its reported deterministic time is charged.
 * **HiGHS** is stopped by its interrupt callback (:class:`HighsMeter`), which charges the
   branch-and-bound nodes and callbacks since the last call to the caller's effort clock and
@@ -65,10 +66,7 @@ def cpsat_solve(solver, model, time_limit_s: float):
         p.max_time_in_seconds = limit_s
         return solver.Solve(model)
     p.max_deterministic_time = limit_s / clock.CPSAT_DETERMINISTIC_S
-    # OR-Tools 9.15's interleaved search aborts the process (``Check failed:
-    # heuristics.fixed_search != nullptr``) on some models with an incomplete hint, in more
-    # than one subsolver: in effort mode a model is solved without its hint
-    model.ClearHints()
+    model.ClearHints()  # see CPSAT_INTERLEAVED_SKIP
     p.interleave_search = True
     if CPSAT_INTERLEAVED_SKIP not in p.ignore_subsolvers:
         p.ignore_subsolvers.append(CPSAT_INTERLEAVED_SKIP)
