@@ -128,3 +128,29 @@ def test_sequencing_defaults_resolve_by_method_and_mode() -> None:
     assert sg.packing.enabled is True  # the caller's choice wins over the fast path
     assert (sg.sequence.tie_break, sg.sequence.blank_per_arm, sg.repair.time_limit_s) == (False, 16, 0.5)
     assert sg.sequence.config_time_limit_s == 5.0
+
+
+def test_exact_engines_hold_back_a_quarter_for_the_post_passes() -> None:
+    """HiGHS and CP-SAT sequences keep 25 % of the call from the greedy loop (their solves
+    use the whole share they get); bnb and the semi-greedy path keep the driver's 10 %; the
+    caller's value wins; a bad one is refused naming the field."""
+    for engine, want in (("highs", 0.25), ("cpsat", 0.25), ("bnb", 0.1), (None, 0.1)):
+        assert AllocationOptions().sequencing("ilp", "all", 20.0, engine=engine).sequence.reserve_fraction == want
+    assert AllocationOptions().sequencing("semigreedy", "all", 20.0, engine="semigreedy") \
+        .sequence.reserve_fraction == 0.1
+    mine = AllocationOptions(sequence=SequenceOptions(reserve_fraction=0.05))
+    assert mine.sequencing("ilp", "all", 20.0, engine="highs").sequence.reserve_fraction == 0.05
+    for bad in (1.0, -0.1, True, "0.2"):
+        with pytest.raises(InputError, match="reserve_fraction"):
+            SequenceOptions(reserve_fraction=bad)
+
+
+def test_the_reserve_shrinks_each_share() -> None:
+    """A configuration's adaptive limit is twice its share of what is left after the reserve."""
+    from solvers.sequencing.budget import BUDGET, Clock
+
+    c = Clock(t0_s=0.0, limit_s=20.0)
+    for reserve, want in ((0.1, 2 * (20.0 - 2.0) / 10), (0.25, 2 * (20.0 - 5.0) / 10)):
+        got = BUDGET.config_limit_s(20.0, c, 120, 12, 5.0, True, reserve)
+        assert got == pytest.approx(want)
+    assert BUDGET.config_limit_s(20.0, c, 120, 12, 5.0, False, 0.25) == 5.0

@@ -70,25 +70,32 @@ _CACHE: dict[int, tuple[weakref.ref, BnbField]] = {}
 
 def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, list[int]]:
     """Per assignment in ``order`` and per arm ``k'``: ~(bitset over ``order[k']`` of the
-    locations in conflict with it) — numpy ``packbits``, one block per arm."""
+    locations in conflict with it) — numpy ``packbits``, one block per arm.  The submatrix
+    over ``order`` is extracted once; each packed row becomes a Python int by slicing one
+    ``bytes`` object (a numpy row view per int costs several times more)."""
     n_arms = len(order)
-    perm = np.concatenate(order) if order else np.zeros(0, np.int64)
+    if not n_arms:
+        return {}
+    perm = np.concatenate(order)
+    sub = adj[perm][:, perm].tocsr()
+    bounds = np.cumsum([0] + [len(o) for o in order])
     nconf: dict[int, list[int]] = {}
     for k in range(n_arms):
         rows = order[k]
-        if not len(rows):
+        n_rows = len(rows)
+        if not n_rows:
             continue
-        block = adj[rows][:, perm].toarray()
-        clock.charge(block.size * clock.BNB_TABLE_BIT_S + len(rows) * n_arms * clock.BNB_TABLE_ROW_S)
+        block = sub[bounds[k]:bounds[k + 1]].toarray()
+        clock.charge(block.size * clock.BNB_TABLE_BIT_S + n_rows * n_arms * clock.BNB_TABLE_ROW_S)
         per_arm = []
-        start = 0
         for kk in range(n_arms):
-            n_k = len(order[kk])
-            packed = np.packbits(block[:, start:start + n_k], axis=1, bitorder="little")
-            start += n_k
-            per_arm.append([~int.from_bytes(r.tobytes(), "little") for r in packed])
+            packed = np.packbits(block[:, bounds[kk]:bounds[kk + 1]], axis=1, bitorder="little")
+            nb = packed.shape[1]
+            raw = packed.tobytes()
+            from_bytes = int.from_bytes
+            per_arm.append([~from_bytes(raw[i * nb:(i + 1) * nb], "little") for i in range(n_rows)])
         for i, r in enumerate(rows.tolist()):
-            nconf[r] = [per_arm[kk][i] for kk in range(n_arms)]
+            nconf[r] = [p[i] for p in per_arm]
     return nconf
 
 

@@ -4,9 +4,10 @@ The model is that of :mod:`solvers.model` (eqs. 5.13–5.16, 5.18); what this mo
 how it is handed to an engine so that the engine can *prove* the optimum on dense fields:
 
 1. **Incumbent** — a start solution: the caller's ``hint`` or a short depth-first dive of
-   :func:`solvers.allocation.bitset.solve_bnb_chosen` (a thousand nodes; its first dive is
-   greedy by weight) on the priority/yield objective, then its exact longest-move search
-   among the solutions of that weight (``INCUMBENT_MOVE_NODES`` nodes).
+   :func:`solvers.allocation.bitset.solve_bnb_chosen` (``ExactOptions.incumbent_nodes``
+   nodes, as many as the ``bnb`` back-end's own search; its first dive is greedy by weight)
+   on the priority/yield objective, then its exact longest-move search among the solutions
+   of that weight (``INCUMBENT_MOVE_NODES`` nodes).
 2. **Column pruning** (:func:`solvers.allocation.bitset.prune_columns`) against that incumbent: every
    assignment whose probing bound is below the incumbent's priority/yield weight is in no
    solution at least as good, so the model over the kept columns has the same optimum and
@@ -23,10 +24,13 @@ how it is handed to an engine so that the engine can *prove* the optimum on dens
    whether stages 2 and 3 were proven.  Folding the tie-break into the stage-1 weight, as
    a single weighted sum, makes the proof far harder (many equal-priority solutions differ
    only in the tie-break) for no gain in the criteria that matter first.
-   Two exact arguments spare the engine a stage: an incumbent that reaches the per-arm
-   bound (the sum over arms of their best kept column) is the stage-1 optimum, and when it
-   is, the dive's completed longest-move search is the stage-2 optimum
-   (``stats["rounds"]`` and ``stats["move_proof"]`` say so).  The later stages get a share
+   Exact arguments spare the engine a stage: an incumbent that reaches the per-arm bound
+   (the sum over arms of their best kept column) is the stage-1 optimum, and so is the
+   incumbent of a dive that completed its search; the dive's completed longest-move search
+   is then the stage-2 optimum (``stats["rounds"]`` and ``stats["move_proof"]`` say so).
+   When stage 1 still needs the engine but less than ``ExactOptions.min_engine_s`` is left
+   (a short share of a sequence), the incumbent is returned as ``feasible`` with its gap to
+   the per-arm bound, and no model is built (``stats["model"]`` says why).  The later stages get a share
    of the time left (``LATER_TIER_SHARE``), so that in a sequence a tie-break that cannot
    be proven (many equal solutions) does not take the time of the next configurations.
 
@@ -79,15 +83,23 @@ class ExactOptions:
     :func:`_bisect_move`) or as one min-max model (``native``, eq. 5.16 per arm);
     ``max_columns``: when pruning leaves more columns than this (a weak incumbent, e.g. at a
     tier transition mid-sequence), the caller's ``large`` solve runs instead (the lazy
-    candidate model of solvers.allocation.lazy, which answers within short sequence limits)."""
+    candidate model of solvers.allocation.lazy, which answers within short sequence limits);
+    ``min_engine_s``: with an incumbent and less time left than this when stage 1 needs a
+    model, the incumbent is returned as ``feasible`` (gap against the per-arm bound) without
+    building one: on a dense field the model alone takes ~0.1 s per thousand columns, so an
+    engine given less could not even start, and in a sequence that time is better spent on
+    the configurations after it and on the repair pass; ``min_large_s``: the same for the
+    ``large`` solve, which on dense fields needs a second or more to beat the incumbent."""
 
     presolve: bool = True
     cliques: bool = True
-    incumbent_nodes: int = 1000
+    incumbent_nodes: int = 4000
     form: str = "aggregated"
     move_search: str = "bisect"
     max_columns: int = 2000
     clique_options: CliqueOptions = CliqueOptions()
+    min_engine_s: float = 0.3
+    min_large_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.form not in ("aggregated", "pairwise"):
@@ -96,6 +108,8 @@ class ExactOptions:
             raise ValueError(f"move_search must be 'bisect' or 'native', got {self.move_search!r}")
         if self.incumbent_nodes < 1:
             raise ValueError("incumbent_nodes must be >= 1")
+        if not (self.min_engine_s >= 0 and self.min_large_s >= 0):
+            raise ValueError("min_engine_s and min_large_s must be >= 0")
 
 
 def _coarse_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
@@ -111,19 +125,21 @@ def _tie_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
 
 
 def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int,
-                     deadline: float, defer: bool = False) -> tuple[np.ndarray, np.ndarray | None, dict]:
+                     deadline: float, defer: bool = False, min_engine_s: float = 0.0
+                     ) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """(kept columns mask, incumbent or None, stats): the incumbent (``hint`` if it is a
     valid choice, else a short branch-and-bound dive) and the proven column pruning.
 
     ``defer``: when the incumbent reaches the per-arm bound of the allowed columns (so stage
     1 needs no model), the pruning is left to the caller (``stats["pruned"]`` False, every
     allowed column returned): most configurations of a dense sequence then need no model
-    of their stage 1 or 2 at all."""
+    of their stage 1 or 2 at all.  So it is when the dive proved its incumbent, or when less
+    than ``min_engine_s`` is left before ``deadline`` (no engine will run)."""
     t0 = clock.now()
     f = prepare_field(problem)
     allowed = problem.allowed()
     incumbent = None
-    move_proved = False
+    proved = move_proved = False
     if hint is not None:
         incumbent = np.asarray(hint, np.int64)
     else:
@@ -138,12 +154,13 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
             # when the dive's exact longest-move search completed, its longest move is the
             # minimum among the solutions of its coarse weight (solvers.allocation.bitset)
             move_proved = bool(r["move_proved"])
-    stats = {"incumbent_s": clock.now() - t0, "incumbent_move_proved": move_proved}
+            proved = bool(r["proved"])
+    stats = {"incumbent_s": clock.now() - t0, "incumbent_proved": proved, "incumbent_move_proved": move_proved}
     if incumbent is None:
         return allowed, None, stats
     inc_c = _coarse_total(problem, incumbent)
     stats.update(incumbent_coarse=inc_c, columns_allowed=int(allowed.sum()), pruned=True)
-    if defer and inc_c >= _kept_arm_bound(problem, allowed):
+    if defer and (proved or deadline - clock.now() < min_engine_s or inc_c >= _kept_arm_bound(problem, allowed)):
         stats.update(pruned=False, columns=int(allowed.sum()))
         return allowed, incumbent, stats
     tp = clock.now()
@@ -379,7 +396,8 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             cols[hint] = True
         incumbent = hint
     elif options.presolve:
-        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline, defer=True)
+        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline, defer=True,
+                                              min_engine_s=options.min_engine_s)
         stats.update(s)
     else:
         cols, incumbent = problem.allowed(), hint
@@ -394,8 +412,17 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         total, yld, longest = evaluate(problem, chosen)
         return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
 
+    def keep_incumbent(why: str):
+        arm_bound = _kept_arm_bound(problem, cols)
+        inc = _coarse_total(problem, incumbent)
+        stats["model"] = why
+        stats["rounds"].append({"stage": "priority_yield", "proof": None, "solve_s": 0.0})
+        return finish(incumbent, "feasible", max(arm_bound - inc, 0) / max(inc, 1))
+
     if large is not None and columns is None and stats.get("pruned", True) and int(cols.sum()) > options.max_columns:
         rest = deadline - clock.now()
+        if incumbent is not None and rest < options.min_large_s:
+            return keep_incumbent(f"none: {int(cols.sum())} columns, {rest:.2f} s left (min_large_s)")
         if rest > 0.005:
             sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
             sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
@@ -426,6 +453,11 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     if incumbent is not None and _coarse_total(problem, incumbent) >= _kept_arm_bound(problem, cols):
         status, chosen, gap = "optimal", incumbent, 0.0
         stats["rounds"].append({"stage": "priority_yield", "proof": "per-arm bound", "solve_s": 0.0})
+    elif incumbent is not None and stats.get("incumbent_proved"):
+        status, chosen, gap = "optimal", incumbent, 0.0
+        stats["rounds"].append({"stage": "priority_yield", "proof": "branch-and-bound", "solve_s": 0.0})
+    elif incumbent is not None and deadline - clock.now() < options.min_engine_s:
+        return keep_incumbent(f"none: {deadline - clock.now():.2f} s left (min_engine_s)")
     else:
         status, chosen, gap = run(model.full(), 1, None, incumbent, "priority_yield")
     if chosen is None or (incumbent is not None and _coarse_total(problem, incumbent) > _coarse_total(problem, chosen)):

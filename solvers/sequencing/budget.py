@@ -46,7 +46,6 @@ class SequenceBudget:
 
     # --- the greedy loop
     min_solve_s: float = 0.01  # less than this left: stop (no_time)
-    reserve_fraction: float = 0.1  # held back from the loop for the post-passes
     min_share_s: float = 0.05  # the least one configuration's solve is given
     share_slack: float = 2.0  # a solve gets up to this many times its share (the hard ones are few)
     # --- post-passes: a keep-back for model building and verification (0.5 s let a 10 s
@@ -93,15 +92,16 @@ class SequenceBudget:
     attempt_seed_stride: int = 101
 
     def config_limit_s(self, remaining_s: float, clock: Clock, n_pending: int, n_active: int, cap_s: float,
-                       adaptive: bool) -> float:
+                       adaptive: bool, reserve_fraction: float) -> float:
         """One configuration's solve limit: at most ``cap_s`` and ``remaining_s``; with
         ``adaptive``, at most ``share_slack`` times its share of what is left after the
-        reserve, shared by the configurations still needed at best (ceil(pending / arms))."""
+        reserve (``reserve_fraction`` of the call's limit, held back for the post-passes),
+        shared by the configurations still needed at best (ceil(pending / arms))."""
         remaining = remaining_s
         if not adaptive:
             return min(cap_s, remaining)
         n_left = max(math.ceil(n_pending / max(n_active, 1)), 1)
-        share = max(remaining - self.reserve_fraction * clock.limit_s, self.min_share_s)
+        share = max(remaining - reserve_fraction * clock.limit_s, self.min_share_s)
         return min(cap_s, remaining, max(self.share_slack * share / n_left, self.min_share_s))
 
     def keep_back_s(self, clock: Clock) -> float:

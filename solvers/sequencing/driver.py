@@ -87,7 +87,7 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
             s.stop_reason = "no_time"
             break
         limit_i = BUDGET.config_limit_s(remaining, ctx.clock, int(s.pending.sum()), s.n_active,
-                                        opt.config_time_limit_s, opt.adaptive_limits)
+                                        opt.config_time_limit_s, opt.adaptive_limits, opt.reserve_fraction)
         if opt.tie_break and opt.tie_break != "reach":
             s.tie = hard_to_place(s.inc, s.n_arms, s.xy, s.pending)
         prob = ConfigProblem(s.inc, s.priority, s.pending.copy(), s.q, s.speeds, time_limit_s=limit_i,

@@ -56,7 +56,10 @@ class SequenceOptions:
     ``threads``: passed to every solve; ``tie_break``: favour hard-to-place targets among
     equal solutions (True: reach and crowding, "reach": reach only, False: none; None: on);
     ``lower_bound_flow``: report the b-matching lower bound; ``blank_per_arm``: sampled
-    blank-sky rest locations per arm in the structure (None: 0, park only).
+    blank-sky rest locations per arm in the structure (None: 0, park only);
+    ``reserve_fraction``: the part of the call's limit the adaptive shares hold back for the
+    post-passes (None: 0.1; the HiGHS and CP-SAT back-ends take 0.25, see
+    :data:`solvers.allocation.options.ENGINE_SEQUENCING`).
     """
 
     max_configurations: int | None = None
@@ -67,6 +70,7 @@ class SequenceOptions:
     tie_break: bool | str | None = None
     lower_bound_flow: bool = True
     blank_per_arm: int | None = None
+    reserve_fraction: float | None = None
 
     def __post_init__(self) -> None:
         check_int("max_configurations", self.max_configurations, 1, allow_none=True)
@@ -80,6 +84,9 @@ class SequenceOptions:
             raise InputError("tie_break", f"must be true, false or 'reach', got {self.tie_break!r}")
         check_bool("lower_bound_flow", self.lower_bound_flow)
         check_int("blank_per_arm", self.blank_per_arm, 0, allow_none=True)
+        r = self.reserve_fraction
+        if r is not None and (isinstance(r, bool) or not isinstance(r, int | float) or not (0 <= r < 1)):
+            raise InputError("reserve_fraction", f"must be a number in [0, 1), got {r!r}")
 
 
 @dataclass(frozen=True)
@@ -163,7 +170,8 @@ class SequencingOptions:
 
 #: The driver's defaults, the exact allocator's sequence (thesis 5.5 plus repair and repacking).
 DEFAULTS = SequencingOptions(
-    SequenceOptions(config_time_limit_s=5.0, adaptive_limits=True, tie_break=True, blank_per_arm=0),
+    SequenceOptions(config_time_limit_s=5.0, adaptive_limits=True, tie_break=True, blank_per_arm=0,
+                    reserve_fraction=0.1),
     RescueOptions(),
     RepairOptions(time_limit_s=5.0),
     PackingOptions(enabled=True),
