@@ -181,6 +181,8 @@ def sequences(ins, n: int, seeds: list[int], time_limit_s: float) -> list[dict]:
                        "field_completeness": st["field_completeness"], "n_configurations": st["n_configurations"],
                        "lower_bound_configurations_proven": st["lower_bound_configurations_proven"],
                        "wall_s": round(wall, 2), "unallocated": reasons, "stop_reason": st["stop_reason"],
+                       "n_configurations_greedy": st["n_configurations_greedy"],
+                       "timers_s": {k: round(v, 2) for k, v in st["timers_s"].items()},
                        "engines": st.get("engines"),
                        "configurations_proven": sum(c["status"] == "optimal" for c in st["per_configuration"])}
                 rows.append(row)

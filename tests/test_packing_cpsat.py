@@ -135,3 +135,31 @@ def test_max_cover_partial_completes_to_a_packing() -> None:
         _check_packing(inc, x, y, pool, done, len(done))
         # no packing into fewer than the fewest: n - 1 is refuted above, so never returned
         assert complete_partial(inc, pool, out.partial, n - 1, time_limit_s=10.0) is None
+
+
+def test_a_model_too_large_for_its_limit_is_not_built(monkeypatch) -> None:
+    """A packing model whose building would take longer than the attempt's limit is not
+    built (no packing, no proof); with the time for it, the same model is built and solved."""
+    import time
+
+    import solvers.sequencing.packing_cpsat as pc
+    from models import clock
+
+    x, y, inc = CROWDED[1]
+    pool = _reachable(inc)
+    m = packing_columns(inc, pool)
+    n = _fewest_configurations(inc, m, pool)
+    need_s = pc.model_literals(m, n) * clock.CPSAT_LITERAL_S
+    assert 0 < need_s < 1.0
+    built = []
+    real = pc._configurations
+    monkeypatch.setattr(pc, "_configurations", lambda *a: built.append(1) or real(*a))
+    for cover in (exact_cover, max_cover):
+        t0 = time.perf_counter()
+        out = cover(inc, m, pool, n, time_limit_s=0.5 * need_s)
+        assert (out.packing, out.infeasible, built) == (None, False, [])
+        assert time.perf_counter() - t0 < 0.1
+        out = cover(inc, m, pool, n, time_limit_s=LONG_S)
+        assert out.packing is not None and built
+        _check_packing(inc, x, y, pool, out.packing, n)
+        built.clear()
