@@ -372,6 +372,78 @@ def _stage2(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray, w1:
     return chosen
 
 
+def _finish(problem: ConfigProblem, stats: dict, t0: float, chosen: np.ndarray | None, status: str,
+            gap: float | None) -> ConfigSolution:
+    stats["total_s"] = clock.now() - t0
+    stats.setdefault("move_optimal", False)
+    stats.setdefault("tie_optimal", False)
+    if chosen is None:
+        return ConfigSolution(np.full(len(problem.assignments.arm_start) - 1, -1), status, 0, 0, 0.0, None, stats)
+    total, yld, longest = evaluate(problem, chosen)
+    return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
+
+
+def _keep_incumbent(problem: ConfigProblem, stats: dict, t0: float, incumbent: np.ndarray, cols: np.ndarray,
+                    why: str) -> ConfigSolution:
+    """The incumbent as ``feasible``, with its gap to the per-arm bound of ``cols``, no model built."""
+    arm_bound = _kept_arm_bound(problem, cols)
+    inc = _coarse_total(problem, incumbent)
+    stats["model"] = why
+    stats["rounds"].append({"stage": "priority_yield", "proof": None, "solve_s": 0.0})
+    return _finish(problem, stats, t0, incumbent, "feasible", max(arm_bound - inc, 0) / max(inc, 1))
+
+
+def _solve_large(problem: ConfigProblem, large, incumbent: np.ndarray | None, cols: np.ndarray, deadline: float,
+                 options: ExactOptions, stats: dict, t0: float) -> ConfigSolution | None:
+    """The ``large`` solve when pruning left more than ``options.max_columns`` columns (or the
+    incumbent, when less than ``min_large_s`` is left); None when no time is left for it."""
+    rest = deadline - clock.now()
+    if incumbent is not None and rest < options.min_large_s:
+        return _keep_incumbent(problem, stats, t0, incumbent, cols,
+                               f"none: {int(cols.sum())} columns, {rest:.2f} s left (min_large_s)")
+    if rest <= 0.005:
+        return None
+    sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
+    sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
+    if incumbent is None or ((sol.chosen >= 0).all() and
+                             _coarse_total(problem, sol.chosen) >= _coarse_total(problem, incumbent)):
+        return sol
+    stats["model"] = "lazy (its answer was below the incumbent)"
+    return _finish(problem, stats, t0, incumbent, "feasible", sol.gap)
+
+
+def _stage1_proof(problem: ConfigProblem, incumbent: np.ndarray | None, cols: np.ndarray, stats: dict) -> str | None:
+    """The exact argument that makes ``incumbent`` the stage-1 optimum, or None: it meets the
+    per-arm bound of the kept columns (the engine's root LP would only confirm it, and on
+    dense fields that LP has ~700,000 non-zeros), or the dive that found it completed."""
+    if incumbent is None:
+        return None
+    if _coarse_total(problem, incumbent) >= _kept_arm_bound(problem, cols):
+        return "per-arm bound"
+    if stats.get("incumbent_proved"):
+        return "branch-and-bound"
+    return None
+
+
+def _stage3(problem: ConfigProblem, model: _StageModels, run, chosen: np.ndarray, w1: int, cols: np.ndarray,
+            minimize_move: bool, stats: dict) -> np.ndarray:
+    """Stage 3: the tie-break among the stage-2 solutions, on the columns no longer than the
+    stage-2 longest move; an answer that loses anything of stages 1 and 2 is rejected."""
+    tie = None if problem.tie_break is None else np.asarray(problem.tie_break, np.int64)
+    t_cols = problem.assignments.target[np.flatnonzero(cols)]
+    if tie is None or not (tie[t_cols[t_cols >= 0]] > 0).any():
+        stats["tie_optimal"] = True
+        return chosen
+    longest = evaluate(problem, chosen)[2]
+    m3 = model.tie_break(chosen, w1, longest if minimize_move else None)
+    s3, c3, _ = run(m3, 1, None, chosen, "tie_break")
+    if c3 is not None and _coarse_total(problem, c3) >= w1 and _tie_total(problem, c3) >= _tie_total(problem, chosen) \
+            and (not minimize_move or evaluate(problem, c3)[2] <= longest + 1e-9):
+        stats["tie_optimal"] = s3 == "optimal"
+        return c3
+    return chosen
+
+
 def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: str, minimize_move: bool = True,
                  hint: np.ndarray | None = None, columns: np.ndarray | None = None,
                  options: ExactOptions = ExactOptions(),
@@ -404,33 +476,15 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     stats["hint"] = incumbent is not None
 
     def finish(chosen, status, gap):
-        stats["total_s"] = clock.now() - t0
-        stats.setdefault("move_optimal", False)
-        stats.setdefault("tie_optimal", False)
-        if chosen is None:
-            return ConfigSolution(np.full(n_arms, -1), status, 0, 0, 0.0, None, stats)
-        total, yld, longest = evaluate(problem, chosen)
-        return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
+        return _finish(problem, stats, t0, chosen, status, gap)
 
     def keep_incumbent(why: str):
-        arm_bound = _kept_arm_bound(problem, cols)
-        inc = _coarse_total(problem, incumbent)
-        stats["model"] = why
-        stats["rounds"].append({"stage": "priority_yield", "proof": None, "solve_s": 0.0})
-        return finish(incumbent, "feasible", max(arm_bound - inc, 0) / max(inc, 1))
+        return _keep_incumbent(problem, stats, t0, incumbent, cols, why)
 
     if large is not None and columns is None and stats.get("pruned", True) and int(cols.sum()) > options.max_columns:
-        rest = deadline - clock.now()
-        if incumbent is not None and rest < options.min_large_s:
-            return keep_incumbent(f"none: {int(cols.sum())} columns, {rest:.2f} s left (min_large_s)")
-        if rest > 0.005:
-            sol = large(dataclasses.replace(problem, time_limit_s=rest), incumbent)
-            sol.stats.update(model="lazy", presolve_columns=int(cols.sum()))
-            if incumbent is None or ((sol.chosen >= 0).all() and
-                                     _coarse_total(problem, sol.chosen) >= _coarse_total(problem, incumbent)):
-                return sol
-            stats["model"] = "lazy (its answer was below the incumbent)"
-            return finish(incumbent, "feasible", sol.gap)
+        sol = _solve_large(problem, large, incumbent, cols, deadline, options, stats, t0)
+        if sol is not None:
+            return sol
 
     if not np.all(np.bincount(problem.assignments.arm[cols], minlength=n_arms) > 0):
         return finish(None, "infeasible", None)
@@ -447,15 +501,11 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         chosen = None if x is None else model.var[chosen_columns(model, x, n_arms)]
         return status, chosen, gap
 
-    # stage 1: priority, then yield (the safe coarse weight); an incumbent that meets the
-    # per-arm bound of the kept columns is optimal by that bound alone (the engine's root LP
-    # would only confirm it, and on dense fields that LP has ~700,000 non-zeros)
-    if incumbent is not None and _coarse_total(problem, incumbent) >= _kept_arm_bound(problem, cols):
+    # stage 1: priority, then yield (the safe coarse weight)
+    proof = _stage1_proof(problem, incumbent, cols, stats)
+    if proof is not None:
         status, chosen, gap = "optimal", incumbent, 0.0
-        stats["rounds"].append({"stage": "priority_yield", "proof": "per-arm bound", "solve_s": 0.0})
-    elif incumbent is not None and stats.get("incumbent_proved"):
-        status, chosen, gap = "optimal", incumbent, 0.0
-        stats["rounds"].append({"stage": "priority_yield", "proof": "branch-and-bound", "solve_s": 0.0})
+        stats["rounds"].append({"stage": "priority_yield", "proof": proof, "solve_s": 0.0})
     elif incumbent is not None and deadline - clock.now() < options.min_engine_s:
         return keep_incumbent(f"none: {deadline - clock.now():.2f} s left (min_engine_s)")
     else:
@@ -476,17 +526,5 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
         stats.update(move_optimal=True, move_proof="branch-and-bound")
     elif minimize_move:
         chosen = _stage2(problem, model.full(), run, chosen, w1, options, stats)
-    # stage 3: the tie-break among those, on columns no longer than the stage-2 longest move
-    tie = None if problem.tie_break is None else np.asarray(problem.tie_break, np.int64)
-    t_cols = problem.assignments.target[np.flatnonzero(cols)]
-    if tie is not None and (tie[t_cols[t_cols >= 0]] > 0).any():
-        longest = evaluate(problem, chosen)[2]
-        m3 = model.tie_break(chosen, w1, longest if minimize_move else None)
-        s3, c3, _ = run(m3, 1, None, chosen, "tie_break")
-        if c3 is not None and _coarse_total(problem, c3) >= w1 and _tie_total(problem, c3) >= _tie_total(problem, chosen) \
-                and (not minimize_move or evaluate(problem, c3)[2] <= longest + 1e-9):
-            chosen = c3
-            stats["tie_optimal"] = s3 == "optimal"
-    else:
-        stats["tie_optimal"] = True
+    chosen = _stage3(problem, model, run, chosen, w1, cols, minimize_move, stats)
     return finish(chosen, "optimal", None)
