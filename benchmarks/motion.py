@@ -22,7 +22,8 @@ Protocol "thesis" (the default; Sabater 2019, 6.4.2: 200 prioritised SGPBTA assi
 Reported per method and per leg kind ("park_to_configuration": leg 0, "chained":
 c_i -> c_(i+1), "to_park": the last leg): legs, success rate, compute time (median, p90,
 p99, max), makespan (median; ratio to the lower bound max_k direct-move time, median and
-p90; share <= 120 s), stops per arm (max, mean), strategies, and the failed legs. For the
+p90; share <= 120 s), stops per arm (max, mean), strategies, the failed legs and the five
+slowest legs with the strategy that planned them. For the
 whole field: the share of fields with no failed leg (a) with the planner alone and (b) through
 ``planner.sequence.plan_sequence``, which changes the plan (legs through park, moved targets,
 new configurations) where a leg fails; (b) is ``{"available": false}`` when that function is
@@ -219,6 +220,9 @@ def _max(values: Sequence[float]) -> float | None:
     return float(np.max(values)) if len(values) else None
 
 
+SLOWEST_LEGS = 5  # per leg kind, reported with their strategy
+
+
 def leg_summary(records: Sequence[LegRecord]) -> dict:
     ok = [r for r in records if r.ok]
     compute_s = [r.compute_s for r in records]
@@ -243,6 +247,10 @@ def leg_summary(records: Sequence[LegRecord]) -> dict:
         "strategy_counts": dict(sorted(Counter(str(r.strategy) for r in ok).items())),
         "failed_legs": [{"field": r.field, "leg": r.leg, "failed_arms": list(r.failed_arms)}
                         for r in records if not r.ok],
+        # the compute tail (the p99 goal): which legs, and which strategy planned them
+        "slowest_legs": [{"field": r.field, "leg": r.leg, "compute_s": round(r.compute_s, 2), "status": r.status,
+                          "strategy": r.strategy, "makespan_s": round(r.makespan_s, 1)}
+                         for r in sorted(records, key=lambda r: -r.compute_s)[:SLOWEST_LEGS]],
     }
 
 
