@@ -79,6 +79,7 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
     perm = np.concatenate(order)
     sub = adj[perm][:, perm].tocsr()
     bounds = np.cumsum([0] + [len(o) for o in order])
+    from_bytes = int.from_bytes
     nconf: dict[int, list[int]] = {}
     for k in range(n_arms):
         rows = order[k]
@@ -92,7 +93,6 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
             packed = np.packbits(block[:, bounds[kk]:bounds[kk + 1]], axis=1, bitorder="little")
             nb = packed.shape[1]
             raw = packed.tobytes()
-            from_bytes = int.from_bytes
             per_arm.append([~from_bytes(raw[i * nb:(i + 1) * nb], "little") for i in range(n_rows)])
         for i, r in enumerate(rows.tolist()):
             nconf[r] = [p[i] for p in per_arm]

@@ -30,9 +30,10 @@ how it is handed to an engine so that the engine can *prove* the optimum on dens
    is then the stage-2 optimum (``stats["rounds"]`` and ``stats["move_proof"]`` say so).
    When stage 1 still needs the engine but less than ``ExactOptions.min_engine_s`` is left
    (a short share of a sequence), the incumbent is returned as ``feasible`` with its gap to
-   the per-arm bound, and no model is built (``stats["model"]`` says why).  The later stages get a share
-   of the time left (``LATER_TIER_SHARE``), so that in a sequence a tie-break that cannot
-   be proven (many equal solutions) does not take the time of the next configurations.
+   the per-arm bound, and no model is built (``stats["model"]`` says why).  The later
+   stages get a share of the time left (``LATER_TIER_SHARE``), so that in a sequence a
+   tie-break that cannot be proven (many equal solutions) does not take the time of the
+   next configurations.
 
 Every stage answer is re-evaluated in exact integers; one that would lose anything against
 the previous stage is rejected.
