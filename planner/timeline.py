@@ -82,28 +82,49 @@ def _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, m
 
 
 @numba.njit(cache=True)
-def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, d_lo, d_hi, d_step, buf, hdt):
+def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, d_lo, d_hi, d_step, buf, hdt,
+                     VMAX, dt):
     """The first step D in range(d_lo, d_hi + 1, d_step) at which every sample i of the move
     clears every other arm at step D + i; -1 when there is none. The sample that failed the
-    previous D is tried first (it usually fails the next D too)."""
+    previous D is tried first (it usually fails the next D too), and the departures at which
+    it surely fails again are skipped (:func:`_still_close`)."""
     n1 = ms.shape[0]
     memo = np.zeros((n1, S.shape[0]), np.int8)
     hint = 0
     D = d_lo
     while D <= d_hi:
-        if _sample_hits(ms, me, mr, mbox, mspd, hint, S, E, R, BOX, SPD, REST, vis, arm, D + hint, buf, hdt,
-                        memo) < 0:
-            ok = True
-            for i in range(n1):
-                if i != hint and _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, D + i,
-                                              buf, hdt, memo) >= 0:
+        j = _sample_hits(ms, me, mr, mbox, mspd, hint, S, E, R, BOX, SPD, REST, vis, arm, D + hint, buf, hdt, memo)
+        if j < 0:  # the other samples, outward from the hint (conflicts come in runs)
+            for t in range(1, 2 * n1):
+                i = hint + (t + 1) // 2 if t % 2 else hint - t // 2
+                if i < 0 or i >= n1:
+                    continue
+                j = _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, D + i, buf, hdt, memo)
+                if j >= 0:
                     hint = i
-                    ok = False
                     break
-            if ok:
+            if j < 0:
                 return D
-        D += d_step
+        skip = _still_close(ms, me, mr, mspd, hint, S, E, R, REST, VMAX, j, D + hint, buf, hdt, dt)
+        if skip < 0:
+            return -1
+        D += d_step * max(1, -(-skip // d_step))
     return -1
+
+
+@numba.njit(cache=True)
+def _still_close(ms, me, mr, mspd, i, S, E, R, REST, VMAX, j, m, buf, hdt, dt):
+    """Sample i of a move is too close to arm j at step m: the number of steps s such that it
+    is surely too close at steps m + 1 .. m + s - 1 too (at least 1), or -1 when for ever (arm j
+    rests there from then on). Arm j's body points move at most VMAX[j] mm/s, so the clearance
+    grows by at most dt * VMAX[j] per step; the threshold is at least buf + hdt * mspd[i]."""
+    c = bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m)
+    deficit = buf + hdt * mspd[i] - c
+    if m >= REST[j] or VMAX[j] <= 0.0:
+        return -1 if deficit > 0.0 else 1
+    if deficit <= 0.0:
+        return 1
+    return max(1, int(math.ceil(deficit * (1.0 - 1e-9) / (dt * VMAX[j]))))
 
 
 SAMPLE_CACHE_BYTES = 64 * 2**20  # sampled moves kept per timeline and its fresh copies
@@ -201,9 +222,11 @@ def _first_conflict(gs, ge, gr, gbox, gspd, S, E, R, BOX, SPD, REST, BBOX, BSPD,
 
 
 @numba.njit(cache=True)
-def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, buf, hdt):
+def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, buf, hdt, dt):
     """Per other arm, the first sample of the move closer than ``thr`` to that arm's final pose
-    (its pose at the last step); -1 when none. Arms clear of the whole move's box are skipped."""
+    (its pose at the last step); -1 when none. Arms clear of the whole move's box are skipped,
+    and so are samples that a clear sample certifies: the move's poses are ``dt`` apart in
+    time and its body points move at most ``max(mspd)`` mm/s (conservative advancement)."""
     A = S.shape[0]
     m = S.shape[1] - 1
     out = np.full(A, -1, np.int64)
@@ -211,16 +234,23 @@ def _final_conflicts(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, 
     ub[0, 0], ub[0, 1] = mbox[:, 0].min(), mbox[:, 1].min()
     ub[0, 2], ub[0, 3] = mbox[:, 2].max(), mbox[:, 3].max()
     top = buf + hdt * mspd.max()
+    step_mm = dt * mspd.max()
+    n1 = ms.shape[0]
     for j in range(A):
         if j == arm or not vis[j] or _box_gap(ub, 0, BOX[j], m) >= top:
             continue
-        for i in range(ms.shape[0]):
+        i = 0
+        while i < n1:
             thr = buf + hdt * mspd[i]
-            if _box_gap(mbox, i, BOX[j], m) >= thr:
-                continue
-            if bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m) < thr:
-                out[j] = i
-                break
+            c = _box_gap(mbox, i, BOX[j], m)
+            if c < thr:
+                c = bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m)
+                if c < thr:
+                    out[j] = i
+                    break
+            i += 1
+            if step_mm > 0.0 and c > top:
+                i += int((c - top) / step_mm)  # those samples keep at least ``top``
     return out
 
 
@@ -359,6 +389,7 @@ class Timeline:
         self.BOX = np.empty((n, self.n_steps + 1, 4))
         self.SPD = np.zeros((n, self.n_steps + 1))
         self.REST = np.zeros(n, np.int64)  # the step from which each arm rests at its end pose
+        self.VMAX = np.zeros(n)  # each arm's fastest body-point speed bound over its moves (mm/s)
         n_blocks = -(-(self.n_steps + 1) // BLOCK)
         self.BBOX = np.empty((n, n_blocks, 4))
         self.BSPD = np.zeros((n, n_blocks))
@@ -375,13 +406,13 @@ class Timeline:
         t.__dict__.update(self.__dict__)
         t.moves = [[] for _ in self.moves]
         t.visible = np.zeros_like(self.visible)
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX"):
             setattr(t, name, getattr(self, "_rest_" + name).copy())
         return t
 
     def keep_rest_state(self) -> None:
         """Remember the current rows as the state :meth:`fresh` returns to."""
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX"):
             setattr(self, "_rest_" + name, getattr(self, name).copy())
 
     # ------------------------------------------------------------------ state
@@ -442,6 +473,7 @@ class Timeline:
             hi = min(lo + len(m), self.n_steps + 1)
             spd[lo:hi] = np.maximum(spd[lo:hi], m[:hi - lo])
         self.SPD[k] = spd
+        self.VMAX[k] = spd.max()
         self.REST[k] = self.free_step(k)
         _block_boxes(self.BOX[k], spd, a // BLOCK, self.BBOX[k], self.BSPD[k])  # blocks before a's unchanged
 
@@ -494,7 +526,7 @@ class Timeline:
         clock.work("departure", n)
         w = self._world(k)
         r = self.R[k]
-        first = _final_conflicts(ms.s, ms.e, r, ms.box, ms.speed, *w)
+        first = _final_conflicts(ms.s, ms.e, r, ms.box, ms.speed, *w, self.dt_s)
         blockers = {int(j) for j in np.flatnonzero(first >= 0)}
         d_hi = self.n_steps - n
         for j in blockers:  # sample i must pass before arm j settles in its final pose
@@ -507,7 +539,8 @@ class Timeline:
         d_lo = max(self.free_step(k), last - n + 1, int(min_step), 0)
         if last >= self.n_steps or d_lo > d_hi:
             return -1, blockers
-        d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:8], d_lo, d_hi, 1, *w[8:])
+        d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:8], d_lo, d_hi, 1, *w[8:], self.VMAX,
+                             self.dt_s)
         return int(d), blockers
 
     def free_after(self, k: int, q: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -557,9 +590,9 @@ def compile_kernels() -> None:
     S, E, B, R, P = z[None], z[None], b[None], r[None], r[None]
     v = np.ones(1, np.bool_)
     rest = np.zeros(1, np.int64)
-    _first_departure(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0, 0, 1, 0.0, 0.0)
+    _first_departure(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0, 0, 1, 0.0, 0.0, r, 1.0)
     _first_conflict(z, z, r, b, r, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0)
     _last_conflicts(z, z, r, b, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0, 1)
-    _final_conflicts(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0.0, 0.0)
+    _final_conflicts(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0.0, 0.0, 1.0)
     _boxes(z, z, r)
     _block_boxes(b, r, 0, b.copy(), r.copy())

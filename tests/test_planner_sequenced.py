@@ -72,13 +72,15 @@ def _clear_brute(tl: Timeline, k: int, ms, D: int) -> bool:
     return True
 
 
+@pytest.mark.parametrize("dt_s", [1.0, 0.4])
 @pytest.mark.parametrize("leg_index", range(len(LEGS)))
-def test_earliest_departure_matches_brute_force(leg_index):
+def test_earliest_departure_matches_brute_force(leg_index, dt_s):
     """On a real leg, every arm's earliest departure (after the arms before it in the order are
-    committed) is the first step the numpy brute force accepts."""
+    committed) is the first step the numpy brute force accepts. The kernels skip departures
+    and samples by Lipschitz bounds in steps of ``dt_s``: a finer grid skips more of them."""
     spec = LEGS[leg_index]
     leg = _leg(spec["start_q"], spec["goal_q"], horizon_s=160.0)
-    tl = Timeline(leg.geoms, leg.start_q, horizon_s=160.0, dt_s=1.0, buffer_mm=leg.buffer_mm, max_moves=2)
+    tl = Timeline(leg.geoms, leg.start_q, horizon_s=160.0, dt_s=dt_s, buffer_mm=leg.buffer_mm, max_moves=2)
     checked = 0
     for k in first_order(leg):
         for q in goal_targets(tl.pose(k), leg.goal_q[k]):
@@ -312,3 +314,109 @@ def test_resumed_prefixes_give_the_same_plan():
         a, b = resumed.tl.waypoints(k), fresh.tl.waypoints(k)
         assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]), k
     assert np.array_equal(resumed.tl.S, fresh.tl.S) and np.array_equal(resumed.tl.BBOX, fresh.tl.BBOX)
+
+
+def _pair_clearance(s, e, r, S, E, R) -> np.ndarray:
+    """Clearance (mm) of capsules s/e (n, nb, 2) of radii r against S/E (m, nb, 2), (n, m)."""
+    d = segment_distance_mm(s[:, None, :, None, :], e[:, None, :, None, :], S[None, :, None, :, :],
+                            E[None, :, None, :, :])
+    return (d - r[None, None, :, None] - R[None, None, None, :]).min(axis=(2, 3))
+
+
+def _brute_departure(tl: Timeline, k: int, ms) -> tuple[int, dict[int, int]]:
+    """The first clear departure step of ``ms`` (as :func:`_clear_brute`, every step and every
+    sample in numpy) and, per visible arm, the first sample too close to its final pose."""
+    n, hdt, buf = ms.n_steps, tl.half_step_margin_s, tl.buffer_mm
+    steps = np.arange(tl.n_steps + 1)
+    bad_move = np.zeros((n + 1, tl.n_steps + 1), bool)
+    bad_end = np.zeros(tl.n_steps + 1, bool)
+    bad_start = np.zeros(tl.n_steps + 1, bool)
+    final: dict[int, int] = {}
+    for j in np.flatnonzero(tl.visible):
+        if j == k:
+            continue
+        c = _pair_clearance(ms.s, ms.e, tl.R[k], tl.S[j], tl.E[j], tl.R[j])
+        bad_move |= c < buf + hdt * (ms.speed[:, None] + tl.SPD[j][None, :])
+        bad_end |= c[-1] < buf + hdt * tl.SPD[j]
+        bad_start |= c[0] < buf + hdt * tl.SPD[j]
+        hit = np.flatnonzero(c[:, -1] < buf + hdt * ms.speed)
+        final[int(j)] = int(hit[0]) if len(hit) else -1
+    for D in range(tl.n_steps - n + 1):
+        i = np.arange(n + 1)
+        if bad_move[i, D + i].any() or bad_end[steps >= D + n].any():
+            continue
+        if not tl.visible[k] and bad_start[: D + 1].any():
+            continue
+        return D, final
+    return -1, final
+
+
+@pytest.mark.parametrize("dt_s", [0.5, 0.25])
+def test_departure_kernels_match_brute_force_on_crowded_moves(dt_s):
+    """Moves of the arms not yet planned to random poses (most of them blocked for a while or
+    for ever) against half a leg planned on the grid: the earliest departure and each visible
+    arm's first sample too close to its final pose equal a numpy scan of every step and sample.
+    The kernels skip departures, samples and blocks by Lipschitz bounds; a skip one step too
+    long shows here."""
+    from planner.timeline import _final_conflicts
+
+    spec = next(s for s in LEGS if s["name"] == "examples_m13_c3_to_c4")
+    leg = _leg(spec["start_q"], spec["goal_q"], horizon_s=150.0)
+    tl = Timeline(leg.geoms, leg.start_q, horizon_s=150.0, dt_s=dt_s, buffer_mm=leg.buffer_mm, max_moves=2)
+    order = first_order(leg)
+    for k in order[:6]:
+        for q in goal_targets(tl.pose(k), leg.goal_q[k]):
+            ms = tl.samples(k, q)
+            d = -1 if ms is None else tl.earliest_departure(k, ms)[0]
+            if d >= 0:
+                tl.commit(k, ms, d)
+                break
+    assert tl.visible.sum() >= 5
+    rng = np.random.default_rng(11)
+    outcomes = {"now": 0, "later": 0, "never": 0}
+    for k in order[6:]:
+        g = tl.geoms[k]
+        for target in goal_targets(tl.start_q[k], leg.goal_q[k]) * 4:  # near its goal, either way round
+            q = target + rng.uniform(-0.15, 0.15, 2)
+            q[0] = np.clip(q[0], g.theta1_min, g.theta1_max)
+            ms = tl.samples(k, q)
+            if ms is None or ms.n_steps == 0:
+                continue
+            d, _ = tl.earliest_departure(k, ms)
+            brute, final = _brute_departure(tl, k, ms)
+            assert d == brute, (k, q, d, brute)
+            w = tl._world(k)
+            first = _final_conflicts(ms.s, ms.e, tl.R[k], ms.box, ms.speed, *w, tl.dt_s)
+            assert {j: int(first[j]) for j in final} == final
+            outcomes["now" if d == 0 else "later" if d > 0 else "never"] += 1
+    assert min(outcomes.values()) >= 2, outcomes
+
+
+def test_final_pose_conflicts_match_brute_force_on_random_moves():
+    """The first sample of a move too close to a neighbour's final pose (the kernel jumps over
+    samples a clear one certifies) equals a numpy scan of every sample, over random moves
+    of arm 0 and random final poses of arms 1 and 11, on the planner's 0.1 s grid."""
+    from planner.timeline import _final_conflicts
+
+    leg = _leg(PARK, PARK)
+    rng = np.random.default_rng(5)
+    hits = 0
+    for _ in range(60):
+        tl = Timeline(leg.geoms, PARK, horizon_s=120.0, dt_s=0.1, buffer_mm=leg.buffer_mm, max_moves=2)
+        for j in (1, 11):
+            g = tl.geoms[j]
+            q = np.array([rng.uniform(1.6, g.theta1_max), rng.uniform(-2.0, 2.0)])
+            ms = tl.samples(j, q)
+            if ms is not None:
+                tl.commit(j, ms, 0)
+        g = tl.geoms[0]
+        ms = tl.samples(0, np.array([rng.uniform(1.6, g.theta1_max), rng.uniform(-3.0, 3.0)]))
+        if ms is None or not tl.visible.any():
+            continue
+        first = _final_conflicts(ms.s, ms.e, tl.R[0], ms.box, ms.speed, *tl._world(0), tl.dt_s)
+        for j in np.flatnonzero(tl.visible):
+            c = _pair_clearance(ms.s, ms.e, tl.R[0], tl.S[j, -1:], tl.E[j, -1:], tl.R[j])[:, 0]
+            bad = np.flatnonzero(c < tl.buffer_mm + tl.half_step_margin_s * ms.speed)
+            assert first[j] == (bad[0] if len(bad) else -1), (j, first[j], bad[:3])
+            hits += len(bad) > 0 and bad[0] > 0
+    assert hits >= 10
