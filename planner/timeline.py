@@ -83,7 +83,7 @@ def _sample_hits(ms, me, mr, mbox, mspd, i, S, E, R, BOX, SPD, REST, vis, arm, m
 
 @numba.njit(cache=True)
 def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, d_lo, d_hi, d_step, buf, hdt,
-                     VMAX, dt):
+                     VMAX, STILL, dt):
     """The first step D in range(d_lo, d_hi + 1, d_step) at which every sample i of the move
     clears every other arm at step D + i; -1 when there is none. The sample that failed the
     previous D is tried first (it usually fails the next D too), and the departures at which
@@ -105,7 +105,7 @@ def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, 
                     break
             if j < 0:
                 return D
-        skip = _still_close(ms, me, mr, mspd, hint, S, E, R, REST, VMAX, j, D + hint, buf, hdt, dt)
+        skip = _still_close(ms, me, mr, mspd, hint, S, E, R, REST, VMAX, STILL, j, D + hint, buf, hdt, dt)
         if skip < 0:
             return -1
         D += d_step * max(1, -(-skip // d_step))
@@ -113,18 +113,21 @@ def _first_departure(ms, me, mr, mbox, mspd, S, E, R, BOX, SPD, REST, vis, arm, 
 
 
 @numba.njit(cache=True)
-def _still_close(ms, me, mr, mspd, i, S, E, R, REST, VMAX, j, m, buf, hdt, dt):
+def _still_close(ms, me, mr, mspd, i, S, E, R, REST, VMAX, STILL, j, m, buf, hdt, dt):
     """Sample i of a move is too close to arm j at step m: the number of steps s such that it
     is surely too close at steps m + 1 .. m + s - 1 too (at least 1), or -1 when for ever (arm j
-    rests there from then on). Arm j's body points move at most VMAX[j] mm/s, so the clearance
-    grows by at most dt * VMAX[j] per step; the threshold is at least buf + hdt * mspd[i]."""
+    rests there from then on). Arm j rests at its pose of step m until step STILL[j, m] (the
+    threshold stays the same there: its speed margin is zero), and after that its body points
+    move at most VMAX[j] mm/s, so the clearance grows by at most dt * VMAX[j] per step; the
+    threshold is at least buf + hdt * mspd[i]."""
     c = bodies_clearance(ms, me, mr, i, S[j], E[j], R[j], m)
     deficit = buf + hdt * mspd[i] - c
     if m >= REST[j] or VMAX[j] <= 0.0:
         return -1 if deficit > 0.0 else 1
     if deficit <= 0.0:
         return 1
-    return max(1, int(math.ceil(deficit * (1.0 - 1e-9) / (dt * VMAX[j]))))
+    still = STILL[j, m] - m  # arm j rests where it is until step STILL[j, m]
+    return max(1, still + int(math.ceil(deficit * (1.0 - 1e-9) / (dt * VMAX[j]))))
 
 
 SAMPLE_CACHE_BYTES = 64 * 2**20  # sampled moves kept per timeline and its fresh copies
@@ -319,6 +322,16 @@ class MoveSamples:
         return self.s[:1], self.e[:1], self.box[:1], np.zeros(1)
 
 
+def still_until(spd: np.ndarray) -> np.ndarray:
+    """For each step m, the last step of the run of zero speed margins that contains m (m
+    itself when the arm moves there): an arm is at the same pose throughout such a run, since
+    a move's margins are zero only at its two ends (:func:`margin_speeds`)."""
+    n = len(spd)
+    idx = np.arange(n)
+    first_moving = np.minimum.accumulate(np.where(spd > 0, idx, n)[::-1])[::-1]
+    return np.where(spd > 0, idx, first_moving - 1)
+
+
 def margin_speeds(n: int, speed_mm_s: float) -> np.ndarray:
     """Per-sample speeds of a move of ``n`` steps for the clearance threshold (buffer + half a
     step times the speeds of both arms at that sample).
@@ -390,6 +403,7 @@ class Timeline:
         self.SPD = np.zeros((n, self.n_steps + 1))
         self.REST = np.zeros(n, np.int64)  # the step from which each arm rests at its end pose
         self.VMAX = np.zeros(n)  # each arm's fastest body-point speed bound over its moves (mm/s)
+        self.STILL = np.tile(np.arange(self.n_steps + 1), (n, 1))  # last step of the rest at each step
         n_blocks = -(-(self.n_steps + 1) // BLOCK)
         self.BBOX = np.empty((n, n_blocks, 4))
         self.BSPD = np.zeros((n, n_blocks))
@@ -406,13 +420,13 @@ class Timeline:
         t.__dict__.update(self.__dict__)
         t.moves = [[] for _ in self.moves]
         t.visible = np.zeros_like(self.visible)
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX", "STILL"):
             setattr(t, name, getattr(self, "_rest_" + name).copy())
         return t
 
     def keep_rest_state(self) -> None:
         """Remember the current rows as the state :meth:`fresh` returns to."""
-        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX"):
+        for name in ("S", "E", "BOX", "SPD", "BBOX", "BSPD", "REST", "VMAX", "STILL"):
             setattr(self, "_rest_" + name, getattr(self, name).copy())
 
     # ------------------------------------------------------------------ state
@@ -474,6 +488,7 @@ class Timeline:
             spd[lo:hi] = np.maximum(spd[lo:hi], m[:hi - lo])
         self.SPD[k] = spd
         self.VMAX[k] = spd.max()
+        self.STILL[k] = still_until(spd)
         self.REST[k] = self.free_step(k)
         _block_boxes(self.BOX[k], spd, a // BLOCK, self.BBOX[k], self.BSPD[k])  # blocks before a's unchanged
 
@@ -540,7 +555,7 @@ class Timeline:
         if last >= self.n_steps or d_lo > d_hi:
             return -1, blockers
         d = _first_departure(ms.s, ms.e, r, ms.box, ms.speed, *w[:8], d_lo, d_hi, 1, *w[8:], self.VMAX,
-                             self.dt_s)
+                             self.STILL, self.dt_s)
         return int(d), blockers
 
     def free_after(self, k: int, q: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -590,7 +605,7 @@ def compile_kernels() -> None:
     S, E, B, R, P = z[None], z[None], b[None], r[None], r[None]
     v = np.ones(1, np.bool_)
     rest = np.zeros(1, np.int64)
-    _first_departure(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0, 0, 1, 0.0, 0.0, r, 1.0)
+    _first_departure(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0, 0, 1, 0.0, 0.0, r, rest[None], 1.0)
     _first_conflict(z, z, r, b, r, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0)
     _last_conflicts(z, z, r, b, S, E, R, B, P, rest, B, P, v, 0, 0.0, 0.0, 1)
     _final_conflicts(z, z, r, b, r, S, E, R, B, P, rest, v, 0, 0.0, 0.0, 1.0)
