@@ -117,14 +117,15 @@ def test_sequencing_defaults_resolve_by_method_and_mode() -> None:
     """The "one" mode is exactly one configuration with the call's whole limit and no adaptive
     share; the semi-greedy fast path fills only what the caller left unset; a sequence caps
     each solve at min(call limit, 5 s)."""
-    one = AllocationOptions().sequencing("ilp", "one", 30.0)
+    one = AllocationOptions().sequencing("one", 30.0)
     assert (one.sequence.max_configurations, one.sequence.config_time_limit_s, one.sequence.adaptive_limits) \
         == (1, 30.0, False)
     assert one.packing.enabled is True and one.repair.time_limit_s == 5.0 and one.sequence.blank_per_arm == 0
-    seq = AllocationOptions(sequence=SequenceOptions(max_configurations=4)).sequencing("ilp", "all", 3.0)
+    seq = AllocationOptions(sequence=SequenceOptions(max_configurations=4)).sequencing("all", 3.0)
     assert (seq.sequence.max_configurations, seq.sequence.config_time_limit_s, seq.sequence.adaptive_limits) \
         == (4, 3.0, True)
-    sg = AllocationOptions(packing=PackingOptions(enabled=True)).sequencing("semigreedy", "all", 60.0)
+    sg = AllocationOptions(packing=PackingOptions(enabled=True)).sequencing(
+        "all", 60.0, get_backend("semigreedy").sequencing)
     assert sg.packing.enabled is True  # the caller's choice wins over the fast path
     assert (sg.sequence.tie_break, sg.sequence.blank_per_arm, sg.repair.time_limit_s) == (False, 16, 0.5)
     assert sg.sequence.config_time_limit_s == 5.0
@@ -134,12 +135,15 @@ def test_exact_engines_hold_back_a_quarter_for_the_post_passes() -> None:
     """HiGHS and CP-SAT sequences keep 25 % of the call from the greedy loop (their solves
     use the whole share they get); bnb and the semi-greedy path keep the driver's 10 %; the
     caller's value wins; a bad one is refused naming the field."""
+    def reserve(opts: AllocationOptions, engine: str | None) -> float:
+        defaults = None if engine is None else get_backend(engine).sequencing
+        return opts.sequencing("all", 20.0, defaults).sequence.reserve_fraction
+
     for engine, want in (("highs", 0.25), ("cpsat", 0.25), ("bnb", 0.1), (None, 0.1)):
-        assert AllocationOptions().sequencing("ilp", "all", 20.0, engine=engine).sequence.reserve_fraction == want
-    assert AllocationOptions().sequencing("semigreedy", "all", 20.0, engine="semigreedy") \
-        .sequence.reserve_fraction == 0.1
+        assert reserve(AllocationOptions(), engine) == want
+    assert reserve(AllocationOptions(), "semigreedy") == 0.1
     mine = AllocationOptions(sequence=SequenceOptions(reserve_fraction=0.05))
-    assert mine.sequencing("ilp", "all", 20.0, engine="highs").sequence.reserve_fraction == 0.05
+    assert reserve(mine, "highs") == 0.05
     for bad in (1.0, -0.1, True, "0.2"):
         with pytest.raises(InputError, match="reserve_fraction"):
             SequenceOptions(reserve_fraction=bad)

@@ -42,6 +42,13 @@ def _leg(start, goal, **kw) -> Leg:
     return Leg.build(INST, np.array(start, float), np.array(goal, float), MotionOptions(**kw))
 
 
+def _capsule_clearance(s, e, r, S, E, R) -> np.ndarray:
+    """Clearance (mm) of capsules s/e (..., nb, 2) of radii r against S/E (..., nb, 2) of
+    radii R, leading axes broadcast, with the numpy distance of models.collision."""
+    d = segment_distance_mm(s[..., :, None, :], e[..., :, None, :], S[..., None, :, :], E[..., None, :, :])
+    return (d - r[:, None] - R[None, :]).min(axis=(-2, -1))
+
+
 def _clear_brute(tl: Timeline, k: int, ms, D: int) -> bool:
     """Move ``ms`` of arm k departing at step D against every visible arm, in numpy."""
     n = ms.n_steps
@@ -50,23 +57,16 @@ def _clear_brute(tl: Timeline, k: int, ms, D: int) -> bool:
         if j == k:
             continue
         m = np.arange(D, D + n + 1)
-        d = segment_distance_mm(ms.s[:, :, None, :], ms.e[:, :, None, :], tl.S[j, m][:, None, :, :],
-                                tl.E[j, m][:, None, :, :])
-        c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+        c = _capsule_clearance(ms.s, ms.e, tl.R[k], tl.S[j, m], tl.E[j, m], tl.R[j])
         if np.any(c < tl.buffer_mm + hdt * (ms.speed + tl.SPD[j, m])):
             return False
-        # at rest at the end from D + n on
-        rest = np.arange(D + n, tl.n_steps + 1)
-        d = segment_distance_mm(ms.s[-1][None, :, None, :], ms.e[-1][None, :, None, :], tl.S[j, rest][:, None],
-                                tl.E[j, rest][:, None])
-        c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+        rest = np.arange(D + n, tl.n_steps + 1)  # at rest at the end from D + n on
+        c = _capsule_clearance(ms.s[-1:], ms.e[-1:], tl.R[k], tl.S[j, rest], tl.E[j, rest], tl.R[j])
         if np.any(c < tl.buffer_mm + hdt * tl.SPD[j, rest]):
             return False
         if not tl.visible[k]:  # resting at the start until D
             before = np.arange(0, D + 1)
-            d = segment_distance_mm(ms.s[0][None, :, None, :], ms.e[0][None, :, None, :], tl.S[j, before][:, None],
-                                    tl.E[j, before][:, None])
-            c = (d - tl.R[k][None, :, None] - tl.R[j][None, None, :]).min(axis=(1, 2))
+            c = _capsule_clearance(ms.s[:1], ms.e[:1], tl.R[k], tl.S[j, before], tl.E[j, before], tl.R[j])
             if np.any(c < tl.buffer_mm + hdt * tl.SPD[j, before]):
                 return False
     return True
@@ -318,9 +318,7 @@ def test_resumed_prefixes_give_the_same_plan():
 
 def _pair_clearance(s, e, r, S, E, R) -> np.ndarray:
     """Clearance (mm) of capsules s/e (n, nb, 2) of radii r against S/E (m, nb, 2), (n, m)."""
-    d = segment_distance_mm(s[:, None, :, None, :], e[:, None, :, None, :], S[None, :, None, :, :],
-                            E[None, :, None, :, :])
-    return (d - r[None, None, :, None] - R[None, None, None, :]).min(axis=(2, 3))
+    return _capsule_clearance(s[:, None], e[:, None], r, S[None], E[None], R)
 
 
 def _brute_departure(tl: Timeline, k: int, ms) -> tuple[int, dict[int, int]]:

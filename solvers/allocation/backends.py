@@ -14,11 +14,14 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from solvers.problem import ConfigProblem, ConfigSolution
+
+if TYPE_CHECKING:
+    from solvers.sequencing.options import SequencingOptions
 
 __all__ = ["BACKEND_MODULES", "Backend", "backend_names", "get_backend"]
 
@@ -34,7 +37,10 @@ class Backend:
     ``rescue``: the registry name of the exact engine the sequence's conflict rescue uses
     for one leftover target at a time (its own for HiGHS and CP-SAT; CP-SAT for ``bnb``,
     whose node-limited search wanders in the zero-weight rest placements of a rescue model,
-    and for the heuristic); ``description``: what ``stats["engines"]["configurations"]`` says.
+    and for the heuristic); ``description``: what ``stats["engines"]["configurations"]`` says;
+    ``sequencing``: the back-end's own defaults for a whole sequence
+    (:class:`~solvers.sequencing.options.SequencingOptions`, below the caller's and above
+    the driver's; None: the driver's alone).
     ``hint`` (a feasible choice, one assignment per arm) and ``columns`` (a column mask
     proven to hold every solution at least as good as the hint) are exact-model inputs;
     back-ends without them ignore them.
@@ -47,6 +53,7 @@ class Backend:
     exact: bool
     rescue: str
     description: str
+    sequencing: SequencingOptions | None = None
 
     def solver(self, options: Any) -> Callable[[ConfigProblem], ConfigSolution]:
         """``problem -> solution`` with ``options`` bound (what the sequencing driver calls)."""

@@ -13,7 +13,7 @@ from models import clock
 from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
-from solvers.allocation.options import CpsatOptions
+from solvers.allocation.options import ENGINE_SEQUENCING, CpsatOptions
 from solvers.effort import charge_literals, cpsat_solve
 from solvers.model import ModelArrays, hint_vector
 from solvers.problem import ConfigProblem, ConfigSolution
@@ -113,4 +113,4 @@ def _solve(problem: ConfigProblem, options: CpsatOptions, *, hint: np.ndarray | 
 
 
 BACKEND = Backend(name="cpsat", method="ilp", options_type=CpsatOptions, solve=_solve, exact=True,
-                  rescue="cpsat", description="cpsat")
+                  rescue="cpsat", description="cpsat", sequencing=ENGINE_SEQUENCING)

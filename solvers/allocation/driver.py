@@ -151,7 +151,7 @@ def allocate(
         raise InputError("options", f"must be an AllocationOptions, got {type(opts).__name__}")
     backend = get_backend(name)
     solve_one = backend.solver(opts.engine_for(name))
-    sequencing = opts.sequencing(method, configurations, float(time_limit_s), engine=name)
+    sequencing = opts.sequencing(configurations, float(time_limit_s), backend.sequencing)
     exact_one, engines = stage_engines(backend)
 
     def run(tgts: PlaneTargets) -> AllocationResult:

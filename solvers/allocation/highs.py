@@ -16,7 +16,7 @@ from models import clock
 from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
-from solvers.allocation.options import HighsOptions
+from solvers.allocation.options import ENGINE_SEQUENCING, HighsOptions
 from solvers.effort import HighsMeter
 from solvers.model import ModelArrays, hint_vector, stage_matrix
 from solvers.problem import ConfigProblem, ConfigSolution
@@ -231,4 +231,4 @@ def _solve(problem: ConfigProblem, options: HighsOptions, *, hint: np.ndarray | 
 
 
 BACKEND = Backend(name="highs", method="ilp", options_type=HighsOptions, solve=_solve, exact=True,
-                  rescue="highs", description="highs")
+                  rescue="highs", description="highs", sequencing=ENGINE_SEQUENCING)

@@ -247,13 +247,13 @@ class AllocationOptions:
                                                f"engine {backend!r} (expected {cls.__name__})")
         return self.engine
 
-    def sequencing(self, method: str, configurations: str, time_limit_s: float,
-                   engine: str | None = None) -> SequencingOptions:
+    def sequencing(self, configurations: str, time_limit_s: float,
+                   backend_defaults: SequencingOptions | None = None) -> SequencingOptions:
         """The driver's options with every default resolved, in this order: "one
         configuration" mode (exactly one configuration, the call's whole limit, no adaptive
-        share), the method's or ``engine``'s defaults (:data:`SEMIGREEDY_SEQUENCING`,
-        :data:`ENGINE_SEQUENCING` for "highs" and "cpsat"), the driver's
-        (:data:`solvers.sequencing.options.DEFAULTS`), and the per-configuration cap
+        share), the back-end's own defaults (``Backend.sequencing``:
+        :data:`SEMIGREEDY_SEQUENCING`, :data:`ENGINE_SEQUENCING` for HiGHS and CP-SAT), the
+        driver's (:data:`solvers.sequencing.options.DEFAULTS`), and the per-configuration cap
         ``min(time_limit_s, SEQUENCE_CONFIG_TIME_LIMIT_S)``."""
         seq = self.sequence
         if configurations == "one":
@@ -264,8 +264,6 @@ class AllocationOptions:
         if seq.config_time_limit_s is None:
             seq = replace(seq, config_time_limit_s=min(time_limit_s, SEQUENCE_CONFIG_TIME_LIMIT_S))
         out = SequencingOptions(seq, self.rescue, self.repair, self.packing)
-        if method == "semigreedy":
-            out = out.with_defaults(SEMIGREEDY_SEQUENCING)
-        elif engine in ("highs", "cpsat"):
-            out = out.with_defaults(ENGINE_SEQUENCING)
+        if backend_defaults is not None:
+            out = out.with_defaults(backend_defaults)
         return out.with_defaults(DEFAULTS)

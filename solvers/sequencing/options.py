@@ -58,7 +58,7 @@ class SequenceOptions:
     ``lower_bound_flow``: report the b-matching lower bound; ``blank_per_arm``: sampled
     blank-sky rest locations per arm in the structure (None: 0, park only);
     ``reserve_fraction``: the part of the call's limit the adaptive shares hold back for the
-    post-passes (None: 0.1; the HiGHS and CP-SAT back-ends take 0.25, see
+    post-passes (None: 0.1; the HiGHS and CP-SAT back-ends declare 0.25, see
     :data:`solvers.allocation.options.ENGINE_SEQUENCING`).
     """
 

@@ -68,7 +68,7 @@ import numpy as np
 from models import clock
 from models.kinematics import direct_move_time_s
 from solvers.allocation.backends import Backend
-from solvers.allocation.options import SemiGreedyOptions
+from solvers.allocation.options import SEMIGREEDY_SEQUENCING, SemiGreedyOptions
 from solvers.allocation.semigreedy.construct import construct, pad
 from solvers.allocation.semigreedy.local_search import local_search
 from solvers.allocation.semigreedy.prepare import DISP_EPS, Prepared, State, prepare
@@ -203,4 +203,4 @@ def _solve(problem: ConfigProblem, options: SemiGreedyOptions, *, hint: np.ndarr
 
 
 BACKEND = Backend(name="semigreedy", method="semigreedy", options_type=SemiGreedyOptions, solve=_solve,
-                  exact=False, rescue="cpsat", description="semigreedy")
+                  exact=False, rescue="cpsat", description="semigreedy", sequencing=SEMIGREEDY_SEQUENCING)
