@@ -44,6 +44,7 @@ import numpy as np
 import planner.strategies  # noqa: F401 - registers the strategies
 from models import clock
 from models.instrument import Instrument
+from models.kinematics import joint_displacement
 from models.types import ArmTrajectory, MotionPlan
 from planner import options as sh
 from planner.commands import stop_count
@@ -111,19 +112,45 @@ def _verify(leg: Leg, cand: Candidate, stats: dict):
     return rep
 
 
-def _shorter_searches(leg: Leg, strategy: str) -> list[tuple[Strategy, float]]:
-    """The strategies that may look for a shorter plan than one of ``strategy``, each with the
-    makespan / lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the
-    ratio): "sequenced" after the straight delays, evasion or cluster
-    (SEQUENCED_SHORTER_RATIO), then "prioritized" after evasion, cluster or sequenced
-    (CLUSTER_MAKESPAN_RATIO)."""
+def _shorter_searches(leg: Leg, cand: Candidate, stats: dict) -> list[tuple[Strategy, float]]:
+    """The strategies that may look for a shorter plan than ``cand``, each with the makespan /
+    lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the ratio):
+    "sequenced" after the straight delays, evasion or cluster (SEQUENCED_SHORTER_RATIO), unless
+    the plan is from park at its positive-turn bound (:func:`at_positive_turn_bound`), then
+    "prioritized" after evasion, cluster or sequenced (CLUSTER_MAKESPAN_RATIO)."""
     o = leg.options
     out: list[tuple[Strategy, float]] = []
-    if strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
-        out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
-    if strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
+    if cand.strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
+        if at_positive_turn_bound(leg, cand.makespan_s):
+            stats["shorter_search_skipped"] = "sequenced: at the positive-turn bound"
+        else:
+            out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
+    if cand.strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
         out.append((STRATEGIES["prioritized"], sh.CLUSTER_MAKESPAN_RATIO))
     return out
+
+
+def positive_turn_bound_s(leg: Leg) -> float:
+    """The longest straight move of the leg with every arm turning theta2 the positive way (s)."""
+    d1, ccw, _ = joint_displacement(leg.start_q, leg.goal_q)
+    v1 = leg.instrument.arm_array("joint1_speed_rad_s")
+    v2 = leg.instrument.arm_array("joint2_speed_rad_s")
+    return float(np.max(np.maximum(np.abs(d1) / v1, ccw / v2), initial=0.0))
+
+
+def at_positive_turn_bound(leg: Leg, makespan_s: float) -> bool:
+    """A plan from park as long as its positive-turn bound (within POSITIVE_BOUND_TOL_S).
+
+    Such a plan is as short as any plan turning the bounding arm the positive way; a shorter
+    one must turn it the negative way, through its neighbour's side of the gap between them
+    (docs/motion.md, "Plans over 120 s"). The sequenced search does not find those (it turns
+    arms leaving park the positive way first); on the measured legs it spent 1-4 s each without
+    shortening such a plan by more than 0.2 s. The prioritized search still runs: its
+    reversed-time attempts sometimes take the negative way.
+    """
+    if not same_configuration(leg.start_q, leg.instrument.park_configuration):
+        return False
+    return abs(makespan_s - positive_turn_bound_s(leg)) <= sh.POSITIVE_BOUND_TOL_S
 
 
 def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
@@ -135,7 +162,7 @@ def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPl
     opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
     alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
                   leg.lower_bound_s, dataclasses.replace(leg.cache))
-    for searcher, ratio in _shorter_searches(leg, cand.strategy):
+    for searcher, ratio in _shorter_searches(leg, cand, stats):
         long = best_s > ratio * leg.lower_bound_s or best_s > sh.MAKESPAN_GOAL_S
         if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
             continue

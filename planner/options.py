@@ -45,6 +45,9 @@ CLUSTER_MAKESPAN_RATIO = 1.25
 SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0
+# a plan from park within this of its positive-turn bound (the longest move turning theta2 the
+# positive way) is not searched for a shorter one (planner.driver.at_positive_turn_bound)
+POSITIVE_BOUND_TOL_S = 1.0
 
 # Bounds on the sampling, so that no request can exhaust memory or time (defaults: 6 s, 0.1 s,
 # 220 s: 8.1e4 samples per pair table; the thesis' smallest step, 0.6 s at 0.1 s, 8.1e5)

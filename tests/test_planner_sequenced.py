@@ -7,6 +7,7 @@ departure search written with the numpy capsule distance of models.collision.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 from models.collision import segment_distance_mm
 from models.instrument import default_instrument
 from planner import plan_motion
+from planner.driver import at_positive_turn_bound, positive_turn_bound_s
 from planner.options import MotionOptions
 from planner.sequenced import (
     Attempt,
@@ -180,6 +182,62 @@ def test_long_straight_delay_plan_gets_a_sequenced_shorter_search():
     assert plan.makespan_s <= plan.stats["first_makespan_s"]
     assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
 
+
+
+# a development field of the thesis protocol (seed 7, field 3), park -> c2: the straight delay
+# plan takes 123.0 s, arm 0's move turning theta2 the positive way
+AT_BOUND_GOAL = np.array([
+    [0.956426162402, 3.473473101344], [3.14159265359, 0.0], [2.242443888261, 0.819312844271],
+    [0.914418106056, 2.870725018393], [0.867348517629, 3.360975411303], [3.066376927393, 0.226876659763],
+    [2.707877917443, 1.045642631979], [1.851250057188, 1.272140665835], [1.257621993112, 2.56178618973],
+    [1.989010176523, 2.549828797037], [1.604283466022, 2.171468833319], [2.308706720503, 3.864074163968]])
+
+
+def _positive_way_s(start: np.ndarray, goal: np.ndarray) -> float:
+    """Longest straight move turning theta2 counterclockwise, from atan2 (an independent form)."""
+    v1, v2 = INST.arm_array("joint1_speed_rad_s"), INST.arm_array("joint2_speed_rad_s")
+    out = 0.0
+    for k in range(len(start)):
+        d2 = math.atan2(math.sin(goal[k, 1] - start[k, 1]), math.cos(goal[k, 1] - start[k, 1]))
+        ccw = d2 if d2 >= 0 else d2 + 2 * math.pi
+        out = max(out, abs(goal[k, 0] - start[k, 0]) / v1[k], ccw / v2[k])
+    return out
+
+
+def test_positive_turn_bound_matches_an_atan2_oracle():
+    rng = np.random.default_rng(5)
+    for _ in range(40):
+        start = np.column_stack([rng.uniform(0.5, np.pi, 12), rng.uniform(-7, 7, 12)])
+        goal = np.column_stack([rng.uniform(0.5, np.pi, 12), rng.uniform(0, 2 * np.pi, 12)])
+        leg = Leg(INST, start, goal, MotionOptions(), 5.0, (), tuple(range(12)), 0.0)
+        assert positive_turn_bound_s(leg) == pytest.approx(_positive_way_s(start, goal), abs=1e-6)
+
+
+def test_at_positive_turn_bound_only_from_park_and_within_the_tolerance():
+    leg = _leg(PARK, AT_BOUND_GOAL)
+    bound_s = _positive_way_s(PARK, AT_BOUND_GOAL)
+    assert at_positive_turn_bound(leg, bound_s) and at_positive_turn_bound(leg, bound_s + 0.9)
+    assert not at_positive_turn_bound(leg, bound_s + 1.5) and not at_positive_turn_bound(leg, bound_s - 1.5)
+    moved = PARK.copy()
+    moved[6] = [2.5, 0.3]
+    other = _leg(moved, AT_BOUND_GOAL)
+    assert not at_positive_turn_bound(other, positive_turn_bound_s(other))
+
+
+def test_plan_from_park_at_its_positive_turn_bound_skips_the_sequenced_shorter_search():
+    """The plan is 1.32 x the lower bound and over 120 s, yet exactly as long as arm 0's
+    positive-way move: the sequenced search for a shorter plan does not run, and the plan is
+    verified."""
+    plan = plan_motion(INST, PARK, AT_BOUND_GOAL, time_budget_s=10.0)
+    assert plan.status == "ok"
+    assert verify_trajectories(INST, plan.trajectories, PARK, AT_BOUND_GOAL, max_start_stop=1).ok
+    bound_s = _positive_way_s(PARK, AT_BOUND_GOAL)
+    assert plan.makespan_s > 120.0 and plan.makespan_s > 1.25 * plan.stats["lower_bound_s"]
+    assert abs(plan.makespan_s - bound_s) <= 1.0
+    assert plan.stats.get("shorter_search_skipped") == "sequenced: at the positive-turn bound"
+    assert not any(x["strategy"] == "sequenced" for x in plan.stats.get("shorter_search", []))
+    arm0 = plan.trajectories[0]
+    assert arm0.theta2_rad[-1] - arm0.theta2_rad[0] > np.pi  # arm 0 turned the positive way
 
 def _pose_clearance_mm(leg: Leg, k: int, qk: np.ndarray, j: int, qj: np.ndarray) -> float:
     """Numpy capsule distance (models.collision) between arm k at qk and arm j at qj."""
