@@ -112,20 +112,17 @@ def _verify(leg: Leg, cand: Candidate, stats: dict):
     return rep
 
 
-def _shorter_searches(leg: Leg, cand: Candidate, stats: dict) -> list[tuple[Strategy, float]]:
-    """The strategies that may look for a shorter plan than ``cand``, each with the makespan /
-    lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the ratio):
-    "sequenced" after the straight delays, evasion or cluster (SEQUENCED_SHORTER_RATIO), unless
-    the plan is from park at its positive-turn bound (:func:`at_positive_turn_bound`), then
-    "prioritized" after evasion, cluster or sequenced (CLUSTER_MAKESPAN_RATIO)."""
+def _shorter_searches(leg: Leg, strategy: str) -> list[tuple[Strategy, float]]:
+    """The strategies that may look for a shorter plan than one of ``strategy``, each with the
+    makespan / lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the
+    ratio): "sequenced" after the straight delays, evasion or cluster
+    (SEQUENCED_SHORTER_RATIO), then "prioritized" after evasion, cluster or sequenced
+    (CLUSTER_MAKESPAN_RATIO)."""
     o = leg.options
     out: list[tuple[Strategy, float]] = []
-    if cand.strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
-        if at_positive_turn_bound(leg, cand.makespan_s):
-            stats["shorter_search_skipped"] = "sequenced: at the positive-turn bound"
-        else:
-            out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
-    if cand.strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
+    if strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
+        out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
+    if strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
         out.append((STRATEGIES["prioritized"], sh.CLUSTER_MAKESPAN_RATIO))
     return out
 
@@ -139,7 +136,7 @@ def positive_turn_bound_s(leg: Leg) -> float:
 
 
 def at_positive_turn_bound(leg: Leg, makespan_s: float) -> bool:
-    """A plan from park as long as its positive-turn bound (within POSITIVE_BOUND_TOL_S).
+    """A plan from park as long as its positive-turn bound (up to POSITIVE_BOUND_TOL_S longer).
 
     Such a plan is as short as any plan turning the bounding arm the positive way; a shorter
     one must turn it the negative way, through its neighbour's side of the gap between them
@@ -150,21 +147,26 @@ def at_positive_turn_bound(leg: Leg, makespan_s: float) -> bool:
     """
     if not same_configuration(leg.start_q, leg.instrument.park_configuration):
         return False
-    return abs(makespan_s - positive_turn_bound_s(leg)) <= sh.POSITIVE_BOUND_TOL_S
+    return 0.0 <= makespan_s - positive_turn_bound_s(leg) + 1e-6 <= sh.POSITIVE_BOUND_TOL_S
 
 
 def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
     """The driver's "keep the shorter plan" policy after a long verified candidate: the
-    shortest verified plan of the searches of :func:`_shorter_searches`, if shorter."""
+    shortest verified plan of the searches of :func:`_shorter_searches`, if shorter. The
+    sequenced search is not run on a plan at its positive-turn bound
+    (:func:`at_positive_turn_bound`)."""
     o = leg.options
     best: MotionPlan | None = None
     best_s = cand.makespan_s
     opts = dataclasses.replace(o, max_attempts=min(o.max_attempts, sh.SHORTER_SEARCH_ATTEMPTS), via=None)
     alt_leg = Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
                   leg.lower_bound_s, dataclasses.replace(leg.cache))
-    for searcher, ratio in _shorter_searches(leg, cand, stats):
+    for searcher, ratio in _shorter_searches(leg, cand.strategy):
         long = best_s > ratio * leg.lower_bound_s or best_s > sh.MAKESPAN_GOAL_S
         if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
+            continue
+        if searcher.name == "sequenced" and at_positive_turn_bound(leg, best_s):
+            stats["shorter_search_skipped"] = "sequenced: at the positive-turn bound"
             continue
         t_a = clock.now()
         frac, cap_s = sh.SHORTER_SEARCH_SHARE

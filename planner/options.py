@@ -45,7 +45,7 @@ CLUSTER_MAKESPAN_RATIO = 1.25
 SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0
-# a plan from park within this of its positive-turn bound (the longest move turning theta2 the
+# a plan from park at most this longer than its positive-turn bound (the longest move turning theta2 the
 # positive way) is not searched for a shorter one (planner.driver.at_positive_turn_bound)
 POSITIVE_BOUND_TOL_S = 1.0
 

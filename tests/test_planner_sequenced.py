@@ -217,7 +217,9 @@ def test_at_positive_turn_bound_only_from_park_and_within_the_tolerance():
     leg = _leg(PARK, AT_BOUND_GOAL)
     bound_s = _positive_way_s(PARK, AT_BOUND_GOAL)
     assert at_positive_turn_bound(leg, bound_s) and at_positive_turn_bound(leg, bound_s + 0.9)
-    assert not at_positive_turn_bound(leg, bound_s + 1.5) and not at_positive_turn_bound(leg, bound_s - 1.5)
+    assert not at_positive_turn_bound(leg, bound_s + 1.5)
+    # shorter than the bound: the bounding arm already turns the negative way
+    assert not at_positive_turn_bound(leg, bound_s - 0.5) and not at_positive_turn_bound(leg, bound_s - 1.5)
     moved = PARK.copy()
     moved[6] = [2.5, 0.3]
     other = _leg(moved, AT_BOUND_GOAL)
