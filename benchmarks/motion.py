@@ -13,8 +13,11 @@ Protocol "thesis" (the default; Sabater 2019, 6.4.2: 200 prioritised SGPBTA assi
   40 % 100, 40 % 10, 10 % 1 (thesis 5.5.3).
 * every method of ``--methods`` (``ilp``: the exact allocator with the bnb solver;
   ``semigreedy``: SGPBTA) allocates each field with
-  ``solvers.allocation.allocate(..., configurations="all")``; the configurations planned are
-  exactly those it returns (the first ``--max-configurations`` of them).
+  ``solvers.allocation.allocate(..., configurations="all")`` and the options the plan
+  pipeline passes: every location within ``--park-move-limit`` seconds of park (default
+  120 s, as ``PlanRequest.park_move_limit_s``; ``none``, the allocator's own default, is a
+  secondary row: some moves from park then need up to 200 s); the configurations planned
+  are exactly those it returns (the first ``--max-configurations`` of them).
 * each leg is ``plan_motion(instrument, start_q, goal_q, seed=seed, time_budget_s=leg_budget)``
   with the planner's defaults otherwise (thesis table 6.1). A leg starts where the previous
   one ended (the last way-point of every arm), or at its intended goal after a failed leg.
@@ -62,17 +65,19 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import planner.sequence as sequence_module  # noqa: E402
-from models.instrument import Instrument, default_instrument  # noqa: E402
+from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument, default_instrument  # noqa: E402
 from models.kinematics import joint_displacement  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
 from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
+from solvers.allocation.options import AllocationOptions  # noqa: E402
+from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions  # noqa: E402
 
 FOV_RADIUS_MM = 125.0
 FIELD_SIGMAS_MM: tuple[float | None, ...] = (None, 40.0, 60.0, 90.0)  # None: uniform
 PRIORITY_VALUES = (500, 100, 10, 1)
 PRIORITY_SHARES = (0.1, 0.4, 0.4, 0.1)
-MAKESPAN_GOAL_S = 120.0
+MAKESPAN_GOAL_S = CONFIGURATION_TIME_GOAL_S
 INSTRUMENT = default_instrument()
 LEG_KINDS = ("park_to_configuration", "chained", "to_park")
 THESIS_REFERENCE = {
@@ -306,10 +311,11 @@ class SequenceRecord:
 
 def run_plan_sequence(plan_sequence, instrument: Instrument, result: AllocationResult,
                       targets: PlaneTargets, n_configurations: int, *, field: int, seed: int,
-                      leg_budget_s: float) -> SequenceRecord:
+                      leg_budget_s: float, park_move_limit_s: float | None) -> SequenceRecord:
     """The same configurations through ``planner.sequence.plan_sequence``."""
     configurations = result.configurations[:n_configurations]
-    options = sequence_module.SequenceOptions(seed=seed, leg_time_limit_s=leg_budget_s)
+    options = sequence_module.SequenceOptions(seed=seed, leg_time_limit_s=leg_budget_s,
+                                              park_move_limit_s=park_move_limit_s)
     t0 = time.perf_counter()
     plan = plan_sequence(instrument, configurations, options, targets=targets)
     compute_s = time.perf_counter() - t0
@@ -354,6 +360,11 @@ class Params:
     alloc_time_limit_s: float
     max_configurations: int | None
     smoke: bool
+    park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
+
+    def allocation_options(self) -> AllocationOptions:
+        """What the plan pipeline passes (``PlanRequest.park_move_limit_s``, default T_p)."""
+        return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=self.park_move_limit_s))
 
 
 def allocation_summary(results: Sequence[AllocationResult], alloc_s: Sequence[float]) -> dict:
@@ -365,6 +376,10 @@ def allocation_summary(results: Sequence[AllocationResult], alloc_s: Sequence[fl
         "field_completeness_mean": (float(np.mean([r.stats.get("field_completeness", np.nan)
                                                    for r in results])) if results else None),
         "unallocated_mean": float(np.mean([len(r.unallocated) for r in results])) if results else None,
+        "beyond_park_move_limit_mean": (float(np.mean([r.stats.get("n_beyond_park_move_limit", 0)
+                                                       for r in results])) if results else None),
+        "priority_completeness_mean": (float(np.mean([r.stats.get("priority_completeness", np.nan)
+                                                      for r in results])) if results else None),
         "allocation_s_median": _pct(alloc_s, 50),
         "allocation_s_max": _max(alloc_s),
     }
@@ -379,7 +394,8 @@ def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
         shape, targets = thesis_field(params.targets, params.seed, i)
         t0 = time.perf_counter()
         result = allocate(instrument, targets, method=method, solver="bnb", configurations="all",
-                          time_limit_s=params.alloc_time_limit_s, seed=params.seed)
+                          time_limit_s=params.alloc_time_limit_s, seed=params.seed,
+                          options=params.allocation_options())
         alloc_s.append(time.perf_counter() - t0)
         results.append(result)
         shapes.append(shape)
@@ -395,7 +411,8 @@ def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
             f"{len(field_legs)} legs planned, {failed} failed, allocation {alloc_s[-1]:.1f} s")
         if plan_sequence is not None:
             seq.append(run_plan_sequence(plan_sequence, instrument, result, targets, n_conf, field=i,
-                                         seed=params.seed, leg_budget_s=params.leg_budget_s))
+                                         seed=params.seed, leg_budget_s=params.leg_budget_s,
+                                         park_move_limit_s=params.park_move_limit_s))
             log(f"[{method}] field {i}: plan_sequence executable={seq[-1].executable}")
     return {
         "allocation": {**allocation_summary(results, alloc_s), "shapes": shapes},
@@ -418,6 +435,7 @@ def easy_method(instrument: Instrument, params: Params, method: str) -> dict:
     for targets in fields:
         t0 = time.perf_counter()
         result = allocate(instrument, targets, method=method, solver="bnb", configurations="one",
+                          options=params.allocation_options(),
                           time_limit_s=params.alloc_time_limit_s, seed=params.seed)
         alloc_s.append(time.perf_counter() - t0)
         results.append(result)
@@ -497,6 +515,9 @@ def parse_args(argv: list[str] | None) -> tuple[Params, Path | None, Path | None
     ap.add_argument("--smoke", action="store_true",
                     help="2 fields, 60 targets, 2 configurations, 3 s per leg (explicit options win)")
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON to this file")
+    ap.add_argument("--park-move-limit", default=str(CONFIGURATION_TIME_GOAL_S), metavar="S",
+                    help="the allocation's park move limit, s, as the plan pipeline sets it (default "
+                    "120, PlanRequest.park_move_limit_s); 'none': no limit (secondary)")
     ap.add_argument("--save-legs", type=Path, default=None,
                     help=".npz file for the start/goal joint angles of every failed leg")
     args = ap.parse_args(argv)
@@ -510,7 +531,9 @@ def parse_args(argv: list[str] | None) -> tuple[Params, Path | None, Path | None
                     methods=tuple(m for m in args.methods.split(",") if m),
                     targets=pick("targets"), leg_budget_s=float(pick("leg_budget")),
                     alloc_time_limit_s=args.alloc_time_limit,
-                    max_configurations=pick("max_configurations"), smoke=args.smoke)
+                    max_configurations=pick("max_configurations"), smoke=args.smoke,
+                    park_move_limit_s=None if args.park_move_limit.lower() == "none"
+                    else float(args.park_move_limit))
     if params.fields < 1 or params.targets < 1 or not params.methods:
         ap.error("--fields, --targets must be >= 1 and --methods non-empty")
     if params.max_configurations is not None and params.max_configurations < 1:
@@ -538,6 +561,7 @@ def main(argv: list[str] | None = None) -> dict:
             "targets": params.targets if params.protocol == "thesis" else EASY_TARGETS,
             "leg_budget_s": params.leg_budget_s, "alloc_time_limit_s": params.alloc_time_limit_s,
             "max_configurations": params.max_configurations, "smoke": params.smoke,
+            "park_move_limit_s": params.park_move_limit_s,
             "ilp_solver": "bnb",
             **(thesis_field_parameters() if params.protocol == "thesis"
                else {"field_shapes": ["uniform"], "priority_mix": {"1": 1.0}}),

@@ -27,7 +27,7 @@ from models.collision import (
 )
 from models.errors import StructureTooLarge, TimeLimitExceeded
 from models.instrument import Instrument
-from models.kinematics import inverse_fov, tip_fov
+from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
 
 TIE_MM = 1e-6  # clearances within this of the buffer count as collisions in the structure
 FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV scale
@@ -72,11 +72,21 @@ class Reachability:
     n_targets: int
     arms_per_target: np.ndarray  # (n_targets,) number of distinct enabled arms reaching it
     assignments: Assignments
+    # (n_targets,) bool: reached by some enabled arm, but only farther from park than the
+    # park move limit (:func:`build_assignments`); None: no limit was set
+    beyond_park_move_limit: np.ndarray | None = None
 
     @property
     def unreachable(self) -> np.ndarray:
-        """Indices of targets no enabled arm can reach."""
+        """Indices of targets no enabled arm can reach (within the park move limit, if set)."""
         return np.flatnonzero(self.arms_per_target == 0)
+
+    @property
+    def beyond_limit(self) -> np.ndarray:
+        """Indices of the unreachable targets that an arm reaches beyond the park move limit."""
+        if self.beyond_park_move_limit is None:
+            return np.zeros(0, np.int64)
+        return np.flatnonzero(self.beyond_park_move_limit)
 
 
 @dataclass(frozen=True)
@@ -133,8 +143,16 @@ def build_assignments(
     fixed: dict[int, tuple[float, float]] | None = None,
     blank_per_arm: int = 0,
     seed: int = 0,
+    park_move_limit_s: float | None = None,
 ) -> Reachability:
     """Every (arm, target, IK branch) assignment plus park/current locations (thesis 5.4).
+
+    ``park_move_limit_s``: keep only the target and blank-sky locations an arm reaches from
+    park within that time, turning theta2 the positive way
+    (:func:`~models.kinematics.positive_turn_move_time_s`), the only way an arm leaves park
+    without sweeping its neighbour. With the thesis' configuration time T_p = 120 s (6.3.1),
+    every move from park to a configuration of such locations is then at most T_p long. A
+    target reached only farther away is marked in ``beyond_park_move_limit``.
 
     ``blank_per_arm``: that many blank-sky locations per arm, sampled (with ``seed``) in the
     free area the arm covers near its own base, in front of its park position — the
@@ -196,12 +214,36 @@ def build_assignments(
     th2 = np.concatenate([t2, ex_q[:, 1]])
     order = np.lexsort((branch, target, arm))
     arm, target, branch, th1, th2 = arm[order], target[order], branch[order], th1[order], th2[order]
+    arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
+    beyond = None
+    if park_move_limit_s is not None:
+        keep = within_park_move_limit(instrument, arm, target, th1, th2, park_move_limit_s)
+        arm, target, branch, th1, th2 = arm[keep], target[keep], branch[keep], th1[keep], th2[keep]
+        reached_before = arms_per_target > 0
+        arms_per_target = _distinct_arms_per_target(arm, target, n_t)
+        beyond = reached_before & (arms_per_target == 0)
     tip = tip_fov(instrument, arm, th1, th2) if len(arm) else np.zeros((0, 2))
     arm_start = np.searchsorted(arm, np.arange(instrument.n_arms + 1))
     assignments = Assignments(arm.astype(np.int32), target.astype(np.int32), branch.astype(np.int8),
                               th1, th2, tip[:, 0], tip[:, 1], arm_start)
-    arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
-    return Reachability(n_t, arms_per_target, assignments)
+    return Reachability(n_t, arms_per_target, assignments, beyond)
+
+
+def within_park_move_limit(instrument: Instrument, arm: np.ndarray, target: np.ndarray, theta1_rad: np.ndarray,
+                           theta2_rad: np.ndarray, limit_s: float) -> np.ndarray:
+    """(n,) bool: park and fixed locations, and the others an arm reaches from its park
+    within ``limit_s`` turning theta2 the positive way."""
+    park = instrument.park_configuration[arm]
+    v1 = instrument.arm_array("joint1_speed_rad_s")[arm]
+    v2 = instrument.arm_array("joint2_speed_rad_s")[arm]
+    t_s = positive_turn_move_time_s(park, np.column_stack([theta1_rad, theta2_rad]), v1, v2)
+    return (target == PARK) | (target == FIXED) | (t_s <= limit_s)
+
+
+def _distinct_arms_per_target(arm: np.ndarray, target: np.ndarray, n_targets: int) -> np.ndarray:
+    real = target >= 0
+    pairs = np.unique(np.column_stack([arm[real], target[real]]), axis=0)
+    return np.bincount(pairs[:, 1], minlength=n_targets) if len(pairs) else np.zeros(n_targets, np.int64)
 
 
 def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) -> np.ndarray:
@@ -523,14 +565,16 @@ def incompatibility_for_targets(
     deadline_s: float | None = None,
     time_limit_s: float | None = None,
     max_pairs: int = MAX_PAIRS,
+    park_move_limit_s: float | None = None,
 ) -> Incompatibility:
     """Reachability plus incompatibility for FOV targets, with per-phase timings.
 
-    ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see :func:`compute_incompatibility`.
+    ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see :func:`compute_incompatibility`;
+    ``park_move_limit_s``: see :func:`build_assignments`.
     """
     t0 = clock.now()
     reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
-                              blank_per_arm=blank_per_arm, seed=seed)
+                              blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s)
     t1 = clock.now()
     inc = compute_incompatibility(instrument, reach, buffer_mm, deadline_s=deadline_s, time_limit_s=time_limit_s,
                                   max_pairs=max_pairs)

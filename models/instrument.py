@@ -20,6 +20,10 @@ import numpy as np
 
 JOINT_NAMES = ("J1", "J2", "J3", "J4", "tip")
 BODY_SHAPES = ("capsule", "box", "sphere")
+#: The configuration time goal T_p (thesis 6.3.1, problem 1): every arm at its new
+#: configuration within 120 s. The motion planner aims at it; the plan pipeline's default
+#: park move limit keeps every location within it of park.
+CONFIGURATION_TIME_GOAL_S = 120.0
 
 
 class InstrumentError(ValueError):

@@ -213,6 +213,17 @@ def direct_move_time_s(q_from: np.ndarray, q_to: np.ndarray, v1_rad_s, v2_rad_s)
     return np.maximum(np.abs(d1) / v1_rad_s, np.minimum(ccw, -cw) / v2_rad_s)
 
 
+def positive_turn_move_time_s(q_from: np.ndarray, q_to: np.ndarray, v1_rad_s, v2_rad_s) -> np.ndarray:
+    """Time of a straight joint move, both joints at full speed, theta2 turning the positive
+    way (counterclockwise), however far that is.
+
+    From park this is the move an arm can make: turning the negative way from park swings
+    its L3 link through its next neighbour (docs/motion.md, "Leaving park one way round").
+    """
+    d1, ccw, _ = joint_displacement(q_from, q_to)
+    return np.maximum(np.abs(d1) / v1_rad_s, ccw / v2_rad_s)
+
+
 def jacobian(theta1_rad, theta2_rad, links: Links) -> np.ndarray:
     """d(tip)/d(theta1, theta2) in the arm frame, shape (..., 2, 2) (thesis eqs. 3.40–3.46).
 

@@ -18,7 +18,7 @@ AssignmentKind = Literal["target", "park", "blank", "fixed"]
 # why a target is in no configuration: no arm reaches it; it conflicts with the chosen
 # assignments whatever the sequence; the time ran out; or the request asked for fewer
 # configurations ("one", ``max_configurations``) than observing it needs
-UnallocatedReason = Literal["unreachable", "conflict", "no_time", "not_scheduled"]
+UnallocatedReason = Literal["unreachable", "conflict", "no_time", "not_scheduled", "beyond_park_move_limit"]
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ import numpy as np
 import planner.strategies  # noqa: F401 - registers the strategies
 from models import clock
 from models.instrument import Instrument
-from models.kinematics import joint_displacement
+from models.kinematics import positive_turn_move_time_s
 from models.types import ArmTrajectory, MotionPlan
 from planner import options as sh
 from planner.commands import stop_count
@@ -129,10 +129,9 @@ def _shorter_searches(leg: Leg, strategy: str) -> list[tuple[Strategy, float]]:
 
 def positive_turn_bound_s(leg: Leg) -> float:
     """The longest straight move of the leg with every arm turning theta2 the positive way (s)."""
-    d1, ccw, _ = joint_displacement(leg.start_q, leg.goal_q)
     v1 = leg.instrument.arm_array("joint1_speed_rad_s")
     v2 = leg.instrument.arm_array("joint2_speed_rad_s")
-    return float(np.max(np.maximum(np.abs(d1) / v1, ccw / v2), initial=0.0))
+    return float(np.max(positive_turn_move_time_s(leg.start_q, leg.goal_q, v1, v2), initial=0.0))
 
 
 def at_positive_turn_bound(leg: Leg, makespan_s: float) -> bool:

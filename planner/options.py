@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.errors import InputError
+from models.instrument import CONFIGURATION_TIME_GOAL_S
 
 # Budget shares, as (fraction of the leg's time budget, cap in s).
 # the departure-delay CSP's straight moves and detour rounds together
@@ -40,7 +41,7 @@ SEQUENCED_SHORTER_AFTER = ("delays", "cluster", "evasion")
 SEQUENCED_SHORTER_RATIO = 1.25
 # plans longer than this (the thesis' configuration time goal, 6.4.2) are searched for a
 # shorter one whatever their ratio to the lower bound
-MAKESPAN_GOAL_S = 120.0
+MAKESPAN_GOAL_S = CONFIGURATION_TIME_GOAL_S
 CLUSTER_MAKESPAN_RATIO = 1.25
 SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
 SHORTER_SEARCH_ATTEMPTS = 2

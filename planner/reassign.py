@@ -18,7 +18,7 @@ import numpy as np
 
 from models.collision import arm_pair_clearance_mm
 from models.instrument import Instrument
-from models.kinematics import inverse_fov, tip_fov
+from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
 from models.types import ArmAssignment, Configuration
 
 IDLE_KINDS = ("park", "blank")
@@ -72,12 +72,23 @@ def _fits(instrument: Instrument, q: np.ndarray, arm: int, cand: np.ndarray, buf
     return ok
 
 
+def within_park_limit(instrument: Instrument, arm: int, cand: np.ndarray, limit_s: float | None) -> np.ndarray:
+    """Which candidate joint angles (m, 2) of ``arm`` are within ``limit_s`` of park, theta2
+    turning the positive way (the allocation's park move limit; None: all)."""
+    if limit_s is None:
+        return np.ones(len(cand), bool)
+    a = instrument.arms[arm]
+    park = np.broadcast_to(np.asarray(a.park, float), cand.shape)
+    return positive_turn_move_time_s(park, cand, a.joint1_speed_rad_s, a.joint2_speed_rad_s) <= limit_s
+
+
 def try_place(instrument: Instrument, config: Configuration, target: Placed, buffer_mm: float,
-              exclude_arms: Sequence[int] = ()) -> Configuration | None:
+              exclude_arms: Sequence[int] = (), park_move_limit_s: float | None = None) -> Configuration | None:
     """``config`` with ``target`` on one of its idle arms (any IK branch that fits), or None.
 
     Arms are tried nearest first (the arm whose base is closest to the target moves least);
-    arms in ``exclude_arms`` (e.g. the arm the target was taken from) are not used.
+    arms in ``exclude_arms`` (e.g. the arm the target was taken from) are not used; only
+    branches within ``park_move_limit_s`` of park (None: any).
     """
     q = config.q
     enabled = set(instrument.enabled_arms) - set(exclude_arms)
@@ -89,6 +100,7 @@ def try_place(instrument: Instrument, config: Configuration, target: Placed, buf
         k = idle[i]
         ik = inverse_fov(instrument, k, np.array([target.x_mm]), np.array([target.y_mm]))
         cand = np.column_stack([ik.theta1_rad[0][ik.valid[0]], ik.theta2_rad[0][ik.valid[0]]])
+        cand = cand[within_park_limit(instrument, k, cand, park_move_limit_s)]
         if len(cand) == 0:
             continue
         ok = _fits(instrument, q, k, cand, buffer_mm)
@@ -106,9 +118,10 @@ def try_place(instrument: Instrument, config: Configuration, target: Placed, buf
 
 
 def other_branches(instrument: Instrument, config: Configuration, arm: int,
-                   buffer_mm: float) -> list[Configuration]:
+                   buffer_mm: float, park_move_limit_s: float | None = None) -> list[Configuration]:
     """``config`` with arm ``arm`` on the same target through each other IK branch that keeps
-    the buffer to every other arm (thesis eqs. 3.17-3.27: up to four per point)."""
+    the buffer to every other arm (thesis eqs. 3.17-3.27: up to four per point) and is within
+    ``park_move_limit_s`` of park (None: any)."""
     a = config.assignments[arm]
     if a.kind != "target":
         return []
@@ -117,6 +130,7 @@ def other_branches(instrument: Instrument, config: Configuration, arm: int,
     same = (np.abs(cand[:, 0] - a.theta1_rad) < 1e-6) & (
         np.abs((cand[:, 1] - a.theta2_rad + np.pi) % (2 * np.pi) - np.pi) < 1e-6)
     cand = cand[~same]
+    cand = cand[within_park_limit(instrument, arm, cand, park_move_limit_s)]
     if len(cand) == 0:
         return []
     ok = _fits(instrument, config.q, arm, cand, buffer_mm)

@@ -112,6 +112,9 @@ class SequenceOptions:
     leg_time_limit_s: float = 10.0  # each plan_motion call
     time_limit_s: float | None = None  # the whole sequence (None: no limit beyond the legs')
     max_changes: int = 24  # allocation changes tried before a leg is left failed
+    # a target moved or put on another IK branch stays within this of park (the allocation's
+    # park move limit, solvers.sequencing.options.SequenceOptions; None: no limit)
+    park_move_limit_s: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
@@ -122,6 +125,9 @@ class SequenceOptions:
             raise InputError("time_limit_s", "must be a positive finite number of seconds or None")
         if not (isinstance(self.max_changes, int) and self.max_changes >= 0):
             raise InputError("max_changes", "must be an integer >= 0")
+        lim = self.park_move_limit_s
+        if lim is not None and not (isinstance(lim, int | float) and math.isfinite(lim) and lim > 0):
+            raise InputError("park_move_limit_s", "must be a positive finite number of seconds or None")
 
 
 MIN_LEG_S = 0.5  # a leg is never given less than this, even when the sequence's time is short
@@ -326,7 +332,8 @@ class _Sequencer:
 
     def _other_branch(self, i: int, k: int, start_q: np.ndarray) -> MotionPlan | None:
         """Arm k of configuration i on the same target through another IK branch, if that plans."""
-        for changed in other_branches(self.ins, self.configs[i], k, self.buffer_mm):
+        for changed in other_branches(self.ins, self.configs[i], k, self.buffer_mm,
+                                      self.opt.park_move_limit_s):
             if self.edits >= self.opt.max_changes or self.clock.left_s() <= MIN_LEG_S:
                 break
             self.edits += 1
@@ -360,12 +367,13 @@ class _Sequencer:
 
     def _place(self, p: Placed, after: int, exclude: tuple[int, ...]) -> bool:
         for j in range(after + 1, len(self.configs)):
-            c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude)
+            c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude,
+                          park_move_limit_s=self.opt.park_move_limit_s)
             if c is not None:
                 self.configs[j] = c
                 return True
         c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm,
-                      exclude_arms=exclude)
+                      exclude_arms=exclude, park_move_limit_s=self.opt.park_move_limit_s)
         if c is None:
             return False
         self.configs.append(c)

@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from models.instrument import CONFIGURATION_TIME_GOAL_S
 from service.tables import TargetFileError, read_target_table, read_targets
 
 __all__ = ["TargetFileError", "main", "read_targets"]
@@ -58,7 +59,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         rows = table.rows()
         req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
-                          seed=args.seed, threshold_mm=args.threshold_mm)
+                          seed=args.seed, threshold_mm=args.threshold_mm,
+                          park_move_limit_s=None if args.no_park_move_limit else args.park_move_limit)
     except TargetFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
@@ -179,6 +181,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "at most 30 s)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threshold-mm", type=float, default=None)
+    reach = p.add_mutually_exclusive_group()
+    reach.add_argument("--park-move-limit", type=float, default=CONFIGURATION_TIME_GOAL_S, metavar="S",
+                       help="observe each target from a location its arm reaches from park within S "
+                       "seconds (J2 turning the positive way), so no move from park exceeds the "
+                       "configuration time goal; targets reached only farther away are reported "
+                       "'beyond_park_move_limit' (default: 120, the thesis' T_p)")
+    reach.add_argument("--no-park-move-limit", action="store_true",
+                       help="no park move limit: every reachable target, some moves from park up to 200 s")
     p.add_argument("--instrument", default=None,
                    help="instrument TOML file (default: $MXS_INSTRUMENT_FILE or the packaged one)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -23,7 +23,12 @@ import numpy as np
 
 from models import clock
 from models.errors import InputError
-from models.instrument import Instrument, default_instrument, load_instrument
+from models.instrument import (
+    CONFIGURATION_TIME_GOAL_S,
+    Instrument,
+    default_instrument,
+    load_instrument,
+)
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import plan_motion
@@ -41,7 +46,9 @@ from service.schemas import (
     SkyTarget,
 )
 from solvers.allocation import allocate
+from solvers.allocation.options import AllocationOptions
 from solvers.segmentation import Pointing, Segmentation, segment_field
+from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 Progress = Callable[[float], None]
 log = logging.getLogger("service")
@@ -227,7 +234,7 @@ class PointingTask:
     """Everything the plan of one pointing needs, small and picklable (it is what a Dask
     worker receives): the pointing, its own targets, the request's options, its seed
     (:func:`pointing_seed`) and its wall-clock share ``share_s``; ``time_limit_s`` caps every
-    solver call."""
+    solver call; ``park_move_limit_s``: the allocation's park move limit (None: none)."""
 
     index: int
     pointing: Pointing
@@ -238,6 +245,7 @@ class PointingTask:
     seed: int
     share_s: float
     time_limit_s: float
+    park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
 
 
 class _Deadline:
@@ -293,11 +301,13 @@ def pointing_seed(seed: int, index: int) -> int:
 
 def sequence_motion(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets, *,
                     seed: int, leg_time_limit_s: float, time_limit_s: float | None,
+                    park_move_limit_s: float | None = None,
                     progress: Progress = _noop) -> tuple[SequencePlan, str | None]:
     """``planner.sequence.plan_sequence`` on one pointing's configurations; never raises: a
     planner failure comes back as the unchanged configurations with its reason."""
     options = SequenceOptions(seed=seed, leg_time_limit_s=float(leg_time_limit_s),
-                              time_limit_s=None if time_limit_s is None else float(time_limit_s))
+                              time_limit_s=None if time_limit_s is None else float(time_limit_s),
+                              park_move_limit_s=park_move_limit_s)
     configs = tuple(allocation.configurations)
     try:
         return plan_sequence(inst, configs, options, targets=targets, progress=progress), None
@@ -319,7 +329,12 @@ def pointing_task(req: PlanRequest, seg: Segmentation, index: int, share_s: floa
     return PointingTask(index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         req.method, req.solver, req.position_angle_deg,
                         pointing_seed(int(req.seed or 0), index), float(share_s),
-                        float(time_limit_s))
+                        float(time_limit_s), req.park_move_limit_s)
+
+
+def plan_allocation_options(task: PointingTask) -> AllocationOptions:
+    """The allocation options of a plan: every location within the task's park move limit."""
+    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=task.park_move_limit_s))
 
 
 def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop) -> PointingPlan:
@@ -351,7 +366,7 @@ def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> 
     result = allocate(inst, targets, method=task.method, solver=task.solver,
                       configurations="all", seed=task.seed,
                       time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * EFFORT_SHARE * task.share_s),
-                      progress=_report(progress, 0.0, 0.5))
+                      progress=_report(progress, 0.0, 0.5), options=plan_allocation_options(task))
     progress(0.5)
     motion_s = deadline.left_s()
     legs = len(result.configurations) + 1
@@ -367,6 +382,7 @@ def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> 
         seq_limit = None if math.isinf(motion_s) else max(motion_s - MIN_LEG_S, 0.01)
         seq, err = sequence_motion(inst, result, targets, seed=task.seed,
                                    leg_time_limit_s=leg_budget, time_limit_s=seq_limit,
+                                   park_move_limit_s=task.park_move_limit_s,
                                    progress=lambda f: progress(0.5 + 0.5 * f))
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs,

@@ -22,6 +22,7 @@ from pydantic import (
     model_validator,
 )
 
+from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 
 N_ARMS = 12
@@ -319,6 +320,14 @@ class PlanRequest(SkyTargetSource):
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
     segmentation_mode: SegmentationMode = "complete-linkage"
+    park_move_limit_s: Annotated[float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False)] | None = Field(
+        CONFIGURATION_TIME_GOAL_S, description="Every target is observed from a location its arm reaches from "
+        "park within this many seconds turning J2 the positive way (the way an arm leaves park without "
+        "sweeping its neighbour), so that no move from park takes longer than the instrument's "
+        "configuration time goal (thesis T_p = 120 s, the default). A target reached only farther away "
+        "is reported with reason 'beyond_park_move_limit'. null: no limit (every reachable target, "
+        "some moves from park then take up to 200 s)."
+    )
 
 
 # ------------------------------------------------------------------------ responses
@@ -457,7 +466,8 @@ class Unallocated(Response):
     target_id: str
     reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', 'not_scheduled' "
                         "(left for configurations the request did not ask for, e.g. with "
-                        "configurations 'one'), ...; in a plan "
+                        "configurations 'one'), 'beyond_park_move_limit' (in a plan: reached "
+                        "only by a move from park longer than park_move_limit_s), ...; in a plan "
                         "also the reason a target was dropped so that every motion leg can be "
                         "executed.")
 

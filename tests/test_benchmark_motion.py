@@ -11,6 +11,7 @@ from benchmarks import motion
 from models.instrument import default_instrument
 from models.types import ArmTrajectory, MotionPlan
 from planner.sequence import PlanChange, SequenceOptions, SequencePlan
+from service.schemas import PlanRequest
 
 INST = default_instrument()
 PARK_Q = INST.park_configuration
@@ -23,10 +24,11 @@ class AllocateRecorder:
         self.real = real
         self.calls: list[dict] = []
 
-    def __call__(self, instrument, targets, *, method, solver, configurations, time_limit_s, seed):
+    def __call__(self, instrument, targets, *, method, solver, configurations, time_limit_s, seed, options):
         result = self.real(instrument, targets, method=method, solver=solver,
-                           configurations=configurations, time_limit_s=time_limit_s, seed=seed)
-        options = {"method": method, "solver": solver, "configurations": configurations}
+                           configurations=configurations, time_limit_s=time_limit_s, seed=seed, options=options)
+        options = {"method": method, "solver": solver, "configurations": configurations,
+                   "park_move_limit_s": options.sequence.park_move_limit_s}
         self.calls.append({"options": options, "n_targets": len(targets.ids), "result": result})
         return result
 
@@ -75,6 +77,9 @@ def test_thesis_protocol_plans_the_allocators_configurations(monkeypatch):
     assert [c["options"]["method"] for c in alloc.calls] == ["ilp", "ilp", "semigreedy", "semigreedy"]
     assert all(c["options"]["configurations"] == "all" for c in alloc.calls)
     assert all(c["options"]["solver"] == "bnb" and c["n_targets"] == 30 for c in alloc.calls)
+    # the plan pipeline's park move limit (PlanRequest's default) reaches the allocator
+    assert all(c["options"]["park_move_limit_s"] == PlanRequest.model_fields["park_move_limit_s"].default == 120.0
+               for c in alloc.calls)
     want = expected_legs(alloc.calls, None)
     assert len(want) > len(alloc.calls) * 2  # several configurations per field
     assert len(plan.legs) == len(want)
@@ -97,6 +102,7 @@ def test_max_configurations_keeps_the_first_configurations_and_the_return_to_par
         monkeypatch, ["--fields", "1", "--targets", "40", "--methods", "semigreedy",
                       "--max-configurations", "2"])
     assert len(alloc.calls) == 1 and alloc.calls[0]["options"]["configurations"] == "all"
+    assert alloc.calls[0]["options"]["park_move_limit_s"] == 120.0
     want = expected_legs(alloc.calls, 2)
     assert len(want) == 4  # park -> c1 -> c2 -> park, and park -> c2
     for (_, got), (_, want_goal) in zip(plan.legs, want, strict=True):
@@ -218,3 +224,18 @@ def test_first_configuration_row_counts_leg_zero_only():
             _record(PARK_Q, PARK_Q, 125.0, leg=0)]
     first = motion.summaries_by_kind(recs, motion.LEG_KINDS[:1])["park_to_configuration"]["first_configuration"]
     assert first == {"legs": 2, "success_rate": 1.0, "makespan_le_120s_rate": 0.5}
+
+
+def test_park_move_limit_none_is_the_unlimited_secondary_row(monkeypatch):
+    """``--park-move-limit none`` allocates without the limit and says so in the JSON; with the
+    default every planned goal is within 120 s of park turning theta2 the positive way."""
+    out, alloc, plan = run_with_recorders(
+        monkeypatch, ["--fields", "1", "--targets", "60", "--methods", "semigreedy",
+                      "--park-move-limit", "none"])
+    assert alloc.calls[0]["options"]["park_move_limit_s"] is None
+    assert out["parameters"]["park_move_limit_s"] is None
+    out, alloc, plan = run_with_recorders(
+        monkeypatch, ["--fields", "1", "--targets", "60", "--methods", "semigreedy"])
+    assert out["parameters"]["park_move_limit_s"] == 120.0
+    goals = [goal for _, goal in plan.legs]
+    assert max(motion.positive_sense_s(PARK_Q, g).max() for g in goals) <= 120.0 + 1e-9

@@ -64,14 +64,19 @@ def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
 
 
 def timed_out_result(instrument: Instrument, targets: PlaneTargets,
-                     fixed: dict[int, tuple[float, float]] | None, elapsed_s: float) -> AllocationResult:
+                     fixed: dict[int, tuple[float, float]] | None, elapsed_s: float,
+                     park_move_limit_s: float | None = None) -> AllocationResult:
     """The partial answer of a call whose time ran out while the incompatibility structure
     was built: no configuration; each target ``unreachable`` (no enabled arm reaches it,
-    cheap to know) or ``no_time``; ``stats["stop_reason"] == "no_time"``."""
-    reach = build_assignments(instrument, targets.x_mm, targets.y_mm, fixed=fixed)
+    cheap to know), ``beyond_park_move_limit`` or ``no_time``;
+    ``stats["stop_reason"] == "no_time"``."""
+    reach = build_assignments(instrument, targets.x_mm, targets.y_mm, fixed=fixed,
+                              park_move_limit_s=park_move_limit_s)
     unreachable = set(reach.unreachable.tolist())
+    beyond = set(reach.beyond_limit.tolist())
     n = len(targets)
-    unalloc = tuple(Unallocated(i, targets.ids[i], "unreachable" if i in unreachable else "no_time")
+    unalloc = tuple(Unallocated(i, targets.ids[i], "beyond_park_move_limit" if i in beyond
+                                else "unreachable" if i in unreachable else "no_time")
                     for i in range(n))
     stats = {"n_targets": n, "n_reachable": n - len(unreachable), "n_configurations": 0,
              "n_allocated": 0, "n_unreachable": len(unreachable),
@@ -162,9 +167,11 @@ def allocate(
             inc = incompatibility_for_targets(
                 instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
                 blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
-                deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s)
+                deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s,
+                park_move_limit_s=sequencing.sequence.park_move_limit_s)
         except TimeLimitExceeded:
-            return timed_out_result(instrument, tgts, fixed, clock.now() - t0)
+            return timed_out_result(instrument, tgts, fixed, clock.now() - t0,
+                                    sequencing.sequence.park_move_limit_s)
         left_s = max(time_limit_s - (clock.now() - t0), 1e-3)
         return sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
                                        buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),

@@ -138,7 +138,10 @@ def _result(s: SequenceState, t0: float, engines: dict[str, str] | None) -> Allo
     reason_left = "no_time" if s.stop_reason in ("no_time", "solver_timeout") else "conflict"
     if s.stop_reason == "max_configurations":  # left for configurations the request did not ask for
         reason_left = "not_scheduled"
-    unalloc = [Unallocated(int(i), targets.ids[i], "unreachable" if s.unreachable[i] else reason_left)
+    beyond = np.zeros(n, bool)
+    beyond[s.inc.reachability.beyond_limit] = True
+    unalloc = [Unallocated(int(i), targets.ids[i], "beyond_park_move_limit" if beyond[i]
+                           else "unreachable" if s.unreachable[i] else reason_left)
                for i in np.flatnonzero(~allocated)]
     total_p = sum(int(p) for p in s.priority)
     got_p = sum(int(p) for p in s.priority[allocated])
@@ -159,6 +162,7 @@ def _result(s: SequenceState, t0: float, engines: dict[str, str] | None) -> Allo
         # not observed (n_allocated == n_reachable says the allocator took all it could)
         "n_allocated": int(allocated.sum()),
         "n_unreachable": n - s.n_reachable,
+        "n_beyond_park_move_limit": int(beyond.sum()),
         "field_completeness": float(allocated.sum() / n) if n else 1.0,
         "priority_completeness": got_p / total_p if total_p else 1.0,
         "stop_reason": s.stop_reason,
@@ -200,7 +204,8 @@ def sequence_configurations(
     ``max_configurations=1`` is the "one configuration" mode.  Unallocated targets:
     ``unreachable`` (no enabled arm reaches them), ``conflict`` (reachable but no further
     configuration could take them), ``no_time``, ``not_scheduled`` (beyond
-    ``max_configurations``).  ``incompatibility``: the structure, when the caller built it;
+    ``max_configurations``), ``beyond_park_move_limit`` (reached only by moves from park
+    longer than ``SequenceOptions.park_move_limit_s``; counted in ``n_unreachable`` too).  ``incompatibility``: the structure, when the caller built it;
     ``exact_one``: the exact single-configuration solve the rescue uses for one leftover
     target at a time (default: CP-SAT); ``engines`` (which engine did which part) is
     returned as ``stats["engines"]``.
@@ -211,7 +216,8 @@ def sequence_configurations(
     y = np.asarray(targets.y_mm, float)
     if incompatibility is None:
         incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed,
-                                                      blank_per_arm=opts.sequence.blank_per_arm, seed=seed)
+                                                      blank_per_arm=opts.sequence.blank_per_arm, seed=seed,
+                                                      park_move_limit_s=opts.sequence.park_move_limit_s)
     t_inc = clock.elapsed_s()
     if progress:
         progress(PROGRESS_READY, "incompatibility ready")

@@ -59,7 +59,10 @@ class SequenceOptions:
     blank-sky rest locations per arm in the structure (None: 0, park only);
     ``reserve_fraction``: the part of the call's limit the adaptive shares hold back for the
     post-passes (None: 0.1; the HiGHS and CP-SAT back-ends declare 0.25, see
-    :data:`solvers.allocation.options.ENGINE_SEQUENCING`).
+    :data:`solvers.allocation.options.ENGINE_SEQUENCING`); ``park_move_limit_s``: every
+    location an arm takes is reached from park within this time turning theta2 the positive
+    way (:func:`models.incompatibility.build_assignments`; None: no limit); the plan
+    pipeline sets the thesis' configuration time, 120 s.
     """
 
     max_configurations: int | None = None
@@ -71,6 +74,7 @@ class SequenceOptions:
     lower_bound_flow: bool = True
     blank_per_arm: int | None = None
     reserve_fraction: float | None = None
+    park_move_limit_s: float | None = None
 
     def __post_init__(self) -> None:
         check_int("max_configurations", self.max_configurations, 1, allow_none=True)
@@ -87,6 +91,7 @@ class SequenceOptions:
         r = self.reserve_fraction
         if r is not None and (isinstance(r, bool) or not isinstance(r, int | float) or not (0 <= r < 1)):
             raise InputError("reserve_fraction", f"must be a number in [0, 1), got {r!r}")
+        check_seconds("park_move_limit_s", self.park_move_limit_s)
 
 
 @dataclass(frozen=True)

@@ -69,7 +69,8 @@ class RescuePass:
                                    ~s.pending & ~s.unreachable, q_last, ctx.solve_one, ctx.fixed, ctx.buffer_mm,
                                    s.speeds, len(s.steps), ctx.clock.deadline_s,
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
-                                   None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one)
+                                   None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one,
+                                   park_move_limit_s=ctx.options.sequence.park_move_limit_s)
         s.timers["rescue_s"] = clock.now() - tr
         for c in s.extra:
             s.pending[observed(c)] = False

@@ -30,7 +30,8 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
                       first_index, deadline, config_time_limit_s, threads, seed, max_configs,
                       n_fill: int = BUDGET.rescue_fill_targets,
                       blank_per_arm: int = BUDGET.rescue_blank_per_arm,
-                      exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None) -> list[Configuration]:
+                      exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
+                      park_move_limit_s: float | None = None) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
@@ -42,6 +43,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     configuration like the main loop (same back-end, verified); stops when a configuration
     takes no leftover target.  When a joint configuration takes none, each leftover target
     is tried alone with ``exact_one`` (the chosen engine's exact solve; default CP-SAT).
+    ``park_move_limit_s`` limits the rest locations as it does the main structure's.
     """
     if exact_one is None:
         exact_one = default_exact_one()
@@ -55,7 +57,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     sub = np.r_[left, fill].astype(np.int64)
     nl = len(left)
     inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed,
-                                      blank_per_arm=blank_per_arm, seed=seed)
+                                      blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s)
     pr = np.r_[priority[left], np.zeros(len(fill), np.int64)]
     pend = np.zeros(len(sub), bool)
     pend[:nl] = True
