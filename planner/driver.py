@@ -54,6 +54,7 @@ from planner.strategy import (
     Budget,
     Candidate,
     Leg,
+    LegCache,
     Refusal,
     Strategy,
     merge_stats,
@@ -115,11 +116,14 @@ def _verify(leg: Leg, cand: Candidate, stats: dict):
 def _shorter_searches(leg: Leg, strategy: str) -> list[tuple[Strategy, float]]:
     """The strategies that may look for a shorter plan than one of ``strategy``, each with the
     makespan / lower bound ratio above which it does (and above MAKESPAN_GOAL_S whatever the
-    ratio): "sequenced" after the straight delays, evasion or cluster
+    ratio): the straight delays again on FINE_DELAY_STEP_S after a delays plan (only over
+    MAKESPAN_GOAL_S), "sequenced" after the straight delays, evasion or cluster
     (SEQUENCED_SHORTER_RATIO), then "prioritized" after evasion, cluster or sequenced
     (CLUSTER_MAKESPAN_RATIO)."""
     o = leg.options
     out: list[tuple[Strategy, float]] = []
+    if strategy == "delays" and o.dt_s > sh.FINE_DELAY_STEP_S:
+        out.append((STRATEGIES["delays"], math.inf))  # only over MAKESPAN_GOAL_S, on the fine step
     if strategy in sh.SEQUENCED_SHORTER_AFTER and "sequenced" in o.strategies:
         out.append((STRATEGIES["sequenced"], sh.SEQUENCED_SHORTER_RATIO))
     if strategy in sh.SHORTER_SEARCH_AFTER and any(s in o.strategies for s in ("forward", "reverse")):
@@ -149,6 +153,14 @@ def at_positive_turn_bound(leg: Leg, makespan_s: float) -> bool:
     return 0.0 <= makespan_s - positive_turn_bound_s(leg) + 1e-6 <= sh.POSITIVE_BOUND_TOL_S
 
 
+def fine_step_leg(leg: Leg) -> Leg:
+    """The leg with departures on FINE_DELAY_STEP_S and a cache of its own (the delay
+    tables depend on the step)."""
+    opts = dataclasses.replace(leg.options, dt_s=sh.FINE_DELAY_STEP_S, via=None)
+    return Leg(leg.instrument, leg.start_q, leg.goal_q, opts, leg.buffer_mm, leg.geoms, leg.enabled,
+               leg.lower_bound_s, LegCache())
+
+
 def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPlan | None:
     """The driver's "keep the shorter plan" policy after a long verified candidate: the
     shortest verified plan of the searches of :func:`_shorter_searches`, if shorter. The
@@ -169,9 +181,10 @@ def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPl
             continue
         t_a = clock.now()
         frac, cap_s = sh.SHORTER_SEARCH_SHARE
-        out = searcher.plan(alt_leg, budget.share(frac, min(cap_s, budget.left_s())))
+        on = fine_step_leg(leg) if searcher.name == "delays" else alt_leg
+        out = searcher.plan(on, budget.share(frac, min(cap_s, budget.left_s())))
         alt_stats = merge_stats({}, out.stats)
-        ok = isinstance(out, Candidate) and _verify(alt_leg, out, alt_stats).ok
+        ok = isinstance(out, Candidate) and _verify(on, out, alt_stats).ok
         stats["first_makespan_s"] = cand.makespan_s
         stats.setdefault("shorter_search", []).append(
             {"strategy": searcher.name, "status": "ok" if ok else "failed",

@@ -43,6 +43,10 @@ SEQUENCED_SHORTER_RATIO = 1.25
 # shorter one whatever their ratio to the lower bound
 MAKESPAN_GOAL_S = CONFIGURATION_TIME_GOAL_S
 CLUSTER_MAKESPAN_RATIO = 1.25
+# a plan of the straight departure delays longer than MAKESPAN_GOAL_S is first searched again
+# with departures on this finer step (the CSP's delays are multiples of dt_s, 6 s by default:
+# one step on an arm near the goal takes the plan over it)
+FINE_DELAY_STEP_S = 2.0
 SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
 SHORTER_SEARCH_ATTEMPTS = 2
 SHORTER_SEARCH_MIN_LEFT_S = 1.0

@@ -131,6 +131,12 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert "done 100 %" in page.inner_text("#status")
     result = page.evaluate("mxs.state.result")
     assert page.evaluate("mxs.state.request.position_angle_deg") == 30
+    assert page.evaluate("mxs.state.request.park_move_limit_s") == 120  # the page's default, T_p
+    page.check("#park-unlimited")
+    assert page.evaluate("mxs.planRequest({targets: []}).park_move_limit_s") is None
+    page.uncheck("#park-unlimited")
+    page.fill("#park-limit", "90")
+    assert page.evaluate("mxs.planRequest({targets: []}).park_move_limit_s") == 90
     banner = page.inner_text("#banner")
     assert ("NOT executable" in banner) == (not result["executable"])
     summary = page.inner_text("#summary")

@@ -15,6 +15,7 @@ import pytest
 
 from models.collision import segment_distance_mm
 from models.instrument import default_instrument
+from planner import options as planner_options
 from planner import plan_motion
 from planner.driver import at_positive_turn_bound, positive_turn_bound_s
 from planner.options import MotionOptions
@@ -169,19 +170,47 @@ def test_via_grid_outside_zoa_and_sorted_by_travel_time():
     assert np.all(np.diff(cost) >= -1e-9)
 
 
-def test_long_straight_delay_plan_gets_a_sequenced_shorter_search():
+def _legs_spec(name: str) -> dict:
+    return json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())[name]
+
+
+def test_long_straight_delay_plan_gets_a_sequenced_shorter_search(monkeypatch):
     """A leg whose departure-delay plan is 1.27 x the lower bound: the driver lets the
-    sequenced strategy look for a shorter plan and keeps the shorter verified one."""
-    spec = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())["long_delays_leg"]
+    sequenced strategy look for a shorter plan and keeps the shorter verified one (here with
+    the fine-step delay search off, as on a leg planned with departures on the fine step)."""
+    monkeypatch.setattr(planner_options, "FINE_DELAY_STEP_S", 6.0)
+    spec = _legs_spec("long_delays_leg")
     start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
     plan = plan_motion(INST, start, goal, time_budget_s=30.0)
     assert plan.status == "ok"
     searches = plan.stats.get("shorter_search", [])
     assert plan.stats.get("first_makespan_s", 0) > 1.1 * plan.stats["lower_bound_s"]
-    assert any(s["strategy"] == "sequenced" for s in searches)
-    assert plan.makespan_s <= plan.stats["first_makespan_s"]
+    assert [s["strategy"] for s in searches][:1] == ["sequenced"]
+    assert plan.makespan_s < plan.stats["first_makespan_s"]
     assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=1).ok
 
+
+@pytest.mark.parametrize("name", ["long_delays_leg", "fine_step_leg"])
+def test_delay_plan_over_120s_is_searched_again_on_the_fine_step(name: str):
+    """A straight departure-delay plan over 120 s: the driver first re-solves the delays with
+    departures on FINE_DELAY_STEP_S and keeps the shorter verified plan. On the second leg
+    (every arm within 120 s of park the positive way) the 6 s step gives 122.2 s, the fine
+    step a plan within 120 s; on the first, the fine step reaches its positive-turn bound."""
+    spec = _legs_spec(name)
+    goal = np.array(spec["goal_q"])
+    start = np.array(spec["start_q"]) if "start_q" in spec else INST.park_configuration
+    plan = plan_motion(INST, start, goal, time_budget_s=10.0)
+    assert plan.status == "ok" and plan.stats["strategy"] == "delays"
+    first = plan.stats["shorter_search"][0]
+    assert first["strategy"] == "delays" and first["status"] == "ok"
+    assert plan.stats["first_makespan_s"] > planner_options.MAKESPAN_GOAL_S
+    assert plan.makespan_s == pytest.approx(first["makespan_s"]) and plan.makespan_s < plan.stats["first_makespan_s"]
+    bound = _positive_way_s(start, goal)
+    assert plan.makespan_s <= max(bound, planner_options.MAKESPAN_GOAL_S) + 1e-6
+    if name == "fine_step_leg":
+        assert bound <= 120.0 and plan.makespan_s <= 120.0
+    # straight moves with departure delays: zero stops
+    assert verify_trajectories(INST, plan.trajectories, start, goal, max_start_stop=0).ok
 
 
 # a development field of the thesis protocol (seed 7, field 3), park -> c2: the straight delay

@@ -6,7 +6,7 @@
 const $ = (id) => document.getElementById(id);
 const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation method",
   solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
-  targets: "targets", threshold_mm: "segmentation threshold" };
+  targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park" };
 
 const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null };
 
@@ -100,6 +100,9 @@ function planRequest(list) {
   };
   const limit = $("time-limit").value.trim();
   if (limit) req.time_limit_s = Number(limit);
+  const park = $("park-limit").value.trim();
+  if ($("park-unlimited").checked) req.park_move_limit_s = null;
+  else if (park) req.park_move_limit_s = Number(park);
   return req;
 }
 
@@ -344,5 +347,6 @@ async function resumeJob(saved) {
   }
 }
 
-window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, state };
+window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
+  state };
 start();
