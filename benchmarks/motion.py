@@ -66,12 +66,12 @@ sys.path.insert(0, str(ROOT))
 
 import planner.sequence as sequence_module  # noqa: E402
 from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument, default_instrument  # noqa: E402
-from models.kinematics import joint_displacement  # noqa: E402
+from models.kinematics import positive_turn_move_time_s  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
 from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
+from service.pipeline import plan_allocation_options  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 from solvers.allocation.options import AllocationOptions  # noqa: E402
-from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions  # noqa: E402
 
 FOV_RADIUS_MM = 125.0
 FIELD_SIGMAS_MM: tuple[float | None, ...] = (None, 40.0, 60.0, 90.0)  # None: uniform
@@ -262,9 +262,8 @@ def leg_summary(records: Sequence[LegRecord]) -> dict:
 def positive_sense_s(start_q: np.ndarray, goal_q: np.ndarray) -> np.ndarray:
     """Each arm's straight move time turning theta2 in the positive sense only (the default
     instrument's joint speeds)."""
-    d1, ccw, _ = joint_displacement(start_q, goal_q)
-    return np.maximum(np.abs(d1) / INSTRUMENT.arm_array("joint1_speed_rad_s"),
-                      ccw / INSTRUMENT.arm_array("joint2_speed_rad_s"))
+    return positive_turn_move_time_s(start_q, goal_q, INSTRUMENT.arm_array("joint1_speed_rad_s"),
+                                     INSTRUMENT.arm_array("joint2_speed_rad_s"))
 
 
 def over_120s(ok: Sequence[LegRecord]) -> dict:
@@ -364,7 +363,7 @@ class Params:
 
     def allocation_options(self) -> AllocationOptions:
         """What the plan pipeline passes (``PlanRequest.park_move_limit_s``, default T_p)."""
-        return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=self.park_move_limit_s))
+        return plan_allocation_options(self.park_move_limit_s)
 
 
 def allocation_summary(results: Sequence[AllocationResult], alloc_s: Sequence[float]) -> dict:

@@ -173,9 +173,15 @@ def build_assignments(
             fixed[k] = a.park
     arms = np.arange(instrument.n_arms)
     active = np.array([k not in fixed for k in arms])
+    beyond = None
     if n_t:
         sol = inverse_fov(instrument, arms[:, None], x[None, :], y[None, :])  # (n_arms, n_t, 4)
         valid = sol.valid & active[:, None, None]
+        if park_move_limit_s is not None:
+            reached = valid.any(axis=(0, 2))
+            q = np.stack([sol.theta1_rad, sol.theta2_rad], axis=-1)
+            valid &= within_park_move_limit(instrument, arms[:, None, None], q, park_move_limit_s)
+            beyond = reached & ~valid.any(axis=(0, 2))
         k_idx, t_idx, b_idx = np.nonzero(valid)
         t1 = sol.theta1_rad[valid]
         t2 = sol.theta2_rad[valid]
@@ -202,7 +208,8 @@ def build_assignments(
                 ex_t.append(FIXED)
                 ex_q.append(c)
         if blank_per_arm:
-            for q in sample_blank_sky(instrument, int(k), blank_per_arm, seed):
+            blanks = sample_blank_sky(instrument, int(k), blank_per_arm, seed)
+            for q in blanks[within_park_move_limit(instrument, k, blanks, park_move_limit_s)]:
                 ex_k.append(k)
                 ex_t.append(BLANK)
                 ex_q.append(q)
@@ -214,36 +221,25 @@ def build_assignments(
     th2 = np.concatenate([t2, ex_q[:, 1]])
     order = np.lexsort((branch, target, arm))
     arm, target, branch, th1, th2 = arm[order], target[order], branch[order], th1[order], th2[order]
-    arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
-    beyond = None
-    if park_move_limit_s is not None:
-        keep = within_park_move_limit(instrument, arm, target, th1, th2, park_move_limit_s)
-        arm, target, branch, th1, th2 = arm[keep], target[keep], branch[keep], th1[keep], th2[keep]
-        reached_before = arms_per_target > 0
-        arms_per_target = _distinct_arms_per_target(arm, target, n_t)
-        beyond = reached_before & (arms_per_target == 0)
     tip = tip_fov(instrument, arm, th1, th2) if len(arm) else np.zeros((0, 2))
     arm_start = np.searchsorted(arm, np.arange(instrument.n_arms + 1))
     assignments = Assignments(arm.astype(np.int32), target.astype(np.int32), branch.astype(np.int8),
                               th1, th2, tip[:, 0], tip[:, 1], arm_start)
+    arms_per_target = valid.any(axis=2).sum(axis=0) if n_t else np.zeros(0, int)
     return Reachability(n_t, arms_per_target, assignments, beyond)
 
 
-def within_park_move_limit(instrument: Instrument, arm: np.ndarray, target: np.ndarray, theta1_rad: np.ndarray,
-                           theta2_rad: np.ndarray, limit_s: float) -> np.ndarray:
-    """(n,) bool: park and fixed locations, and the others an arm reaches from its park
-    within ``limit_s`` turning theta2 the positive way."""
+def within_park_move_limit(instrument: Instrument, arm, q: np.ndarray, limit_s: float | None) -> np.ndarray:
+    """Which joint angles ``q`` (..., 2) of ``arm`` (an index, or indices broadcasting
+    against ``q[..., 0]``) an arm reaches from its park within ``limit_s`` turning theta2
+    the positive way (None: all)."""
+    q = np.asarray(q, float)
+    if limit_s is None:
+        return np.ones(q.shape[:-1], bool)
     park = instrument.park_configuration[arm]
     v1 = instrument.arm_array("joint1_speed_rad_s")[arm]
     v2 = instrument.arm_array("joint2_speed_rad_s")[arm]
-    t_s = positive_turn_move_time_s(park, np.column_stack([theta1_rad, theta2_rad]), v1, v2)
-    return (target == PARK) | (target == FIXED) | (t_s <= limit_s)
-
-
-def _distinct_arms_per_target(arm: np.ndarray, target: np.ndarray, n_targets: int) -> np.ndarray:
-    real = target >= 0
-    pairs = np.unique(np.column_stack([arm[real], target[real]]), axis=0)
-    return np.bincount(pairs[:, 1], minlength=n_targets) if len(pairs) else np.zeros(n_targets, np.int64)
+    return positive_turn_move_time_s(park, q, v1, v2) <= limit_s
 
 
 def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) -> np.ndarray:

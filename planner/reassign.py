@@ -17,8 +17,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from models.collision import arm_pair_clearance_mm
+from models.incompatibility import within_park_move_limit
 from models.instrument import Instrument
-from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
+from models.kinematics import inverse_fov, tip_fov
 from models.types import ArmAssignment, Configuration
 
 IDLE_KINDS = ("park", "blank")
@@ -72,16 +73,6 @@ def _fits(instrument: Instrument, q: np.ndarray, arm: int, cand: np.ndarray, buf
     return ok
 
 
-def within_park_limit(instrument: Instrument, arm: int, cand: np.ndarray, limit_s: float | None) -> np.ndarray:
-    """Which candidate joint angles (m, 2) of ``arm`` are within ``limit_s`` of park, theta2
-    turning the positive way (the allocation's park move limit; None: all)."""
-    if limit_s is None:
-        return np.ones(len(cand), bool)
-    a = instrument.arms[arm]
-    park = np.broadcast_to(np.asarray(a.park, float), cand.shape)
-    return positive_turn_move_time_s(park, cand, a.joint1_speed_rad_s, a.joint2_speed_rad_s) <= limit_s
-
-
 def try_place(instrument: Instrument, config: Configuration, target: Placed, buffer_mm: float,
               exclude_arms: Sequence[int] = (), park_move_limit_s: float | None = None) -> Configuration | None:
     """``config`` with ``target`` on one of its idle arms (any IK branch that fits), or None.
@@ -100,7 +91,7 @@ def try_place(instrument: Instrument, config: Configuration, target: Placed, buf
         k = idle[i]
         ik = inverse_fov(instrument, k, np.array([target.x_mm]), np.array([target.y_mm]))
         cand = np.column_stack([ik.theta1_rad[0][ik.valid[0]], ik.theta2_rad[0][ik.valid[0]]])
-        cand = cand[within_park_limit(instrument, k, cand, park_move_limit_s)]
+        cand = cand[within_park_move_limit(instrument, k, cand, park_move_limit_s)]
         if len(cand) == 0:
             continue
         ok = _fits(instrument, q, k, cand, buffer_mm)
@@ -130,7 +121,7 @@ def other_branches(instrument: Instrument, config: Configuration, arm: int,
     same = (np.abs(cand[:, 0] - a.theta1_rad) < 1e-6) & (
         np.abs((cand[:, 1] - a.theta2_rad + np.pi) % (2 * np.pi) - np.pi) < 1e-6)
     cand = cand[~same]
-    cand = cand[within_park_limit(instrument, arm, cand, park_move_limit_s)]
+    cand = cand[within_park_move_limit(instrument, arm, cand, park_move_limit_s)]
     if len(cand) == 0:
         return []
     ok = _fits(instrument, config.q, arm, cand, buffer_mm)

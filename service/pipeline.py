@@ -332,9 +332,9 @@ def pointing_task(req: PlanRequest, seg: Segmentation, index: int, share_s: floa
                         float(time_limit_s), req.park_move_limit_s)
 
 
-def plan_allocation_options(task: PointingTask) -> AllocationOptions:
-    """The allocation options of a plan: every location within the task's park move limit."""
-    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=task.park_move_limit_s))
+def plan_allocation_options(park_move_limit_s: float | None) -> AllocationOptions:
+    """The allocation options of a plan: every location within its park move limit."""
+    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=park_move_limit_s))
 
 
 def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop) -> PointingPlan:
@@ -366,7 +366,7 @@ def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> 
     result = allocate(inst, targets, method=task.method, solver=task.solver,
                       configurations="all", seed=task.seed,
                       time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * EFFORT_SHARE * task.share_s),
-                      progress=_report(progress, 0.0, 0.5), options=plan_allocation_options(task))
+                      progress=_report(progress, 0.0, 0.5), options=plan_allocation_options(task.park_move_limit_s))
     progress(0.5)
     motion_s = deadline.left_s()
     legs = len(result.configurations) + 1
