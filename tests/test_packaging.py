@@ -46,3 +46,65 @@ def test_dockerfile_copies_every_top_level_package():
     dockerfile = (ROOT / "Dockerfile").read_text()
     for top in TOP_LEVEL:
         assert f"COPY {top} ./{top}" in dockerfile, top
+
+
+def _imported_top_names(top: str) -> set[str]:
+    """Top-level modules imported anywhere in package ``top`` (AST, every nesting level)."""
+    import ast
+
+    names = set()
+    for path in (ROOT / top).rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module.split(".")[0])
+    return names
+
+
+# imported only behind a guard that names the extra in its message (service/settings.py)
+OPTIONAL_IMPORTS = {"distributed": "distributed"}
+
+
+def _requirement_closure(requirements: list[str]) -> set[str]:
+    """The distributions that installing ``requirements`` brings (no extras followed)."""
+    import re
+    from importlib.metadata import PackageNotFoundError, requires
+
+    def name(req: str) -> str:
+        return re.split(r"[<>=!~;\[ (]", req.strip(), maxsplit=1)[0].lower().replace("_", "-")
+
+    todo, seen = [name(r) for r in requirements], set()
+    while todo:
+        dist = todo.pop()
+        if dist in seen:
+            continue
+        seen.add(dist)
+        try:
+            reqs = requires(dist) or []
+        except PackageNotFoundError:
+            continue
+        todo.extend(name(r) for r in reqs if "extra ==" not in r.replace('"', "").replace("'", ""))
+    return seen
+
+
+def test_every_run_time_import_is_a_base_dependency():
+    """A third-party module the shipped packages import is installed by ``pip install .``
+    (no extras): its distribution is a base dependency or one of theirs."""
+    import sys
+    from importlib.metadata import packages_distributions
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    base = _requirement_closure(project["dependencies"])
+    owners = packages_distributions()
+    undeclared = {}
+    for top in TOP_LEVEL:
+        for mod in _imported_top_names(top) - set(TOP_LEVEL) - set(sys.stdlib_module_names):
+            if mod in OPTIONAL_IMPORTS:
+                assert OPTIONAL_IMPORTS[mod] in project["optional-dependencies"], mod
+                continue
+            dists = {d.lower().replace("_", "-") for d in owners.get(mod, [])}
+            assert dists, f"{top} imports {mod!r}, which no installed distribution provides"
+            if not dists & base:
+                undeclared[mod] = sorted(dists)
+    assert not undeclared, f"run-time imports missing from the base dependencies: {undeclared}"
