@@ -413,11 +413,10 @@ def _stage_routes(app: FastAPI) -> None:
         and the plan says `executable: false` with the `reasons`.
         """
         list_id = req.target_list_id
-        req, limit = await _admit(req, st)
+        req, _ = await _admit(req, st)
         return await _from_list(list_id, _heavy(
             request, st, PlanResponse, lambda progress, left: pipeline.plan(
-                req, st.instrument, progress, time_limit_s=limit,
-                budget_s=left(st.settings.plan_budget_s))))
+                req, st.instrument, progress, budget_s=left(st.settings.plan_budget_s))))
 
 
 def _job_routes(app: FastAPI) -> None:

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
+from planner.programme import DEFAULT_LIMIT_S
 from service.tables import TargetFileError, read_target_table, read_targets
 
 __all__ = ["TargetFileError", "main", "read_targets"]
@@ -80,7 +81,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             bar.update(max(0, round(100 * p) - bar.n))
 
         try:
-            result = pipeline.plan(req, inst, progress, time_limit_s=args.time_limit or 30.0)
+            result = pipeline.plan(req, inst, progress)
         except (ServiceError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_INVALID_INPUT
@@ -176,9 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")
     p.add_argument("--solver", choices=["highs", "cpsat", "bnb"], default="bnb")
     p.add_argument("--position-angle", type=float, default=0.0, help="deg")
-    p.add_argument("--time-limit", type=float, default=None,
-                   help="wall-clock limit of the whole plan, s (default: none; each solver call "
-                   "at most 30 s)")
+    p.add_argument("--time-limit", type=float, default=DEFAULT_LIMIT_S,
+                   help="wall-clock limit of the whole plan, s (default %(default)s, as "
+                   "POST /v1/plans)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threshold-mm", type=float, default=None)
     reach = p.add_mutually_exclusive_group()

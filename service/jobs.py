@@ -317,10 +317,12 @@ class JobStore:
                 "WHERE " + _OURS,
                 (int(total), job_id, SEGMENTED, time.time(), job_id, owner, owner)).rowcount == 1
 
-    def commit_pointing(self, job_id: str, owner: str, index: int, result: dict[str, Any]) -> bool:
+    def commit_pointing(self, job_id: str, owner: str, index: int, result: dict[str, Any],
+                        *, replace: bool = False) -> bool:
         """Commit pointing ``index``'s answer and the job's progress in one transaction, if
         the job is still ``owner``'s (else nothing is written and False is returned). A
-        pointing already committed keeps its first answer."""
+        pointing already committed keeps its first answer, unless ``replace`` (a later
+        round's answer, which records the earlier rounds)."""
         blob = json.dumps(json_safe(result))
         with _closing(connect(self.db_path)) as con:
             con.execute("BEGIN IMMEDIATE")
@@ -330,7 +332,8 @@ class JobStore:
                     con.execute("ROLLBACK")
                     return False
                 now = time.time()
-                con.execute("INSERT OR IGNORE INTO job_pointings (job_id, idx, result, created_at) "
+                verb = "INSERT OR REPLACE" if replace else "INSERT OR IGNORE"
+                con.execute(f"{verb} INTO job_pointings (job_id, idx, result, created_at) "
                             "VALUES (?, ?, ?, ?)", (job_id, int(index), blob, now))
                 (done,) = con.execute("SELECT COUNT(*) FROM job_pointings WHERE job_id=?",
                                       (job_id,)).fetchone()
@@ -472,7 +475,7 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
         inst = pipeline.instrument_from(instrument_file)
         if kind == "plan":
             result = programme.run_plan(store, job_id, owner, request, inst,
-                                        runner or LocalPoolRunner(), time_limit_s=time_limit_s,
+                                        runner or LocalPoolRunner(),
                                         budget_s=budget_s, progress=progress,
                                         cancelled=cancelled)
             if result is None:

@@ -11,11 +11,10 @@ values between its stages — ``Segmentation`` -> ``PlaneTargets`` per pointing 
 from __future__ import annotations
 
 import logging
-import math
 import re
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
@@ -23,18 +22,25 @@ import numpy as np
 
 from models import clock
 from models.errors import InputError
-from models.instrument import (
-    CONFIGURATION_TIME_GOAL_S,
-    Instrument,
-    default_instrument,
-    load_instrument,
-)
+from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
-from planner import plan_motion
+from planner import plan_motion, programme
 from planner.clearance import compile_kernels
 from planner.options import MotionOptions
-from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
+from planner.programme import (
+    DEFAULT_LIMIT_S,
+    PointingOptions,
+    PointingOutcome,
+    PointingPlan,
+    RoundTask,
+    better,
+    pointing_need,
+    pointing_seed,
+    rank,
+    reserve_s,
+    run_rounds,
+)
 from service import adapters
 from service.errors import FieldError
 from service.schemas import (
@@ -46,25 +52,10 @@ from service.schemas import (
     SkyTarget,
 )
 from solvers.allocation import allocate
-from solvers.allocation.options import AllocationOptions
 from solvers.segmentation import Pointing, Segmentation, segment_field
-from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 Progress = Callable[[float], None]
 log = logging.getLogger("service")
-
-# Shares of one pointing's part of a plan's deadline: the allocation gets ALLOCATION_SHARE of
-# it, the motion sequence what the allocation left. A pointing whose part is below
-# MIN_POINTING_S is not attempted (its targets are `no_time`). RESERVE_SHARE of the whole
-# deadline (at most RESERVE_MAX_S) is kept for building the answer.
-ALLOCATION_SHARE = 0.5
-#: A pointing's searches get this share of its wall-clock share in effort seconds
-#: (:func:`plan_pointing`); the rest is the margin by which a machine may be slower than the
-#: effort clock's reference before the wall-clock limit stops the searches instead.
-EFFORT_SHARE = 0.5
-MIN_POINTING_S = 0.5
-RESERVE_SHARE, RESERVE_MAX_S = 0.05, 0.5
-
 
 def warm_up() -> None:
     """Load (or compile once) the planner's compiled kernels, so that no request pays for it."""
@@ -215,105 +206,27 @@ def motion_plan(
 
 
 @dataclass(frozen=True)
-class PointingPlan:
-    """One pointing of a plan on domain types. ``allocation`` is None when the pointing was
-    not attempted (its targets ``no_time``); ``unplanned_reason`` says why its legs were not
-    planned (a planner failure, or no time left): every leg is then reported failed."""
-
-    pointing: Pointing
-    ra_deg: float
-    targets: PlaneTargets
-    allocation: AllocationResult | None
-    sequence: SequencePlan
-    unplanned_reason: str | None = None
-    stats: dict = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
 class PointingTask:
-    """Everything the plan of one pointing needs, small and picklable (it is what a Dask
-    worker receives): the pointing, its own targets, the request's options, its seed
-    (:func:`pointing_seed`) and its wall-clock share ``share_s``; ``time_limit_s`` caps every
-    solver call; ``park_move_limit_s``: the allocation's park move limit (None: none)."""
+    """Everything the plan of one pointing in one round needs, small and picklable (it is what
+    a Dask worker receives): the pointing, its own targets, the request's options, its seed
+    (:func:`planner.programme.pointing_seed`), its round and its wall-clock share ``share_s``
+    (:func:`planner.programme.run_rounds`)."""
 
     index: int
     pointing: Pointing
     members: tuple[SkyTarget, ...]
-    method: str
-    solver: str
     position_angle_deg: float
-    seed: int
+    options: PointingOptions
     share_s: float
-    time_limit_s: float
-    park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
+    round: int = 1
 
 
-class _Deadline:
-    """The end of a plan or a pointing on the current clock (:mod:`models.clock`; None: no
-    limit), ``reserve_s`` before ``limit_s``."""
-
-    def __init__(self, limit_s: float | None, reserve_s: float = 0.0) -> None:
-        self.t0 = clock.now()
-        self.end = None if limit_s is None else self.t0 + limit_s - reserve_s
-
-    @classmethod
-    def of_plan(cls, limit_s: float | None) -> _Deadline:
-        """A whole plan's deadline, keeping back the time to build the answer."""
-        return cls(limit_s, 0.0 if limit_s is None else min(RESERVE_SHARE * limit_s, RESERVE_MAX_S))
-
-    def left_s(self) -> float:
-        return math.inf if self.end is None else self.end - clock.now()
-
-    def elapsed_s(self) -> float:
-        return clock.now() - self.t0
-
-
-def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float | None:
-    """The wall-clock limit of a whole plan: the request's ``time_limit_s`` when it gives one,
-    capped by the server's ``budget_s``; None when neither bounds it."""
-    limits = [v for v in (req.time_limit_s, budget_s) if v is not None]
-    return float(min(limits)) if limits else None
-
-
-def pointing_shares(limit_s: float | None, n: int) -> list[float]:
-    """The wall-clock share of each of ``n`` pointings of a plan limited to ``limit_s`` (a
-    plan job or a synchronous plan alike): an even split of the limit (less the answer's
-    reserve), fixed in advance, so that a pointing's plan does not depend on how long the
-    others took; when that is below
-    :data:`MIN_POINTING_S`, the first pointings get that minimum and the others none (their
-    targets ``no_time``), as in the synchronous plan."""
-    if limit_s is None:
-        return [math.inf] * n
-    usable = max(limit_s - min(RESERVE_SHARE * limit_s, RESERVE_MAX_S), 0.0)
-    even = usable / max(n, 1)
-    if even >= MIN_POINTING_S:
-        return [even] * n
-    fit = int(usable // MIN_POINTING_S)
-    return [MIN_POINTING_S if i < fit else 0.0 for i in range(n)]
-
-
-def pointing_seed(seed: int, index: int) -> int:
-    """The seed of pointing ``index`` of a plan seeded ``seed``: a fixed function of the two
-    (pointing 0 keeps ``seed``), so a pointing's plan does not depend on which worker computes
-    it or in which order the pointings run."""
-    return (int(seed) + 2_654_435_761 * int(index)) % 2**31
-
-
-def sequence_motion(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets, *,
-                    seed: int, leg_time_limit_s: float, time_limit_s: float | None,
-                    park_move_limit_s: float | None = None,
-                    progress: Progress = _noop) -> tuple[SequencePlan, str | None]:
-    """``planner.sequence.plan_sequence`` on one pointing's configurations; never raises: a
-    planner failure comes back as the unchanged configurations with its reason."""
-    options = SequenceOptions(seed=seed, leg_time_limit_s=float(leg_time_limit_s),
-                              time_limit_s=None if time_limit_s is None else float(time_limit_s),
-                              park_move_limit_s=park_move_limit_s)
-    configs = tuple(allocation.configurations)
-    try:
-        return plan_sequence(inst, configs, options, targets=targets, progress=progress), None
-    except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
-        log.exception("motion sequence planning failed")
-        return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"
+def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
+    """The wall-clock limit of a whole plan, its one meaning: the request's ``time_limit_s``
+    when it gives one, capped by the server's ``budget_s``; the library default
+    (:data:`planner.programme.DEFAULT_LIMIT_S`) when neither bounds it."""
+    limits = [float(v) for v in (req.time_limit_s, budget_s) if v is not None]
+    return min(limits) if limits else DEFAULT_LIMIT_S
 
 
 def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
@@ -322,131 +235,130 @@ def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
                                        mode=req.segmentation_mode, seed=req.seed), inst)
 
 
-def pointing_task(req: PlanRequest, seg: Segmentation, index: int, share_s: float,
-                  time_limit_s: float) -> PointingTask:
-    """The task of pointing ``index`` of ``seg``, planned within ``share_s`` seconds."""
-    p = seg.pointings[index]
-    return PointingTask(index, p, tuple(req.targets[int(k)] for k in p.target_indices),
-                        req.method, req.solver, req.position_angle_deg,
-                        pointing_seed(int(req.seed or 0), index), float(share_s),
-                        float(time_limit_s), req.park_move_limit_s)
+def pointing_needs(seg: Segmentation) -> list[float]:
+    """The need of each pointing of ``seg`` (:func:`planner.programme.pointing_need`)."""
+    return [pointing_need(len(p.target_indices)) for p in seg.pointings]
 
 
-def plan_allocation_options(park_move_limit_s: float | None) -> AllocationOptions:
-    """The allocation options of a plan: every location within its park move limit."""
-    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=park_move_limit_s))
+def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> PointingTask:
+    """The task of pointing ``task.index`` of ``seg`` in ``task.round``, within ``task.share_s``."""
+    p = seg.pointings[task.index]
+    options = PointingOptions(req.method, req.solver, pointing_seed(int(req.seed or 0), task.index),
+                              req.park_move_limit_s)
+    return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
+                        req.position_angle_deg, options, float(task.share_s), task.round)
 
 
-def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop) -> PointingPlan:
-    """Allocation (all configurations) then the executable motion sequence of one pointing,
-    within ``task.share_s`` seconds (thesis ch. 5 and 6).
-
-    Every budget inside runs on the effort clock (:func:`models.clock.effort`), and the
-    pointing's searches get :data:`EFFORT_SHARE` of its share in effort seconds: the plan
-    then depends only on the task (the same on any machine, under any load, whatever the
-    number of workers). ``task.share_s`` stays the wall-clock limit: a machine so slow that
-    it is reached stops the searches there, and ``stats["effort"]["overran"]`` says so."""
-    t0 = time.monotonic()
-    with clock.effort(wall_limit_s=task.share_s) as effort:
-        plan = _plan_pointing(task, inst, progress)
-    return replace(plan, stats={**plan.stats, "compute_s": time.monotonic() - t0, "effort": {
-        "effort_s": effort.t_s, "overran": effort.overran}})
-
-
-def _plan_pointing(task: PointingTask, inst: Instrument, progress: Progress) -> PointingPlan:
-    deadline = _Deadline(None if math.isinf(task.share_s) else EFFORT_SHARE * task.share_s)
+def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop, *,
+                  wall_limit_s: float | None = None) -> PointingPlan:
+    """:func:`planner.programme.plan_pointing` on the task's targets, projected about its
+    pointing (``wall_limit_s``: what the plan's deadline has left, when less than the share)."""
     p = task.pointing
-    ra = p.ra_deg % 360.0
-    targets = sky_plane_targets(task.members, ra, p.dec_deg, inst, task.position_angle_deg)
-    if task.share_s < MIN_POINTING_S:
-        seq = plan_sequence(inst, (), SequenceOptions(seed=task.seed))
-        return PointingPlan(p, ra, targets, None, seq, stats={
-            "allocation": {"skipped": "request time limit exhausted"},
-            "motion": {"legs": len(seq.legs), "leg_budget_s": 0.0, "compute_s": 0.0}})
-    result = allocate(inst, targets, method=task.method, solver=task.solver,
-                      configurations="all", seed=task.seed,
-                      time_limit_s=min(task.time_limit_s, ALLOCATION_SHARE * EFFORT_SHARE * task.share_s),
-                      progress=_report(progress, 0.0, 0.5), options=plan_allocation_options(task.park_move_limit_s))
-    progress(0.5)
-    motion_s = deadline.left_s()
-    legs = len(result.configurations) + 1
-    tm = time.monotonic()
-    if motion_s < MIN_LEG_S:
-        seq, err = SequencePlan(tuple(result.configurations), ()), (
-            f"no time left for motion planning ({max(motion_s, 0.0):.2f} s of the request's "
-            "time limit for its legs)")
-        leg_budget = 0.0
-    else:
-        leg_budget = min(task.time_limit_s, max(motion_s / legs, MIN_LEG_S))
-        # a leg the sequence starts gets at least MIN_LEG_S: its limit ends that much early
-        seq_limit = None if math.isinf(motion_s) else max(motion_s - MIN_LEG_S, 0.01)
-        seq, err = sequence_motion(inst, result, targets, seed=task.seed,
-                                   leg_time_limit_s=leg_budget, time_limit_s=seq_limit,
-                                   park_move_limit_s=task.park_move_limit_s,
-                                   progress=lambda f: progress(0.5 + 0.5 * f))
-    stats = {"allocation": result.stats,
-             "motion": {"legs": len(seq.legs) if err is None else legs,
-                        "leg_budget_s": leg_budget, "compute_s": time.monotonic() - tm}}
-    return PointingPlan(p, ra, targets, result, seq, err, stats)
+    targets = sky_plane_targets(task.members, p.ra_deg % 360.0, p.dec_deg, inst,
+                                task.position_angle_deg)
+    return programme.plan_pointing(inst, targets, task.options, task.share_s, progress,
+                                   wall_limit_s=wall_limit_s)
 
 
 def pointing_result(task: PointingTask, inst: Instrument,
-                    progress: Progress = _noop) -> dict[str, Any]:
+                    progress: Progress = _noop, *, wall_limit_s: float | None = None,
+                    ) -> dict[str, Any]:
     """:func:`plan_pointing` as a PlanPointing dict: the unit of work a plan job commits, and
-    what a Dask worker returns."""
+    what a Dask worker returns. Its ``stats.rounds`` holds the outcome of this round
+    (:func:`outcome`)."""
     ids = {int(k): t.id for k, t in zip(task.pointing.target_indices, task.members, strict=True)}
-    return pointing_plan_out(plan_pointing(task, inst, progress), ids, inst)
+    t0 = time.monotonic()
+    pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
+    out = pointing_plan_out(task.pointing, pp, ids, inst)
+    failed = out["stats"]["motion"]["failed_legs"]
+    observed = sum(1 for c in out["configurations"] for a in c["assignments"]
+                   if a["target_id"] is not None)
+    o = PointingOutcome(task.index, task.round, task.share_s, pp.effort_s, out["executable"],
+                        failed, observed, pp.overran)
+    out["stats"].update({"compute_s": time.monotonic() - t0,
+                         "effort": {"effort_s": pp.effort_s, "overran": pp.overran},
+                         "rounds": [outcome_out(o)]})
+    return out
+
+
+def outcome_out(o: PointingOutcome) -> dict[str, Any]:
+    return {"round": o.round, "share_s": o.share_s, "effort_s": o.effort_s,
+            "executable": o.executable, "failed_legs": o.failed_legs, "observed": o.observed,
+            "overran": o.overran}
+
+
+def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
+    """The outcome of every round a committed PlanPointing dict records (its own and those of
+    the rounds whose plans it replaced or kept)."""
+    return [PointingOutcome(index, int(r["round"]), float(r["share_s"]), float(r["effort_s"]),
+                            bool(r["executable"]), int(r["failed_legs"]), int(r["observed"]),
+                            bool(r["overran"]))
+            for r in answer.get("stats", {}).get("rounds", [])]
+
+
+def keep_better(old: dict[str, Any] | None, new: dict[str, Any], index: int) -> dict[str, Any]:
+    """Of a pointing's answer so far (None: none) and a later round's, the one to keep
+    (:func:`planner.programme.better`), recording both rounds' outcomes."""
+    if old is None:
+        return new
+    history = outcomes_of(old, index) + outcomes_of(new, index)
+    old_best = max(outcomes_of(old, index), key=rank)
+    kept = new if better(outcomes_of(new, index)[-1], old_best) else old
+    kept = {**kept, "stats": {**kept["stats"], "rounds": [outcome_out(o) for o in history]}}
+    return kept
 
 
 def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
-                   time_limit_s: float, budget_s: float | None = None,
+                   budget_s: float | None = None,
                    ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
-    """Segmentation -> per pointing, in order: projection onto the pointing's own tangent
-    plane (``position_angle_deg``) -> allocation (all configurations) -> executable motion
-    sequence park -> c1 -> ... -> park (``planner.sequence.plan_sequence``, which may change
-    the configurations so that every leg can be executed).
+    """Segmentation -> per pointing: projection onto the pointing's own tangent plane
+    (``position_angle_deg``) -> allocation (all configurations) -> executable motion sequence
+    park -> c1 -> ... -> park (:func:`planner.programme.plan_pointing`), in the rounds of
+    :func:`planner.programme.run_rounds` (shares by need, then what is left to the pointings
+    with a failed leg), as a plan job computes them.
 
-    The whole plan ends within :func:`plan_limit_s` (the request's time limit, capped by
-    ``budget_s``): what is left after the segmentation is split evenly over the pointings in
-    advance (:func:`pointing_shares`, as in a plan job), each split between its allocation
-    and its motion legs; ``time_limit_s`` also caps every single solver call. A pointing
-    whose share is below :data:`MIN_POINTING_S` gets no configurations (its targets
-    ``no_time``)."""
-    deadline = _Deadline.of_plan(plan_limit_s(req, budget_s))
+    The whole plan ends within :func:`plan_limit_s`: a pointing's share is cut to what the
+    limit has left when a slow machine left less (then the limit comes first)."""
+    limit = plan_limit_s(req, budget_s)
+    t0 = clock.now()
     seg = segment_plan(req, inst)
     progress(0.05)
     n = max(len(seg.pointings), 1)
-    shares = pointing_shares(plan_limit_s(req, budget_s), len(seg.pointings))
-    out = []
-    for i in range(len(seg.pointings)):
-        lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
-        # the fixed share, unless a slow machine left less (then the limit comes first)
-        share = min(shares[i], max(deadline.left_s(), 0.0))
-        out.append(pointing_result(pointing_task(req, seg, i, share, time_limit_s), inst,
-                                   lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f)))
-        progress(hi)
-    return seg, out, {"time_limit_s": time_limit_s, "budget_s": budget_s,
-                      "deadline_s": plan_limit_s(req, budget_s),
-                      "elapsed_s": deadline.elapsed_s()}
+    answers: dict[int, dict[str, Any]] = {}
+
+    def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
+        for task in tasks:
+            i = task.index
+            lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
+            left = max(limit - reserve_s(limit) - (clock.now() - t0), 0.0)
+            answer = pointing_result(pointing_task(req, seg, task), inst,
+                                     lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f),
+                                     wall_limit_s=left)
+            answers[i] = keep_better(answers.get(i), answer, i)
+            progress(hi)
+        return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
+
+    history = run_rounds(pointing_needs(seg), limit, compute)
+    return seg, [answers[i] for i in range(len(seg.pointings))], {
+        "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
+        "elapsed_s": clock.now() - t0}
 
 
-def plan(
-    req: PlanRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float,
-    budget_s: float | None = None,
-) -> dict[str, Any]:
+def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
+         budget_s: float | None = None) -> dict[str, Any]:
     """:func:`plan_pointings` as a PlanResponse dict. A motion leg that cannot be planned is
     returned with status "failed", never as an exception; the pointing and the plan then say
     ``executable: false`` with the reasons."""
-    seg, pointings, stats = plan_pointings(req, inst, progress, time_limit_s=time_limit_s,
-                                           budget_s=budget_s)
+    seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s)
     out = plan_out(seg, pointings, req.targets, stats)
     progress(1.0)
     return out
 
 
-def pointing_plan_out(pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],
+def pointing_plan_out(pointing: Pointing, pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],
                       inst: Instrument) -> dict[str, Any]:
-    """One :class:`PointingPlan` as a PlanPointing dict (``ids[k]``: the id of target ``k``)."""
+    """One pointing's :class:`~planner.programme.PointingPlan` as a PlanPointing dict
+    (``ids[k]``: the id of target ``k``)."""
     seq = adapters.sequence_out(pp.sequence)
     if pp.unplanned_reason is not None:
         legs = len(pp.sequence.configurations) + 1
@@ -461,7 +373,7 @@ def pointing_plan_out(pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],
     stats["sequence"] = seq["stats"]["sequence"]
     if pp.allocation is None:
         unallocated = [{"target_id": t, "reason": "no_time"} for t in pp.targets.ids]
-    return {**adapters.pointing_out(pp.pointing, ids), "ra_deg": pp.ra_deg,
+    return {**adapters.pointing_out(pointing, ids), "ra_deg": pointing.ra_deg % 360.0,
             "configurations": seq["configurations"], "motions": motions,
             "unallocated": unallocated + seq["dropped"], "changes": seq["changes"],
             "executable": seq["executable"], "reasons": seq["reasons"], "stats": stats}
@@ -522,4 +434,4 @@ def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
     if isinstance(req, MotionPlanRequest):
         return motion_plan(req, inst, progress, time_limit_s=time_limit_s)
     assert isinstance(req, PlanRequest)
-    return plan(req, inst, progress, time_limit_s=time_limit_s, budget_s=budget_s)
+    return plan(req, inst, progress, budget_s=budget_s)

@@ -3,10 +3,11 @@ committed as soon as it is computed, then the answer assembled in pointing order
 
 The pointings run on a :class:`~service.runners.PointingRunner` (this process, or a Dask
 cluster). Each pointing's plan depends only on the request, the pointing and its index:
-its seed is :func:`service.pipeline.pointing_seed` of the job's seed, and its wall-clock share
-is fixed before any pointing runs (:func:`service.pipeline.pointing_shares`), so the plan is the same whatever the
-number of workers, their order or the attempt that computed a pointing, and equal to the
-synchronous ``POST /v1/plans`` answer whenever no time limit cuts a computation short.
+its seed is :func:`planner.programme.pointing_seed` of the job's seed, and its wall-clock
+share is fixed before any pointing runs, then later rounds share what the earlier ones left
+(:func:`planner.programme.run_rounds`), so the plan is the same whatever the number of
+workers, their order or the attempt that computed a pointing, and equal to the synchronous
+``POST /v1/plans`` answer whenever the wall-clock guard cuts no computation short.
 
 A job re-queued after an interruption (its server or worker killed) segments again (cheap,
 and deterministic for the request and its seed) and computes only the pointings that have no
@@ -18,9 +19,11 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from models.instrument import Instrument
+from planner.programme import PointingOutcome, RoundTask, run_rounds
 from service import adapters, pipeline
 from service.jobs import JobStore, pointing_progress
 from service.runners import PointingRunner
@@ -32,14 +35,18 @@ def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
 
 
 def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instrument,
-             runner: PointingRunner, *, time_limit_s: float, budget_s: float | None = None,
+             runner: PointingRunner, *, budget_s: float | None = None,
              progress: pipeline.Progress = lambda _: None,
              cancelled: threading.Event | None = None) -> dict[str, Any] | None:
     """Run (or resume) plan job ``job_id`` owned by ``owner`` on ``runner``; its
     PlanResponse dict, or None when it stopped before its end: ``cancelled`` was set, or the
     job is no longer open and ``owner``'s (cancelled, finished elsewhere, or taken over after
     a lost lease). ``progress`` hears :func:`~service.jobs.pointing_progress` of the pointings
-    committed plus the part done of the one being computed, when the runner sees it."""
+    committed plus the part done of the one being computed, when the runner sees it.
+
+    The rounds are :func:`planner.programme.run_rounds`', as in the synchronous plan; a round
+    whose outcome a committed answer already records (``stats.rounds``) is not computed
+    again."""
     t0 = time.monotonic()
     req = request if isinstance(request, PlanRequest) else PlanRequest.model_validate(request)
     limit = pipeline.plan_limit_s(req, budget_s)
@@ -53,30 +60,53 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     stale = [i for i, a in done.items() if i >= n or not _matches(a, expected[i])]
     if stale:
         store.drop_pointings(job_id, stale)
-    resumed = len(done) - len(stale)
-    shares = pipeline.pointing_shares(limit, n)
-    todo = [pipeline.pointing_task(req, seg, i, shares[i], time_limit_s)
-            for i in range(n) if i not in done or i in stale]
+    answers = {i: a for i, a in done.items() if i not in stale}
+    resumed = len(answers)
+    computed = [0]
     committed = [resumed]
 
+    def recorded(task: RoundTask) -> PointingOutcome | None:
+        old = answers.get(task.index)
+        rounds = [] if old is None else pipeline.outcomes_of(old, task.index)
+        return next((o for o in rounds if o.round == task.round), None)
+
     def on_done(index: int, answer: dict[str, Any]) -> bool:
-        if not store.commit_pointing(job_id, owner, index, answer):
+        rounds = pipeline.outcomes_of(answer, index)
+        old = answers.get(index)
+        if old is not None and rounds and any(
+                o.round == rounds[-1].round for o in pipeline.outcomes_of(old, index)):
+            return True  # the same round computed twice (a re-run task): keep the first
+        kept = pipeline.keep_better(old, answer, index)
+        if not store.commit_pointing(job_id, owner, index, kept, replace=old is not None):
             return False
-        committed[0] += 1
+        answers[index] = kept
+        if old is None:
+            committed[0] += 1
         return True
 
     def keep_going() -> bool:
         return not (cancelled is not None and cancelled.is_set()) and store.owns(job_id, owner)
 
-    finished = runner.run(todo, inst, on_done, keep_going,
-                          lambda f: progress(pointing_progress(committed[0] + f, n)))
-    if not finished:
+    def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
+        todo = [pipeline.pointing_task(req, seg, t) for t in tasks if recorded(t) is None]
+        computed[0] += len(todo)
+        if not runner.run(todo, inst, on_done, keep_going,
+                          lambda f: progress(pointing_progress(committed[0] + f, n))):
+            raise _Stopped()
+        missing = [t.index for t in tasks if recorded(t) is None]
+        if missing:  # pragma: no cover - the runner handed every task over
+            raise RuntimeError(f"pointings {missing} have no committed answer")
+        return [recorded(t) for t in tasks]  # type: ignore[misc]
+
+    try:
+        history = run_rounds(pipeline.pointing_needs(seg), limit, compute)
+    except _Stopped:
         return None
-    answers = store.pointing_results(job_id)
-    missing = [i for i in range(n) if i not in answers]
-    if missing:  # pragma: no cover - the runner handed every task over
-        raise RuntimeError(f"pointings {missing} have no committed answer")
     return pipeline.plan_out(seg, [answers[i] for i in range(n)], req.targets, {
-        "time_limit_s": time_limit_s, "budget_s": budget_s, "deadline_s": limit,
+        "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": len(todo)})
+        "pointings_resumed": resumed, "pointings_computed": computed[0]})
+
+
+class _Stopped(Exception):
+    """The runner stopped: the job was cancelled or is no longer this server's."""

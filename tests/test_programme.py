@@ -17,6 +17,7 @@ import yaml
 from distributed import LocalCluster
 from fastapi.testclient import TestClient
 
+from planner import programme as programme_policy
 from service import jobs, pipeline
 from service.app import create_app
 from service.errors import json_safe
@@ -47,8 +48,7 @@ def content(plan: dict[str, Any]) -> Any:
 def reference() -> dict[str, Any]:
     """The synchronous pipeline's plan of REQUEST, as POST /v1/plans computes it (the oracle
     of every job path)."""
-    return pipeline.plan(PlanRequest.model_validate(REQUEST), INST, time_limit_s=10.0,
-                         budget_s=120.0)
+    return pipeline.plan(PlanRequest.model_validate(REQUEST), INST, budget_s=120.0)
 
 
 @pytest.fixture(scope="module")
@@ -95,18 +95,24 @@ def test_reference_has_several_pointings(reference) -> None:
 
 
 def test_pointing_seeds_are_fixed_per_index() -> None:
-    seeds = [pipeline.pointing_seed(3, i) for i in range(100)]
+    seeds = [programme_policy.pointing_seed(3, i) for i in range(100)]
     assert seeds[0] == 3 and len(set(seeds)) == 100
     assert all(0 <= s < 2**31 for s in seeds)
-    assert seeds == [pipeline.pointing_seed(3, i) for i in range(100)]
+    assert seeds == [programme_policy.pointing_seed(3, i) for i in range(100)]
 
 
-def test_pointing_shares_are_fixed_and_within_the_limit() -> None:
-    assert pipeline.pointing_shares(None, 3) == [float("inf")] * 3
-    shares = pipeline.pointing_shares(100.0, 4)
-    assert len(set(shares)) == 1 and 0.9 * 100 <= sum(shares) <= 100.0
-    short = pipeline.pointing_shares(1.2, 5)  # 1.2 s cannot give 5 pointings 0.5 s each: 2 get it, 3 none
-    assert short == [pipeline.MIN_POINTING_S] * 2 + [0.0] * 3
+def test_pointing_shares_follow_need_and_stay_within_the_limit() -> None:
+    assert programme_policy.pointing_shares(None, [1.0, 2.0, 3.0]) == [float("inf")] * 3
+    shares = programme_policy.pointing_shares(100.0, [10.0, 10.0, 20.0, 60.0])
+    assert shares[0] == shares[1] and shares[2] == pytest.approx(2 * shares[0])
+    assert shares[3] == pytest.approx(6 * shares[0])
+    assert sum(shares) == pytest.approx(programme_policy.usable_s(100.0)) and sum(shares) <= 100.0
+    # a tiny need still gets the minimum, taken from the others
+    tiny = programme_policy.pointing_shares(10.0, [1.0, 1000.0])
+    assert tiny[0] == programme_policy.SHARES.min_pointing_s and sum(tiny) == pytest.approx(9.5)
+    # 1.2 s cannot give 5 pointings 0.5 s each: 2 get it, 3 none
+    short = programme_policy.pointing_shares(1.2, [1.0] * 5)
+    assert short == [programme_policy.SHARES.min_pointing_s] * 2 + [0.0] * 3
 
 
 def test_dask_job_over_http_equals_the_synchronous_plan(tmp_path, cluster, reference) -> None:
@@ -167,8 +173,8 @@ def test_a_job_that_is_no_longer_ours_stops_and_commits_nothing_more(tmp_path, c
     store, job_id = new_job(tmp_path, owner="old/1")
     commit = store.commit_pointing
 
-    def commit_then_lose(job: str, owner: str, index: int, answer: dict) -> bool:
-        ok = commit(job, owner, index, answer)
+    def commit_then_lose(job: str, owner: str, index: int, answer: dict, **kw: Any) -> bool:
+        ok = commit(job, owner, index, answer, **kw)
         with jobs._closing(jobs.connect(store.db_path)) as con:
             con.execute("UPDATE jobs SET owner='other/9' WHERE job_id=?", (job,))
         return ok
@@ -176,8 +182,7 @@ def test_a_job_that_is_no_longer_ours_stops_and_commits_nothing_more(tmp_path, c
     store.commit_pointing = commit_then_lose  # type: ignore[method-assign]
     runner = DaskRunner(cluster.scheduler_address, window=1)
     from service import programme
-    out = programme.run_plan(store, job_id, "old/1", REQUEST, INST, runner, time_limit_s=10.0,
-                             budget_s=3600.0)
+    out = programme.run_plan(store, job_id, "old/1", REQUEST, INST, runner, budget_s=3600.0)
     client = runner.client()
     assert out is None
     job = store.get(job_id)
@@ -275,7 +280,7 @@ def test_a_job_finished_elsewhere_stops_the_local_runner_inside_its_pointing(tmp
     runner = CloseDuringSecond()
     runner.poll_s = 0.0
     assert programme.run_plan(store, job_id, "srv/1", REQUEST, INST, runner,
-                              time_limit_s=10.0, budget_s=3600.0) is None
+                              budget_s=3600.0) is None
     assert runner.computed == [0, 1] and runner.returned == [0]  # the second one was cut short
     job = store.get(job_id)
     assert job is not None and (job["status"], job["error"]) == ("failed", "closed elsewhere")
@@ -290,8 +295,8 @@ def test_a_cancelled_dask_job_stops_submitting_and_cancels_its_tasks(tmp_path, c
     store, job_id = new_job(tmp_path, owner="srv/1")
     commit = jobs.JobStore.commit_pointing
 
-    def commit_then_cancel(self, job: str, owner: str, index: int, answer: dict) -> bool:
-        ok = commit(self, job, owner, index, answer)
+    def commit_then_cancel(self, job: str, owner: str, index: int, answer: dict, **kw: Any) -> bool:
+        ok = commit(self, job, owner, index, answer, **kw)
         self.cancel(job)
         return ok
 

@@ -19,7 +19,7 @@ from models import clock
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import AllocationResult, ArmAssignment, Configuration, MotionPlan, PlaneTargets
-from planner import plan_motion
+from planner import plan_motion, programme
 from planner.options import MotionOptions
 from planner.sequence import SequenceOptions, SequencePlan
 from service import pipeline
@@ -114,7 +114,7 @@ def _configuration(index: int, targets: PlaneTargets) -> Configuration:
 
 def _use(budget_s: float) -> None:
     clock.charge(budget_s)
-    time.sleep(budget_s / pipeline.EFFORT_SHARE)
+    time.sleep(budget_s / programme.SHARES.effort_share)
 
 
 class SlowStages:
@@ -144,14 +144,14 @@ class SlowStages:
 @pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (7.0, 0.2)])
 def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spread_deg) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(pipeline, "allocate", fake.allocate)
-    monkeypatch.setattr(pipeline, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(programme, "allocate", fake.allocate)
+    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
     targets = sky_targets(6)
     for i, t in enumerate(targets):  # spread_deg > 0: several pointings
         t["dec_deg"] += spread_deg * (i % 3)
     req = PlanRequest(targets=targets, time_limit_s=limit_s, seed=1)
     t0 = time.monotonic()
-    out = pipeline.plan(req, INST, time_limit_s=limit_s, budget_s=120.0)
+    out = pipeline.plan(req, INST, budget_s=120.0)
     wall = time.monotonic() - t0
     assert wall <= limit_s + 0.3, wall  # fakes use all they get: the split itself is checked
     n = out["stats"]["pointings"]
@@ -159,39 +159,41 @@ def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spr
     given = sum(fake.allocation_limits) + sum(s for _, s in fake.sequence_limits if s is not None)
     assert given <= limit_s
     assert fake.sequence_limits, "motion planning was given time"
-    assert out["stats"]["deadline_s"] == limit_s
+    assert out["stats"]["time_limit_s"] == limit_s
 
 
 def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(pipeline, "allocate", fake.allocate)
-    monkeypatch.setattr(pipeline, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(programme, "allocate", fake.allocate)
+    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
     req = PlanRequest(targets=sky_targets(3), time_limit_s=60.0, seed=1)
     t0 = time.monotonic()
-    out = pipeline.plan(req, INST, time_limit_s=60.0, budget_s=2.0)
+    out = pipeline.plan(req, INST, budget_s=2.0)
     assert time.monotonic() - t0 <= 2.3
-    assert out["stats"]["deadline_s"] == 2.0
-    # no request limit: the budget alone; each solver call still capped by time_limit_s
+    assert out["stats"]["time_limit_s"] == 2.0
+    # no request limit: the budget alone, the one limit of the whole plan (no solver cap:
+    # the allocation gets its share of the pointing's effort)
     fake2 = SlowStages()
-    monkeypatch.setattr(pipeline, "allocate", fake2.allocate)
-    monkeypatch.setattr(pipeline, "plan_sequence", fake2.plan_sequence)
-    out = pipeline.plan(PlanRequest(targets=sky_targets(3), seed=1), INST, time_limit_s=0.4,
-                        budget_s=2.0)
-    assert fake2.allocation_limits == [0.4]
-    assert all(leg <= 0.4 + 1e-9 for leg, _ in fake2.sequence_limits)
+    monkeypatch.setattr(programme, "allocate", fake2.allocate)
+    monkeypatch.setattr(programme, "plan_sequence", fake2.plan_sequence)
+    out = pipeline.plan(PlanRequest(targets=sky_targets(3), seed=1), INST, budget_s=2.0)
+    usable = programme.usable_s(2.0)
+    t = programme.SHARES
+    assert fake2.allocation_limits == [pytest.approx(t.allocation_share * t.effort_share * usable)]
+    assert out["stats"]["time_limit_s"] == 2.0
 
 
 def test_a_pointing_reached_after_the_deadline_is_no_time(monkeypatch) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(pipeline, "allocate", fake.allocate)
-    monkeypatch.setattr(pipeline, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(programme, "allocate", fake.allocate)
+    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
     targets = sky_targets(6)
     for i, t in enumerate(targets):
         t["dec_deg"] += 0.2 * (i % 3)
     out = pipeline.plan(PlanRequest(targets=targets, time_limit_s=1.0, seed=1), INST,
-                        time_limit_s=1.0, budget_s=None)
+                        budget_s=None)
     reasons = {u["reason"] for p in out["pointings"] for u in p["unallocated"]}
     assert "no_time" in reasons
     skipped = [p for p in out["pointings"] if "skipped" in p["stats"]["allocation"]]
     assert skipped and all(len(p["motions"]) == 1 and p["configurations"] == [] for p in skipped)
-    assert math.isclose(out["stats"]["deadline_s"], 1.0)
+    assert math.isclose(out["stats"]["time_limit_s"], 1.0)

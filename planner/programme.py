@@ -1,0 +1,349 @@
+"""A whole programme: how one plan's time limit is shared over its pointings, and the plan of
+one pointing (allocation, then the executable motion sequence park -> c1 -> ... -> park).
+
+The synchronous plan (``POST /v1/plans``, ``mxs-planner plan``), a plan job (its local pool or
+Dask) and the benchmarks all run :func:`run_rounds` with their own way of computing a round's
+pointings; the policy is here, once:
+
+1. **Shares by need.** Each pointing's wall-clock share of the plan's limit follows its need
+   (:func:`pointing_need`: its targets, plus a fixed part for the legs every pointing has),
+   fixed before any pointing runs (:func:`pointing_shares`), so the plan is the same on one or
+   many workers, in any order.
+2. **Rounds.** A pointing's searches run on the effort clock (:func:`plan_pointing`), so what
+   it spends is a function of its task alone. Time the first round does not use is not lost:
+   the pointings whose plan has a failed leg are planned again, each with a share of what the
+   earlier rounds left (:func:`next_round`), which depends only on the earlier rounds'
+   outcomes: the same on any number of workers. A round's plan replaces an earlier one only
+   when it is better (:func:`better`). Rounds go on while a failed pointing can be given more
+   than it had; so no pointing reports a failed leg while the plan's limit has time that
+   could be given to it.
+
+All shares are in wall-clock seconds; a pointing's searches get :attr:`ProgrammeShares.effort_share`
+of its share in effort seconds (``models.clock``), the rest is the margin by which a machine
+may be slower than the effort clock's calibration before the wall-clock guard stops them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from models import clock
+from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument
+from models.types import AllocationResult, PlaneTargets
+from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
+from solvers.allocation import allocate
+from solvers.allocation.options import AllocationOptions
+from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
+
+__all__ = [
+    "DEFAULT_LIMIT_S", "SHARES", "PointingOptions", "PointingOutcome", "PointingPlan", "ProgrammeShares", "RoundTask",
+    "better", "next_round", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares",
+    "rank", "reserve_s", "run_rounds", "usable_s",
+]
+
+Progress = Callable[[float], None]
+
+
+def _noop(_: float) -> None:
+    pass
+
+
+@dataclass(frozen=True)
+class ProgrammeShares:
+    """The driver's one table of shares; each entry says what it protects."""
+
+    #: Of the plan's limit, kept back (at most ``reserve_max_s``) to build and send the answer
+    #: after the last pointing: it keeps the answer within the request's limit.
+    reserve_fraction: float = 0.05
+    reserve_max_s: float = 0.5
+    #: Effort seconds a pointing's searches get per wall-clock second of its share. Below 1 by
+    #: the margin a machine may be slower than the effort clock's calibration before the
+    #: wall-clock guard, not the work, ends the searches (the plan then depends on the load).
+    effort_share: float = 0.8
+    #: Of a pointing's effort, what its allocation may use; the motion legs and the
+    #: allocation <-> motion loop get the rest (and whatever the allocation left).
+    allocation_share: float = 0.5
+    #: A pointing whose share is below this is not attempted (its targets ``no_time``): less
+    #: cannot allocate and plan even one leg.
+    min_pointing_s: float = 0.5
+    #: Every pointing's need counts this many targets on top of its own: the legs from and
+    #: back to park, which even a one-target pointing plans.
+    fixed_need_targets: int = 12
+    #: Rounds at most (the first included): each plans again the pointings with a failed leg
+    #: on what the earlier rounds left.
+    rounds: int = 4
+
+
+SHARES = ProgrammeShares()
+#: The limit of a whole plan when the caller gives none: the instrument's configuration time
+#: goal, and the default of ``POST /v1/plans`` and ``mxs-planner plan``.
+DEFAULT_LIMIT_S = 120.0
+
+
+# ------------------------------------------------------------------------ shares
+
+
+def reserve_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
+    """What a plan limited to ``limit_s`` keeps back to build its answer."""
+    if limit_s is None or math.isinf(limit_s):
+        return 0.0
+    return min(table.reserve_fraction * limit_s, table.reserve_max_s)
+
+
+def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
+    """What the pointings of a plan limited to ``limit_s`` may use (inf: no limit)."""
+    if limit_s is None or math.isinf(limit_s):
+        return math.inf
+    return max(limit_s - reserve_s(limit_s, table), 0.0)
+
+
+def pointing_need(n_targets: int, table: ProgrammeShares = SHARES) -> float:
+    """A pointing's need: its targets plus the fixed part every pointing has."""
+    return float(n_targets + table.fixed_need_targets)
+
+
+def pointing_shares(limit_s: float | None, needs: Sequence[float],
+                    table: ProgrammeShares = SHARES) -> list[float]:
+    """The first round's wall-clock share of each pointing: the usable limit split in
+    proportion to ``needs``, fixed in advance. A share below ``min_pointing_s`` is raised to
+    it, taken from the largest shares; when the limit cannot give every pointing that
+    minimum, the first pointings get it and the others none (their targets ``no_time``)."""
+    n = len(needs)
+    usable = usable_s(limit_s, table)
+    if math.isinf(usable):
+        return [math.inf] * n
+    if usable < n * table.min_pointing_s:
+        fit = int(usable // table.min_pointing_s)
+        return [table.min_pointing_s if i < fit else 0.0 for i in range(n)]
+    total = float(sum(needs)) or 1.0
+    shares = [usable * w / total for w in needs]
+    short = [i for i, s in enumerate(shares) if s < table.min_pointing_s]
+    if short:
+        floor = table.min_pointing_s * len(short)
+        rest = [i for i in range(n) if i not in short]
+        rest_total = sum(needs[i] for i in rest) or 1.0
+        for i in short:
+            shares[i] = table.min_pointing_s
+        for i in rest:
+            shares[i] = (usable - floor) * needs[i] / rest_total
+    return shares
+
+
+def pointing_seed(seed: int, index: int) -> int:
+    """The seed of pointing ``index`` of a plan seeded ``seed``: a fixed function of the two
+    (pointing 0 keeps ``seed``), so a pointing's plan does not depend on which worker computes
+    it or in which order the pointings run."""
+    return (int(seed) + 2_654_435_761 * int(index)) % 2**31
+
+
+# ------------------------------------------------------------------------ rounds
+
+
+@dataclass(frozen=True)
+class RoundTask:
+    """Pointing ``index`` planned in round ``round`` (1 = the first) within ``share_s``."""
+
+    index: int
+    round: int
+    share_s: float
+
+
+@dataclass(frozen=True)
+class PointingOutcome:
+    """What the next round needs of one pointing's plan: its share, the effort seconds its
+    searches spent (a function of the task alone, unless the wall guard fired), whether
+    every leg was planned, and how many legs failed and targets it observes."""
+
+    index: int
+    round: int
+    share_s: float
+    effort_s: float
+    executable: bool
+    failed_legs: int
+    observed: int
+    overran: bool = False
+
+    def spent_s(self, table: ProgrammeShares = SHARES) -> float:
+        """The wall-clock share this outcome used up, counted deterministically (its effort
+        over ``effort_share``, at most its share)."""
+        if math.isinf(self.share_s):
+            return self.effort_s / table.effort_share
+        return self.share_s if self.overran else min(self.effort_s / table.effort_share, self.share_s)
+
+
+def rank(o: PointingOutcome) -> tuple[bool, int, int]:
+    """How good a pointing's plan is: executable first, then fewer failed legs, then more
+    targets observed."""
+    return (o.executable, -o.failed_legs, o.observed)
+
+
+def better(new: PointingOutcome, old: PointingOutcome) -> bool:
+    """Whether a later round's plan replaces the one kept (:func:`rank`; a tie keeps the old)."""
+    return rank(new) > rank(old)
+
+
+def next_round(needs: Sequence[float], limit_s: float | None,
+               history: Sequence[Sequence[PointingOutcome]],
+               table: ProgrammeShares = SHARES) -> list[RoundTask]:
+    """The tasks of the round after ``history`` (the outcomes of each earlier round): the
+    pointings whose best plan so far has a failed leg, each with a share of what the earlier
+    rounds left in proportion to its need, when that is more than the share it last had
+    (less could not be expected to do better). Empty when no round is due."""
+    r = len(history) + 1
+    if r > table.rounds or not history:
+        return []
+    usable = usable_s(limit_s, table)
+    if math.isinf(usable):
+        return []  # without a limit every pointing already had all the time it asked for
+    best: dict[int, PointingOutcome] = {}
+    last_share: dict[int, float] = {}
+    spent = 0.0
+    for outcomes in history:
+        for o in outcomes:
+            spent += o.spent_s(table)
+            last_share[o.index] = o.share_s
+            if o.index not in best or better(o, best[o.index]):
+                best[o.index] = o
+    failed = sorted(i for i, o in best.items() if not o.executable)
+    left = usable - spent
+    if not failed or left < table.min_pointing_s:
+        return []
+    total = sum(needs[i] for i in failed) or 1.0
+    tasks = []
+    for i in failed:
+        share = left * needs[i] / total
+        if share > last_share[i] and share >= table.min_pointing_s:
+            tasks.append(RoundTask(i, r, share))
+    return tasks
+
+
+def run_rounds(needs: Sequence[float], limit_s: float | None,
+               compute: Callable[[Sequence[RoundTask]], Sequence[PointingOutcome]],
+               table: ProgrammeShares = SHARES) -> list[list[PointingOutcome]]:
+    """The one plan loop of a programme: the first round on :func:`pointing_shares`, then
+    :func:`next_round` until none is due. ``compute`` plans a round's tasks (in this process,
+    on a job's runner, on Dask: any order) and keeps each pointing's best plan
+    (:func:`better`); it returns their outcomes. Returns the outcomes of every round."""
+    shares = pointing_shares(limit_s, needs, table)
+    tasks = [RoundTask(i, 1, s) for i, s in enumerate(shares)]
+    history: list[list[PointingOutcome]] = []
+    while tasks:
+        history.append(list(compute(tasks)))
+        tasks = next_round(needs, limit_s, history, table)
+    return history
+
+
+# --------------------------------------------------------------- one pointing
+
+
+@dataclass(frozen=True)
+class PointingOptions:
+    """A pointing's plan options: the allocation's method and solver, its seed
+    (:func:`pointing_seed`) and the allocation's park move limit (None: none)."""
+
+    method: str = "ilp"
+    solver: str = "bnb"
+    seed: int = 0
+    park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
+
+
+@dataclass(frozen=True)
+class PointingPlan:
+    """One pointing's plan on domain types. ``allocation`` is None when the pointing was not
+    attempted (its share below ``min_pointing_s``: its targets ``no_time``);
+    ``unplanned_reason`` says why its legs were not planned (a planner failure, or no time
+    left): every leg is then reported failed."""
+
+    targets: PlaneTargets
+    allocation: AllocationResult | None
+    sequence: SequencePlan
+    unplanned_reason: str | None = None
+    stats: dict = field(default_factory=dict)
+    effort_s: float = 0.0
+    overran: bool = False
+
+
+def allocation_options(park_move_limit_s: float | None) -> AllocationOptions:
+    """The allocation options of a plan: every location within its park move limit."""
+    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=park_move_limit_s))
+
+
+def plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
+                  share_s: float, progress: Progress = _noop,
+                  table: ProgrammeShares | None = None, *,
+                  wall_limit_s: float | None = None) -> PointingPlan:
+    """Allocation (all configurations) then the executable motion sequence of one pointing,
+    within ``share_s`` wall-clock seconds (thesis ch. 5 and 6).
+
+    Every budget inside runs on the effort clock (:func:`models.clock.effort`) and the
+    searches get ``effort_share`` of the share in effort seconds: the plan then depends only
+    on its arguments (the same on any machine, under any load, on any worker). ``share_s``
+    stays the wall-clock limit (or ``wall_limit_s``, when the plan's deadline has less left:
+    the budget is still counted from ``share_s``, so that the plan does not depend on how
+    long other pointings took): a machine so slow that it is reached stops the searches
+    there, and the plan's ``overran`` says so."""
+    table = SHARES if table is None else table  # read at call time
+    wall_s = share_s if wall_limit_s is None else min(wall_limit_s, share_s)
+    with clock.effort(wall_limit_s=wall_s) as effort:
+        # a deadline with less than the least share left (a slow machine): not attempted
+        plan = _plan_pointing(inst, targets, options, share_s if wall_s >= table.min_pointing_s
+                              else 0.0, progress, table)
+    return PointingPlan(plan.targets, plan.allocation, plan.sequence, plan.unplanned_reason,
+                        plan.stats, effort.t_s, effort.overran)
+
+
+def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
+                   share_s: float, progress: Progress, table: ProgrammeShares) -> PointingPlan:
+    if share_s < table.min_pointing_s:
+        seq = plan_sequence(inst, (), SequenceOptions(seed=options.seed))
+        return PointingPlan(targets, None, seq, stats={
+            "allocation": {"skipped": "request time limit exhausted"},
+            "motion": {"legs": len(seq.legs), "leg_budget_s": 0.0, "effort_s": 0.0}})
+    effort_s = table.effort_share * share_s  # inf without a limit
+    t0 = clock.now()
+    result = allocate(inst, targets, method=options.method, solver=options.solver,
+                      configurations="all", seed=options.seed,
+                      time_limit_s=table.allocation_share * effort_s,
+                      progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
+                      options=allocation_options(options.park_move_limit_s))
+    progress(0.5)
+    tm = clock.now()
+    motion_s = effort_s - (tm - t0)
+    legs = len(result.configurations) + 1
+    if motion_s < MIN_LEG_S:
+        seq, err = SequencePlan(tuple(result.configurations), ()), (
+            f"no time left for motion planning ({max(motion_s, 0.0):.2f} s of the pointing's "
+            "share for its legs)")
+    else:
+        seq, err = _sequence(inst, result, targets, options, motion_s,
+                             lambda f: progress(0.5 + 0.5 * f))
+    stats = {"allocation": result.stats,
+             "motion": {"legs": len(seq.legs) if err is None else legs,
+                        "budget_s": motion_s, "effort_s": clock.now() - tm}}
+    return PointingPlan(targets, result, seq, err, stats)
+
+
+def _sequence(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets,
+              options: PointingOptions, motion_s: float,
+              progress: Progress) -> tuple[SequencePlan, str | None]:
+    """``planner.sequence.plan_sequence`` on one pointing's configurations within
+    ``motion_s``; never raises: a planner failure comes back as the unchanged configurations
+    with its reason."""
+    configs = tuple(allocation.configurations)
+    # a leg may use the whole motion time (the sequence shares what is left over the legs
+    # still to plan); a leg the sequence starts gets at least MIN_LEG_S, so its limit ends
+    # that much early
+    leg_s = motion_s if math.isfinite(motion_s) else 60.0
+    limit_s = None if math.isinf(motion_s) else max(motion_s - MIN_LEG_S, 0.01)
+    seq_options = SequenceOptions(seed=options.seed, leg_time_limit_s=float(leg_s),
+                                  time_limit_s=limit_s,
+                                  park_move_limit_s=options.park_move_limit_s)
+    try:
+        return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress), None
+    except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
+        import logging
+
+        logging.getLogger("planner").exception("motion sequence planning failed")
+        return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"
