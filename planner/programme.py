@@ -131,11 +131,13 @@ def pointing_shares(limit_s: float | None, needs: Sequence[float],
     return shares
 
 
-def pointing_seed(seed: int, index: int) -> int:
-    """The seed of pointing ``index`` of a plan seeded ``seed``: a fixed function of the two
-    (pointing 0 keeps ``seed``), so a pointing's plan does not depend on which worker computes
-    it or in which order the pointings run."""
-    return (int(seed) + 2_654_435_761 * int(index)) % 2**31
+def pointing_seed(seed: int, index: int, round_: int = 1) -> int:
+    """The seed of pointing ``index`` of a plan seeded ``seed`` in round ``round_``: a fixed
+    function of the three (pointing 0 keeps ``seed`` in the first round), so a pointing's plan
+    does not depend on which worker computes it or in which order the pointings run; a later
+    round searches with another seed (its share may be smaller than the first round's, and
+    the same search on less time could not do better)."""
+    return (int(seed) + 2_654_435_761 * int(index) + 40_503 * (int(round_) - 1)) % 2**31
 
 
 # ------------------------------------------------------------------------ rounds
@@ -189,8 +191,9 @@ def next_round(needs: Sequence[float], limit_s: float | None,
                table: ProgrammeShares = SHARES) -> list[RoundTask]:
     """The tasks of the round after ``history`` (the outcomes of each earlier round): the
     pointings whose best plan so far has a failed leg, each with a share of what the earlier
-    rounds left in proportion to its need, when that is more than the share it last had
-    (less could not be expected to do better). Empty when no round is due."""
+    rounds left in proportion to its need (at least ``min_pointing_s``; its search runs on
+    another seed, :func:`pointing_seed`). Empty when no round is due: every pointing is
+    executable, ``rounds`` are done, or less than ``min_pointing_s`` is left."""
     r = len(history) + 1
     if r > table.rounds or not history:
         return []
@@ -198,12 +201,10 @@ def next_round(needs: Sequence[float], limit_s: float | None,
     if math.isinf(usable):
         return []  # without a limit every pointing already had all the time it asked for
     best: dict[int, PointingOutcome] = {}
-    last_share: dict[int, float] = {}
     spent = 0.0
     for outcomes in history:
         for o in outcomes:
             spent += o.spent_s(table)
-            last_share[o.index] = o.share_s
             if o.index not in best or better(o, best[o.index]):
                 best[o.index] = o
     failed = sorted(i for i, o in best.items() if not o.executable)
@@ -214,7 +215,7 @@ def next_round(needs: Sequence[float], limit_s: float | None,
     tasks = []
     for i in failed:
         share = left * needs[i] / total
-        if share > last_share[i] and share >= table.min_pointing_s:
+        if share >= table.min_pointing_s:
             tasks.append(RoundTask(i, r, share))
     return tasks
 

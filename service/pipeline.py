@@ -243,7 +243,8 @@ def pointing_needs(seg: Segmentation) -> list[float]:
 def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> PointingTask:
     """The task of pointing ``task.index`` of ``seg`` in ``task.round``, within ``task.share_s``."""
     p = seg.pointings[task.index]
-    options = PointingOptions(req.method, req.solver, pointing_seed(int(req.seed or 0), task.index),
+    options = PointingOptions(req.method, req.solver,
+                              pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s)
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         req.position_angle_deg, options, float(task.share_s), task.round)
