@@ -69,7 +69,7 @@ from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument, default_ins
 from models.kinematics import positive_turn_move_time_s  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
 from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
-from service.pipeline import plan_allocation_options  # noqa: E402
+from planner.programme import allocation_options as plan_allocation_options  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 from solvers.allocation.options import AllocationOptions  # noqa: E402
 

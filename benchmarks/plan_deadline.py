@@ -37,7 +37,7 @@ def run_one(targets: list[dict[str, Any]], limit_s: float, seed: int) -> dict[st
     req = PlanRequest(targets=targets, time_limit_s=limit_s, seed=seed)
     inst = pipeline.instrument_from(None)
     t0 = time.monotonic()
-    out = pipeline.plan(req, inst, time_limit_s=limit_s, budget_s=120.0)
+    out = pipeline.plan(req, inst, budget_s=120.0)
     wall = time.monotonic() - t0
     s = out["stats"]
     return {"time_limit_s": limit_s, "wall_s": round(wall, 3), "overrun_s": round(wall - limit_s, 3),

@@ -97,8 +97,7 @@ def run_on_cluster(workers: int, request: dict[str, Any], time_limit_s: float,
         job_id = store.create("plan", request, time_limit_s, budget_s)
         runner = DaskRunner(cluster.scheduler_address)
         t0 = time.perf_counter()
-        plan = programme.run_plan(store, job_id, "", request, inst, runner,
-                                  time_limit_s=time_limit_s, budget_s=budget_s)
+        plan = programme.run_plan(store, job_id, "", request, inst, runner, budget_s=budget_s)
         wall_s = time.perf_counter() - t0
         runner.close()
     assert plan is not None

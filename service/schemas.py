@@ -309,11 +309,13 @@ class PlanRequest(SkyTargetSource):
     solver: Solver = "bnb"
     position_angle_deg: PositionAngleDeg = 0.0
     time_limit_s: TimeLimitS | None = Field(
-        None, description="Wall-clock limit of the whole plan, s: segmentation, then every "
-        "pointing's allocation and motion legs, with what is left shared out over the "
-        "pointings still to do (a plan job: split evenly over its pointings in advance). Default (and cap) the server's budget: MXS_PLAN_BUDGET_S for "
-        "POST /v1/plans, MXS_JOB_BUDGET_S for a plan job. Pointings reached after it ran out "
-        "report their targets `no_time`; plan big fields with POST /v1/jobs."
+        None, description="Wall-clock limit of the whole plan, s (its one meaning): "
+        "segmentation, then every pointing's allocation and motion legs. The pointings share it "
+        "by their size (targets), fixed before any runs, so the plan is the same on any number "
+        "of workers; what a pointing leaves unused goes, in later rounds, to the pointings with "
+        "a leg not yet planned. Default (and cap) the server's budget: MXS_PLAN_BUDGET_S "
+        "(120 s) for POST /v1/plans, MXS_JOB_BUDGET_S for a plan job. A pointing whose share "
+        "is under 0.5 s reports its targets `no_time`; plan big fields with POST /v1/jobs."
     )
     seed: Seed | None = None
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
