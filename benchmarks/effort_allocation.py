@@ -1,4 +1,4 @@
-"""Calibration of the allocator's work costs (``models.clock``, "costs of the allocator").
+"""Calibration of the allocator's work costs (``solvers.effort``, "costs of the allocator's work").
 
 Runs ``allocate`` inside ``clock.effort()`` on the thesis fields (priorities 10 % 500,
 40 % 100, 40 % 10, 10 % 1; uniform in the FOV or Gaussian about its centre, clipped) and
@@ -8,6 +8,7 @@ A ratio near 1 means the costs match this machine; the summary gives the median 
 per method.
 
     python -m benchmarks.effort_allocation [--sizes 100 400 1200] [--limit 5] [--methods bnb highs cpsat semigreedy]
+    python -m benchmarks.effort_allocation --sizes 40 100 400 --limit 5 --methods bnb semigreedy
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
 """How well the effort clock tracks the motion planner's real cost.
 
 Inside :func:`models.clock.effort` a leg's budget is counted in reference seconds of work
-(:data:`models.clock.PLANNER_WORK_S`), so the same leg stops at the same point on any
+(:data:`planner.effort.PLANNER_WORK_S`), so the same leg stops at the same point on any
 machine. This benchmark plans the legs of the allocator's own sequences (thesis protocol,
 as ``benchmarks/motion.py``: park -> c1 -> ... -> park and park -> every configuration) on
 the effort clock, and reports, per leg, the effort seconds against the CPU seconds the same
 call took (``time.process_time``, which another process on the machine hardly moves), plus
 a least-squares fit of every kind of work's cost on these legs (what the constants in
-:mod:`models.clock` come from).
+:mod:`planner.effort` come from).
 
-    python benchmarks/effort_motion.py --fields 4 --seed 5
+    python benchmarks/effort_motion.py --fields 2 --seed 5
 
 Prints JSON.
 """
@@ -34,10 +34,11 @@ from models import clock  # noqa: E402
 from models.instrument import default_instrument  # noqa: E402
 from planner import plan_motion  # noqa: E402
 from planner.clearance import compile_kernels  # noqa: E402
+from planner.effort import PLANNER_WORK_S  # noqa: E402
 from planner.timeline import compile_kernels as compile_timeline  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 
-KINDS = tuple(clock.PLANNER_WORK_S)
+KINDS = tuple(PLANNER_WORK_S)
 
 
 def legs_of(inst, seed: int, n_fields: int, method: str):

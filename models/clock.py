@@ -1,36 +1,45 @@
 """The clock every time budget of the allocator and the motion planner reads.
 
 By default :func:`now` is the wall clock (``time.perf_counter``), and a budget ends when its
-seconds have passed, so what a time-limited search finds depends on how busy the machine was.
+seconds have passed, so what a time-limited search finds depends on how busy the machine is.
 
 Inside :func:`effort`, :func:`now` is an *effort clock* instead: it advances only by the
-work the code reports through :func:`charge`, in reference seconds (what that work costs on
-the reference machine, two cores of the development host; the costs are the constants
-below, measured once), plus :data:`TICK_S` for every reading. The same call with the same
-inputs then stops every search at the same point on any machine and under any load, so a
-plan depends only on its request and seed: the same plan whatever the number of workers.
+work the code reports, in reference seconds (what that work costs on the reference machine,
+two cores of the development host), plus :data:`TICK_S` for every reading. The same call
+with the same inputs then stops every search at the same point on any machine and under any
+load, so a plan depends only on its request and seed: the same plan whatever the number of
+workers.
+
+Work is reported in two ways:
+
+* :func:`charge` adds seconds the caller has priced itself;
+* :func:`work` reports ``units`` of a named kind of work, priced by the cost tables the
+  layers above register with :func:`register_work_costs` (a kind costs ``per call + per
+  unit * units`` seconds). Each layer owns and fits its own costs: this module knows none.
+  Inside :func:`effort` a kind nobody registered raises :class:`KeyError`, so a misspelt
+  kind cannot make work free; on the wall clock :func:`work` does nothing.
 
 A wall-clock guard keeps the effort clock honest: past ``wall_limit_s`` real seconds, every
-reading jumps :data:`PAST_WALL_S` ahead, so that every deadline set before it has passed and
+reading jumps :data:`PAST_WALL_S` ahead, so that every deadline set until then has passed and
 the work stops at its next check. Then, and only then, the answer depends on the machine's
-speed again; ``overran()`` says whether it happened.
+speed again; ``overran`` says whether it happened.
 
-Engines that keep their own clock (CP-SAT, HiGHS) read :func:`effort_limits` to run on their
-deterministic limits instead of seconds, and :func:`charge` what they report having done.
+Engines that keep their own clock (CP-SAT, HiGHS) run on their deterministic limits inside
+:func:`effort` and charge what they report having done (:mod:`solvers.effort`).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
 
 __all__ = [
-    "EffortClock", "PAST_WALL_S", "PLANNER_WORK_S", "TICK_S", "charge", "effort", "effort_clock", "in_effort",
-    "now", "work",
+    "EffortClock", "PAST_WALL_S", "TICK_S", "charge", "effort", "effort_clock", "in_effort", "now",
+    "register_work_costs", "work",
 ]
 
 #: Every reading of the effort clock costs this much (it bounds every loop that only reads
@@ -39,69 +48,25 @@ TICK_S = 20e-6
 #: How far every reading jumps once the wall-clock guard has passed.
 PAST_WALL_S = 1e9
 
-# ------------------------------------------------------------------ costs of the planner
-# (reference seconds per unit of work, charged by planner/)
+# kind of work -> the registered table that prices it (the table itself, so that the kind
+# is priced by what the table holds when the work is reported)
+_COST_TABLES: dict[str, Mapping[str, tuple[float, float]]] = {}
 
-#: Reference seconds of each kind of planner work, as (per call, per unit), reported through
-#: :func:`work`; fitted by ``python benchmarks/effort_motion.py`` (least squares of the CPU seconds
-#: of real legs on the counts of each kind).
-PLANNER_WORK_S: dict[str, tuple[float, float]] = {
-    "departure": (0.0, 1.1e-06),  # planner.timeline: one earliest departure; unit: move samples
-    "free_after": (0.0, 0.0),  # planner.timeline: a rest check; unit: poses
-    "move_samples": (0.0, 0.0),  # planner.timeline: a straight move sampled; unit: samples
-    "clearance_rows": (0.0, 3.9e-08),  # planner.clearance: unit: rows of body pairs
-    "clearance_to_arms": (9.7e-05, 0.0),  # planner.clearance: unit: arm x sample clearances
-    "walk": (0.0, 1.1e-06),  # planner.clearance: delay-table walks; unit: exact clearances
-    "segments": (7.6e-05, 5.8e-07),  # planner.geometry: forward kinematics; unit: poses
-    "zoa_edges": (0.0, 1.9e-06),  # planner.geometry: ZoA test of straight edges; unit: edges
-    "csp_nodes": (3.2e-05, 0.0),  # planner.delays: unit: search nodes
-    "verify": (0.0, 6.8e-06),  # planner.verify: unit: pair samples computed
-}
 
-# ---------------------------------------------------------------- costs of the allocator
-# (reference seconds per unit of work, charged by solvers/ and models/incompatibility.py;
-# measured with ``python -m benchmarks.effort``, which compares the effort seconds of whole
-# allocate calls with the CPU seconds they used on the thesis fields)
-# bitset branch-and-bound (solvers.allocation.bitset)
-BNB_NODE_S = 24e-6  # one node of the depth-first search
-BNB_TABLE_BIT_S = 1.1e-9  # one bit of the per-arm conflict bitsets built for the search
-BNB_TABLE_ROW_S = 1.6e-6  # one (location, arm) bitset turned into a Python int
-PRUNE_PROBE_S = 6e-6  # one column probed by the exact column pruning
-# the exact model (solvers.model, solvers.allocation.cliques, solvers.allocation.exact)
-MODEL_NONZERO_S = 0.04e-6  # one non-zero of the model arrays built
-MODEL_COLUMN_S = 0.5e-6  # one column of the model arrays built
-CLIQUE_STEP_S = 8e-6  # one column added to a greedy clique
-CLIQUE_DISC_S = 10e-6  # one seed disc of the clique rows
-CLIQUE_CELL_S = 2e-9  # one cell of the dense exclusion matrix read or built
-# OR-Tools CP-SAT (every model of solvers/)
-CPSAT_LITERAL_S = 0.8e-6  # one literal added to a model from Python
-CPSAT_DETERMINISTIC_S = 0.6  # one unit of CP-SAT's deterministic time
-CPSAT_SOLVE_S = 5e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
-# HiGHS (solvers.allocation.highs, exact.relaxation_bound)
-HIGHS_RUN_S = 1e-3  # the fixed cost of one run
-HIGHS_NONZERO_S = 0.2e-6  # one non-zero of the matrix passed to HiGHS
-HIGHS_SIMPLEX_ITERATION_S = 20e-6  # one simplex iteration (LP or inside the MIP)
-HIGHS_MIP_NODE_S = 1e-3  # one branch-and-bound node
-HIGHS_CALLBACK_NONZERO_S = 1.8e-6  # per non-zero of the matrix, the MIP work between two callbacks
-# semi-greedy heuristic (solvers.allocation.semigreedy)
-SEMIGREEDY_PREPARE_COLUMN_S = 0.7e-6  # one assignment in the per-configuration preparation
-SEMIGREEDY_ITERATION_S = 1.3e-3  # one construction + padding
-SEMIGREEDY_PASS_S = 0.28e-3  # one local-search pass
-# sequencing post-passes (solvers.sequencing)
-TABU_MOVE_S = 60e-6  # one move of the packing tabu search
-TABU_CELL_S = 5e-9  # one cell of the cost arrays a move reads or updates
-REPAIR_STEP_S = 180e-6  # one frontier target expanded by an ejection chain
-LP_SOLVE_S = 2e-3  # one master LP of the column generation (scipy HiGHS) ...
-LP_CELL_S = 50e-9  # ... and per cell of its dense matrix
-VERIFY_CONFIGURATION_S = 2e-3  # one configuration checked on the geometry
-CONFIGURATION_BUILD_S = 0.6e-3  # one configuration turned into its result record
-# incompatibility structure (models.incompatibility)
-INCOMPATIBILITY_PAIR_S = 0.06e-6  # one candidate pair of locations checked
-INCOMPATIBILITY_ASSIGNMENT_S = 60e-6  # one reachable location built
-INCOMPATIBILITY_FOUND_PAIR_S = 0.15e-6  # one incompatible pair stored (CSR assembly)
-INCOMPATIBILITY_BLANK_S = 1.3e-3  # one blank-sky pose sampled for an arm
-
-# ------------------------------------------------------------------------------------------
+def register_work_costs(table: Mapping[str, tuple[float, float]]) -> None:
+    """Price every kind of :func:`work` named in ``table``, as ``(per call s, per unit s)``
+    in reference seconds. Registering the same table again does nothing; a kind another
+    table already prices at a different cost raises :class:`ValueError` (two layers cannot
+    own one kind)."""
+    for kind, cost in table.items():
+        per_call_s, per_unit_s = cost  # a pair, or the tuple unpacking fails here, not in work()
+        if not (math.isfinite(per_call_s) and math.isfinite(per_unit_s) and per_call_s >= 0 and per_unit_s >= 0):
+            raise ValueError(f"work cost of {kind!r} must be two finite seconds >= 0, got {cost!r}")
+        owner = _COST_TABLES.get(kind)
+        if owner is not None and owner is not table and tuple(owner[kind]) != tuple(cost):
+            raise ValueError(f"work kind {kind!r} is already priced at {owner[kind]!r} by another table")
+    for kind in table:
+        _COST_TABLES[kind] = table
 
 
 @dataclass
@@ -143,10 +108,16 @@ def charge(t_s: float) -> None:
 
 
 def work(kind: str, units: float = 0.0) -> None:
-    """Report planner work of ``kind`` (a key of :data:`PLANNER_WORK_S`) and size ``units``."""
+    """Report work of ``kind`` (a kind of a table registered with :func:`register_work_costs`)
+    and size ``units``. No-op on the wall clock; inside :func:`effort` an unregistered kind
+    raises :class:`KeyError`."""
     c = _CLOCK.get()
     if c is not None:
-        per_call_s, per_unit_s = PLANNER_WORK_S[kind]
+        try:
+            per_call_s, per_unit_s = _COST_TABLES[kind][kind]
+        except KeyError:
+            raise KeyError(f"no cost registered for the work kind {kind!r} "
+                           "(models.clock.register_work_costs)") from None
         c.t_s += per_call_s + per_unit_s * units
         if c.tally is not None:
             n, u = c.tally.get(kind, (0, 0.0))

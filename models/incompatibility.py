@@ -9,6 +9,9 @@ consume this structure; nothing downstream calls geometry again.
 The bulk pair test is vectorised (capsule fast path of :mod:`models.collision`) with a
 static broad phase (body pairs that can never meet, whatever the configuration, are
 skipped per arm pair) and a per-pair bounding-box prefilter; FCL is the oracle in tests.
+
+The work done is reported to the effort clock as ``clock.work("incompatibility_*", units)``;
+what it costs is the allocator's to say (:data:`solvers.effort.INCOMPATIBILITY_WORK_S`).
 """
 
 from __future__ import annotations
@@ -258,7 +261,7 @@ def sample_blank_sky(instrument: Instrument, arm: int, n: int, seed: int = 0) ->
 
     if n <= 0:
         return np.zeros((0, 2))
-    clock.charge(n * clock.INCOMPATIBILITY_BLANK_S)
+    clock.work("incompatibility_blank", n)
     rng = np.random.default_rng([seed, arm])
     links = Links.of(instrument, arm)
     a = instrument.arms[arm]
@@ -507,7 +510,7 @@ def compute_incompatibility(
     asg = reachability.assignments
     check = _deadline_check(deadline_s, time_limit_s)
     check()
-    clock.charge(len(asg) * clock.INCOMPATIBILITY_ASSIGNMENT_S)  # the reach and the bodies
+    clock.work("incompatibility_assignment", len(asg))  # the reach and the bodies
     bodies = _bodies(instrument, asg, buffer_mm, check)
     t_geom = clock.now()
     found: list[np.ndarray] = []
@@ -522,7 +525,7 @@ def compute_incompatibility(
             body_pairs = _body_pairs_that_can_meet(instrument, k, kk, bodies.thr_mm)
             step = max(1, chunk_pairs // (b1 - b0))
             for r0 in range(a0, a1, step):
-                clock.charge((min(a1, r0 + step) - r0) * (b1 - b0) * clock.INCOMPATIBILITY_PAIR_S)
+                clock.work("incompatibility_pair", (min(a1, r0 + step) - r0) * (b1 - b0))
                 found.append(_chunk_pairs(bodies, body_pairs, asg.target, k, kk, a0, r0, min(a1, r0 + step), b0, b1,
                                           check))
                 total += len(found[-1])
@@ -535,7 +538,7 @@ def compute_incompatibility(
     # blocks are visited with arm k < kk and assignments are sorted by arm: i < j, no duplicates
     pairs = np.concatenate(found) if found else np.zeros((0, 2), np.int32)
     del found
-    clock.charge(len(pairs) * clock.INCOMPATIBILITY_FOUND_PAIR_S)
+    clock.work("incompatibility_found_pair", len(pairs))
     check()
     same_target = (asg.target[pairs[:, 0]] >= 0) & (asg.target[pairs[:, 0]] == asg.target[pairs[:, 1]])
     indptr, indices = _symmetric_csr(pairs, len(asg), check)

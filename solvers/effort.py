@@ -1,11 +1,33 @@
-"""The engines on the effort clock of :mod:`models.clock`: CP-SAT and HiGHS limits and charges.
+"""The allocator on the effort clock of :mod:`models.clock`: what its work costs, and the
+CP-SAT and HiGHS limits and charges.
 
-On the wall clock (the default) both engines keep their limits in seconds, as before.
+**Costs.** Every module of solvers/ charges its work with ``clock.charge(n * X_S)`` at the
+costs below, in reference seconds; the incompatibility structure (:mod:`models.incompatibility`,
+which knows no costs) reports its work through ``clock.work(kind, units)``, priced by
+:data:`INCOMPATIBILITY_WORK_S`, registered with :func:`models.clock.register_work_costs`
+when this module is imported (every module of solvers/ that builds the structure imports
+it). The costs are scaled so that an effort second is a CPU second of the reference
+machine: the CP-SAT solve's two (:data:`CPSAT_DETERMINISTIC_S`, :data:`CPSAT_SOLVE_S`) are
+a least-squares fit of the CPU seconds of 436 solves of the benchmark below (bnb and cpsat
+methods) on their deterministic time (0.46-0.50 CPU s per unit, 5-10 ms per solve);
+:data:`BNB_NODE_S` is what a node of the bitset search costs in these calls; the others are
+an earlier fit scaled by 0.5. Measured with these costs (2 cores, another process on the
+other core):
+
+* ``python -m benchmarks.effort_allocation --sizes 40 100 400 --limit 5 --methods bnb semigreedy``:
+  effort / CPU seconds per call of median 1.04 for bnb (0.40-1.27) and 1.11 for semi-greedy
+  (0.85-1.38); with ``--methods highs cpsat``: 0.89 (0.74-1.29) and 0.92 (0.73-1.44). Every
+  call below 0.8 is on 40 targets, where the fixed costs of a call weigh most;
+* ``tests/test_effort_calibration.py`` (bnb and semi-greedy on 40 and 150 targets, uniform
+  and sigma 40 mm): 0.82-0.87 over the calls together (four runs). It fails outside 0.7-1.4: then
+  re-fit with the command above.
+
+**Engines.** On the wall clock (the default) both engines keep their limits in seconds.
 Inside :func:`models.clock.effort` their searches must stop at the same point whatever the
 machine's load, so:
 
 * **CP-SAT** runs on ``max_deterministic_time`` (the budget in reference seconds over
-  :data:`~models.clock.CPSAT_DETERMINISTIC_S`) with ``interleave_search`` (a search that
+  :data:`CPSAT_DETERMINISTIC_S`) with ``interleave_search`` (a search that
   does not depend on the number of workers or on thread timing; without the subsolver
   :data:`CPSAT_INTERLEAVED_SKIP`, and without the model's hint); ``max_time_in_seconds``
   becomes the wall-clock guard
@@ -25,8 +47,15 @@ import time
 
 from models import clock
 
-__all__ = ["CPSAT_INTERLEAVED_SKIP", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S", "charge_literals",
-           "cpsat_solve", "wall_guard_s"]
+__all__ = [
+    "BNB_NODE_S", "BNB_TABLE_BIT_S", "BNB_TABLE_ROW_S", "CLIQUE_CELL_S", "CLIQUE_DISC_S", "CLIQUE_STEP_S",
+    "CONFIGURATION_BUILD_S", "CPSAT_DETERMINISTIC_S", "CPSAT_INTERLEAVED_SKIP", "CPSAT_LITERAL_S", "CPSAT_SOLVE_S",
+    "HIGHS_CALLBACK_NONZERO_S", "HIGHS_MIP_NODE_S", "HIGHS_NONZERO_S", "HIGHS_RUN_S", "HIGHS_SIMPLEX_ITERATION_S",
+    "INCOMPATIBILITY_WORK_S", "LP_CELL_S", "LP_SOLVE_S", "MODEL_COLUMN_S", "MODEL_NONZERO_S", "PRUNE_PROBE_S",
+    "REPAIR_STEP_S", "SEMIGREEDY_ITERATION_S", "SEMIGREEDY_PASS_S", "SEMIGREEDY_PREPARE_COLUMN_S", "TABU_CELL_S",
+    "TABU_MOVE_S", "VERIFY_CONFIGURATION_S", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S",
+    "charge_literals", "cpsat_solve", "wall_guard_s",
+]
 
 # the interleaved search of OR-Tools 9.15 aborts the process (``Check failed:
 # heuristics.fixed_search != nullptr``) on some models with an incomplete hint (an
@@ -38,6 +67,52 @@ SIMPLEX_INTERRUPT = 1  # highspy.cb.HighsCallbackType.kCallbackSimplexInterrupt,
 # times its budget (plus WALL_GUARD_MIN_S) of real seconds: a limit no healthy run reaches
 WALL_GUARD_FACTOR = 20.0
 WALL_GUARD_MIN_S = 10.0
+
+# ------------------------------------------------------------ costs of the allocator's work
+# (reference seconds; see the module's docstring for how they are measured)
+# bitset branch-and-bound (solvers.allocation.bitset)
+BNB_NODE_S = 9e-6  # one node of the depth-first search
+BNB_TABLE_BIT_S = 0.55e-9  # one bit of the per-arm conflict bitsets built for the search
+BNB_TABLE_ROW_S = 0.8e-6  # one (location, arm) bitset turned into a Python int
+PRUNE_PROBE_S = 3e-6  # one column probed by the exact column pruning
+# the exact model (solvers.model, solvers.allocation.cliques, solvers.allocation.exact)
+MODEL_NONZERO_S = 0.02e-6  # one non-zero of the model arrays built
+MODEL_COLUMN_S = 0.25e-6  # one column of the model arrays built
+CLIQUE_STEP_S = 4e-6  # one column added to a greedy clique
+CLIQUE_DISC_S = 5e-6  # one seed disc of the clique rows
+CLIQUE_CELL_S = 1e-9  # one cell of the dense exclusion matrix read or built
+# OR-Tools CP-SAT (every model of solvers/)
+CPSAT_LITERAL_S = 0.4e-6  # one literal added to a model from Python
+CPSAT_DETERMINISTIC_S = 0.5  # one unit of CP-SAT's deterministic time
+CPSAT_SOLVE_S = 5e-3  # the fixed cost of one solve (setup, presolve bookkeeping)
+# HiGHS (solvers.allocation.highs, exact.relaxation_bound)
+HIGHS_RUN_S = 0.5e-3  # the fixed cost of one run
+HIGHS_NONZERO_S = 0.1e-6  # one non-zero of the matrix passed to HiGHS
+HIGHS_SIMPLEX_ITERATION_S = 10e-6  # one simplex iteration (LP or inside the MIP)
+HIGHS_MIP_NODE_S = 0.5e-3  # one branch-and-bound node
+HIGHS_CALLBACK_NONZERO_S = 0.9e-6  # per non-zero of the matrix, the MIP work between two callbacks
+# semi-greedy heuristic (solvers.allocation.semigreedy)
+SEMIGREEDY_PREPARE_COLUMN_S = 0.35e-6  # one assignment in the per-configuration preparation
+SEMIGREEDY_ITERATION_S = 0.65e-3  # one construction + padding
+SEMIGREEDY_PASS_S = 0.14e-3  # one local-search pass
+# sequencing post-passes (solvers.sequencing)
+TABU_MOVE_S = 30e-6  # one move of the packing tabu search
+TABU_CELL_S = 2.5e-9  # one cell of the cost arrays a move reads or updates
+REPAIR_STEP_S = 90e-6  # one frontier target expanded by an ejection chain
+LP_SOLVE_S = 1e-3  # one master LP of the column generation (scipy HiGHS) ...
+LP_CELL_S = 25e-9  # ... and per cell of its dense matrix
+VERIFY_CONFIGURATION_S = 1e-3  # one configuration checked on the geometry
+CONFIGURATION_BUILD_S = 0.3e-3  # one configuration turned into its result record
+#: the incompatibility structure (models.incompatibility), as (per call, per unit) of
+#: ``clock.work(kind, units)``
+INCOMPATIBILITY_WORK_S: dict[str, tuple[float, float]] = {
+    "incompatibility_pair": (0.0, 0.03e-6),  # unit: candidate pair of locations checked
+    "incompatibility_assignment": (0.0, 30e-6),  # unit: reachable location built (reach, bodies)
+    "incompatibility_found_pair": (0.0, 0.075e-6),  # unit: incompatible pair stored (CSR assembly)
+    "incompatibility_blank": (0.0, 0.65e-3),  # unit: blank-sky pose sampled for an arm
+}
+
+clock.register_work_costs(INCOMPATIBILITY_WORK_S)
 
 
 def wall_guard_s(budget_s: float, effort: clock.EffortClock | None = None) -> float:
@@ -51,7 +126,7 @@ def wall_guard_s(budget_s: float, effort: clock.EffortClock | None = None) -> fl
 
 def charge_literals(n_literals: int) -> None:
     """Charge the Python-side building of a CP-SAT model of ``n_literals`` literals."""
-    clock.charge(n_literals * clock.CPSAT_LITERAL_S)
+    clock.charge(n_literals * CPSAT_LITERAL_S)
 
 
 def cpsat_solve(solver, model, time_limit_s: float):
@@ -65,14 +140,14 @@ def cpsat_solve(solver, model, time_limit_s: float):
     if effort is None:
         p.max_time_in_seconds = limit_s
         return solver.Solve(model)
-    p.max_deterministic_time = limit_s / clock.CPSAT_DETERMINISTIC_S
+    p.max_deterministic_time = limit_s / CPSAT_DETERMINISTIC_S
     model.ClearHints()  # see CPSAT_INTERLEAVED_SKIP
     p.interleave_search = True
     if CPSAT_INTERLEAVED_SKIP not in p.ignore_subsolvers:
         p.ignore_subsolvers.append(CPSAT_INTERLEAVED_SKIP)
     p.max_time_in_seconds = wall_guard_s(limit_s, effort)
     code = solver.Solve(model)
-    effort.t_s += clock.CPSAT_SOLVE_S + float(solver.response_proto.deterministic_time) * clock.CPSAT_DETERMINISTIC_S
+    effort.t_s += CPSAT_SOLVE_S + float(solver.response_proto.deterministic_time) * CPSAT_DETERMINISTIC_S
     return code
 
 
@@ -113,13 +188,13 @@ class HighsMeter:
             new_its = its - self.lp_its if its >= self.lp_its else max(its, 0)
             self.lp_its = max(its, 0)
             self.iterations += new_its
-            self._charge(new_its * clock.HIGHS_SIMPLEX_ITERATION_S)
+            self._charge(new_its * HIGHS_SIMPLEX_ITERATION_S)
             return
         self.callbacks += 1
         nodes = max(int(getattr(data_out, "mip_node_count", 0) or 0), 0)
         new_nodes = max(nodes - self.nodes, 0)
         self.nodes = max(nodes, self.nodes)
-        self._charge(self.nnz * clock.HIGHS_CALLBACK_NONZERO_S + new_nodes * clock.HIGHS_MIP_NODE_S)
+        self._charge(self.nnz * HIGHS_CALLBACK_NONZERO_S + new_nodes * HIGHS_MIP_NODE_S)
 
     def finish(self, info) -> None:
         """Charge the run's own counts (``info``: ``Highs.getInfo()``) beyond the callbacks'."""
@@ -127,9 +202,9 @@ class HighsMeter:
             return
         its = max(int(info.simplex_iteration_count), 0) + max(int(info.ipm_iteration_count), 0)
         nodes = max(int(info.mip_node_count), 0)
-        self._charge(clock.HIGHS_RUN_S + self.nnz * clock.HIGHS_NONZERO_S
-                     + max(its - self.iterations, 0) * clock.HIGHS_SIMPLEX_ITERATION_S
-                     + max(nodes - self.nodes, 0) * clock.HIGHS_MIP_NODE_S)
+        self._charge(HIGHS_RUN_S + self.nnz * HIGHS_NONZERO_S
+                     + max(its - self.iterations, 0) * HIGHS_SIMPLEX_ITERATION_S
+                     + max(nodes - self.nodes, 0) * HIGHS_MIP_NODE_S)
 
     def wall_guard_s(self, budget_s: float) -> float:
         return wall_guard_s(budget_s, self.effort)

@@ -50,6 +50,7 @@ import numpy as np
 from scipy import sparse
 
 from models import clock
+from solvers.effort import MODEL_COLUMN_S, MODEL_NONZERO_S
 from solvers.problem import ConfigProblem
 
 MAX_EXACT_DOUBLE = 2**53
@@ -249,7 +250,7 @@ def build_model_arrays(problem: ConfigProblem, form: str = "aggregated",
     move = np.r_[all_move[var], w_move]
     var = np.r_[var, np.full(len(w_arms), -1)]
     arm_of = arm_all
-    clock.charge(len(var) * clock.MODEL_COLUMN_S + (len(c) + len(le_indices)) * clock.MODEL_NONZERO_S)
+    clock.charge(len(var) * MODEL_COLUMN_S + (len(c) + len(le_indices)) * MODEL_NONZERO_S)
     t_end = clock.now()
     return ModelArrays(var, arm_of, weight, move, eq_indptr, eq_indices, le_indptr, le_indices,
                        len(t_indptr) - 1, form,

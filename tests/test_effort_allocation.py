@@ -36,9 +36,9 @@ SLOW_CHECK_S, SLOW_PRUNE_S, SLOW_CONSTRUCT_S = 0.03, 0.01, 0.005
 # engine: (method, solver, targets, Gaussian sigma in mm, time limit in s)
 CASES = {
     "bnb": ("ilp", "bnb", 300, 40.0, 1.0),
-    "highs": ("ilp", "highs", 200, 60.0, 1.0),
-    "cpsat": ("ilp", "cpsat", 200, 60.0, 1.0),
-    "semigreedy": ("semigreedy", "bnb", 300, 40.0, 1.5),
+    "highs": ("ilp", "highs", 200, 60.0, 0.5),
+    "cpsat": ("ilp", "cpsat", 200, 60.0, 0.5),
+    "semigreedy": ("semigreedy", "bnb", 300, 40.0, 0.75),
 }
 
 

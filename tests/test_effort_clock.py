@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,11 @@ import pytest
 
 from models import clock
 from models.instrument import default_instrument
-from planner import plan_motion
+from planner import plan_motion, programme
 from planner import timeline as timeline_module
 from planner.clearance import compile_kernels
+from planner.effort import PLANNER_WORK_S
+from planner.programme import RoundTask
 from service import pipeline
 from service.errors import json_safe
 from service.schemas import PlanRequest
@@ -52,7 +55,7 @@ def test_the_effort_clock_advances_by_charges_and_readings_only() -> None:
         assert clock.now() - t0 == pytest.approx(clock.TICK_S)
         clock.charge(2.5)
         assert clock.now() - t0 == pytest.approx(2.5 + 2 * clock.TICK_S)
-        per_call_s, per_unit_s = clock.PLANNER_WORK_S["departure"]
+        per_call_s, per_unit_s = PLANNER_WORK_S["departure"]
         before = c.t_s
         clock.work("departure", 100)
         clock.work("departure", 50)
@@ -60,6 +63,33 @@ def test_the_effort_clock_advances_by_charges_and_readings_only() -> None:
         assert c.tally["departure"] == (2, 150.0)
         assert c.reads == 3
     assert not clock.in_effort()
+
+
+def test_work_is_priced_by_the_registered_tables_and_an_unknown_kind_is_an_error(monkeypatch) -> None:
+    """Each layer registers its own cost table; a kind nobody registered costs nothing on the
+    wall clock and raises inside ``effort()`` (a misspelt kind cannot make work free)."""
+    monkeypatch.setattr(clock, "_COST_TABLES", dict(clock._COST_TABLES))  # this test's kinds stay here
+    clock.work("no_such_kind", 5)  # the wall clock: nothing to price
+    table = {"test_only_kind": (0.5, 0.25)}
+    clock.register_work_costs(table)
+    clock.register_work_costs(table)  # the same table again: nothing changes
+    with pytest.raises(ValueError):
+        clock.register_work_costs({"test_only_kind": (1.0, 0.0)})  # another layer's kind
+    with pytest.raises(ValueError):
+        clock.register_work_costs({"test_bad_kind": (-1.0, 0.0)})
+    with clock.effort(tally=True) as c:
+        clock.work("test_only_kind", 4)
+        assert c.t_s == pytest.approx(0.5 + 0.25 * 4)
+        assert c.tally["test_only_kind"] == (1, 4.0)
+        with pytest.raises(KeyError, match="no_such_kind"):
+            clock.work("no_such_kind", 5)
+    # the planner's and the allocator's tables are registered by importing their layers
+    from solvers.effort import INCOMPATIBILITY_WORK_S
+    with clock.effort() as c:
+        for kind, (per_call_s, per_unit_s) in {**PLANNER_WORK_S, **INCOMPATIBILITY_WORK_S}.items():
+            before = c.t_s
+            clock.work(kind, 10)
+            assert c.t_s - before == pytest.approx(per_call_s + 10 * per_unit_s)
 
 
 def test_nested_effort_blocks_have_their_own_clock_and_restore_the_outer_one() -> None:
@@ -159,7 +189,7 @@ def _pointing(share_s: float) -> dict:
     req = PlanRequest.model_validate({"targets": targets, "seed": 4})
     seg = pipeline.segment_plan(req, INST)
     assert len(seg.pointings) == 1
-    task = pipeline.pointing_task(req, seg, 0, share_s, 10.0)
+    task = pipeline.pointing_task(req, seg, RoundTask(0, 1, share_s))
     return json.loads(json.dumps(json_safe(pipeline.pointing_result(task, INST))))
 
 
@@ -167,7 +197,7 @@ def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None
     """A pointing whose budgets bind (a longer share gives another plan): the same plan when
     the machine is slower. The pointing searches on a quarter of its share here, so that the
     wall-clock share, which a loaded test machine may approach, is never what stops it."""
-    monkeypatch.setattr(pipeline, "EFFORT_SHARE", 0.25)
+    monkeypatch.setattr(programme, "SHARES", replace(programme.SHARES, effort_share=0.25))
     fast = _pointing(36.0)
     assert _content(fast) != _content(_pointing(120.0))
     calls = _slow_departures(monkeypatch, 0.003)

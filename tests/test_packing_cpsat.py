@@ -143,13 +143,13 @@ def test_a_model_too_large_for_its_limit_is_not_built(monkeypatch) -> None:
     import time
 
     import solvers.sequencing.packing_cpsat as pc
-    from models import clock
+    from solvers.effort import CPSAT_LITERAL_S
 
     x, y, inc = CROWDED[1]
     pool = _reachable(inc)
     m = packing_columns(inc, pool)
     n = _fewest_configurations(inc, m, pool)
-    need_s = pc.model_literals(m, n) * clock.CPSAT_LITERAL_S
+    need_s = pc.model_literals(m, n) * CPSAT_LITERAL_S
     assert 0 < need_s < 1.0
     built = []
     real = pc._configurations

@@ -40,6 +40,7 @@ import numpy as np
 from scipy import sparse
 
 from models import clock
+from solvers.effort import BNB_NODE_S, BNB_TABLE_BIT_S, BNB_TABLE_ROW_S, PRUNE_PROBE_S
 from solvers.model import coarse_weights, conflict_adjacency, safe_weights
 from solvers.problem import ConfigProblem
 
@@ -87,7 +88,7 @@ def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, l
         if not n_rows:
             continue
         block = sub[bounds[k]:bounds[k + 1]].toarray()
-        clock.charge(block.size * clock.BNB_TABLE_BIT_S + n_rows * n_arms * clock.BNB_TABLE_ROW_S)
+        clock.charge(block.size * BNB_TABLE_BIT_S + n_rows * n_arms * BNB_TABLE_ROW_S)
         per_arm = []
         for kk in range(n_arms):
             packed = np.packbits(block[:, bounds[kk]:bounds[kk + 1]], axis=1, bitorder="little")
@@ -201,7 +202,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
 
     def settle() -> None:
         """Charge the nodes searched since the last charge."""
-        clock.charge((state["nodes"] - state["charged"]) * clock.BNB_NODE_S)
+        clock.charge((state["nodes"] - state["charged"]) * BNB_NODE_S)
         state["charged"] = state["nodes"]
 
     class _Found(Exception):
@@ -449,11 +450,11 @@ def prune_columns(problem: ConfigProblem, incumbent_coarse: int, field: BnbField
                 changed = True
                 dom[k] = keep
                 if not keep:
-                    clock.charge(probes * clock.PRUNE_PROBE_S)
+                    clock.charge(probes * PRUNE_PROBE_S)
                     return np.zeros(len(allowed), bool)
         if not changed:
             break
-    clock.charge(probes * clock.PRUNE_PROBE_S)
+    clock.charge(probes * PRUNE_PROBE_S)
     out = np.zeros(len(allowed), bool)
     for k in range(n_arms):
         bits = np.unpackbits(np.frombuffer(dom[k].to_bytes((len(f.order[k]) + 7) // 8, "little"), np.uint8),

@@ -27,6 +27,7 @@ import numpy as np
 from scipy import sparse
 
 from models import clock
+from solvers.effort import CLIQUE_CELL_S, CLIQUE_DISC_S, CLIQUE_STEP_S
 
 __all__ = ["CliqueOptions", "clique_rows", "exclusion_matrix"]
 
@@ -65,7 +66,7 @@ def exclusion_matrix(adj: sparse.csr_matrix, cols: np.ndarray, arm_of: np.ndarra
     columns cannot both be 1 — same arm, same real target, or an incompatible pair."""
     n = len(cols)
     ex = adj[cols][:, cols].toarray().astype(bool)
-    clock.charge(2 * n * n * clock.CLIQUE_CELL_S)
+    clock.charge(2 * n * n * CLIQUE_CELL_S)
     ex |= arm_of[:, None] == arm_of[None, :]
     real = target_of >= 0
     ex |= (target_of[:, None] == target_of[None, :]) & real[:, None] & real[None, :]
@@ -84,7 +85,7 @@ def _grow(ex: np.ndarray, order: np.ndarray) -> list[int]:
         rest = rest[1:]
         cells += len(rest)
         rest = rest[ex[c, rest]]
-    clock.charge(len(clique) * clock.CLIQUE_STEP_S + cells * clock.CLIQUE_CELL_S)
+    clock.charge(len(clique) * CLIQUE_STEP_S + cells * CLIQUE_CELL_S)
     return clique
 
 
@@ -119,7 +120,7 @@ def clique_rows(ex: np.ndarray, xy_mm: np.ndarray, options: CliqueOptions | None
         near_x = np.abs(x - cx) <= r
         if not near_x.any():
             continue
-        clock.charge(len(gy) * (clock.CLIQUE_DISC_S + n * clock.CLIQUE_CELL_S))
+        clock.charge(len(gy) * (CLIQUE_DISC_S + n * CLIQUE_CELL_S))
         for cy in gy:
             d = np.hypot(x - cx, y - cy)
             inside = np.flatnonzero(near_x & (d <= r))

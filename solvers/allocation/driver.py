@@ -19,6 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+import solvers.effort  # noqa: F401  (prices the work of the incompatibility structure)
 from models import clock
 from models.errors import InputError, TimeLimitExceeded
 from models.incompatibility import build_assignments, incompatibility_for_targets

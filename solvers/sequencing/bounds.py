@@ -27,7 +27,7 @@ import numpy as np
 
 from models import clock
 from models.incompatibility import Incompatibility
-from solvers.effort import charge_literals, cpsat_solve
+from solvers.effort import LP_CELL_S, LP_SOLVE_S, charge_literals, cpsat_solve
 
 # discs about the centre where crowding binds; the larger default discs cost more than they tell
 INNER_DISCS_MM = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0, 50.0)
@@ -220,7 +220,7 @@ def configuration_lp_bound(inc: Incompatibility, targets: np.ndarray, *, time_li
                       method="highs")
         pi = np.maximum(-res.ineqlin.marginals, 0.0)[row_of]  # a group's dual on each of its targets
         info["lp_value"] = float(res.fun)
-        clock.charge(clock.LP_SOLVE_S + clock.LP_CELL_S * n_rows * len(col_rows))
+        clock.charge(LP_SOLVE_S + LP_CELL_S * n_rows * len(col_rows))
         w = np.floor(pi * scale).astype(np.int64)
         model.Maximize(sum(int(w[t]) * x[i] for i, t in enumerate(tl_of_col.tolist()) if w[t] > 0))
         charge_literals(2 * len(x))

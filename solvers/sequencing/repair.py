@@ -29,6 +29,7 @@ import numpy as np
 
 from models import clock
 from models.incompatibility import Incompatibility
+from solvers.effort import REPAIR_STEP_S
 
 __all__ = ["absorb_configurations"]
 
@@ -113,7 +114,7 @@ def absorb_configurations(inc: Incompatibility, chosen: list[np.ndarray], priori
             if clock.now() - t0 > budget_s:
                 return None
             nxt = []
-            clock.charge(len(frontier) * clock.REPAIR_STEP_S)
+            clock.charge(len(frontier) * REPAIR_STEP_S)
             for v in frontier:
                 m = base.copy()
                 m[list(on_path[v])] = False

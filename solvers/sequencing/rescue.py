@@ -7,6 +7,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+import solvers.effort  # noqa: F401  (prices the work of the incompatibility structure)
 from models import clock
 from models.incompatibility import incompatibility_for_targets
 from models.types import Configuration

@@ -18,6 +18,7 @@ from models import clock
 from models.incompatibility import Incompatibility
 from models.instrument import Instrument
 from models.types import ArmAssignment, Configuration, PlaneTargets
+from solvers.effort import CONFIGURATION_BUILD_S, VERIFY_CONFIGURATION_S
 from solvers.problem import ConfigProblem, check_solution, evaluate
 
 __all__ = ["SequenceState", "Step", "UnverifiedConfigurationError", "active_arms", "hard_to_place", "joint_speeds",
@@ -121,13 +122,13 @@ def make_configuration(index: int, problem: ConfigProblem, chosen: np.ndarray, t
         out.append(ArmAssignment(k, kind, float(a.theta1_rad[c]), float(a.theta2_rad[c]), float(a.x_mm[c]),
                                  float(a.y_mm[c]), t if t >= 0 else None, targets.ids[t] if t >= 0 else None))
     total, yld, _ = evaluate(problem, chosen)
-    clock.charge(clock.CONFIGURATION_BUILD_S)
+    clock.charge(CONFIGURATION_BUILD_S)
     return Configuration(index, tuple(out), total, yld, "optimal" if status == "optimal" else "feasible", stats)
 
 
 def verify(instrument: Instrument, problem: ConfigProblem, chosen: np.ndarray) -> None:
     errors = check_solution(instrument, problem, chosen)
-    clock.charge(clock.VERIFY_CONFIGURATION_S)
+    clock.charge(VERIFY_CONFIGURATION_S)
     if errors:
         raise UnverifiedConfigurationError("; ".join(errors))
 

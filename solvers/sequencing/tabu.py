@@ -33,6 +33,7 @@ import numpy as np
 
 from models import clock
 from models.incompatibility import Incompatibility
+from solvers.effort import TABU_CELL_S, TABU_MOVE_S
 from solvers.model import conflict_adjacency
 
 __all__ = ["tabu_pack"]
@@ -105,7 +106,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
     conflict |= arm_of_loc[:, None] == arm_of_loc[None, :]
     np.fill_diagonal(conflict, False)
     conf_i = conflict.astype(np.int32)  # rows added to / subtracted from the count columns
-    clock.charge(clock.TABU_CELL_S * n_loc * n_loc)
+    clock.charge(TABU_CELL_S * n_loc * n_loc)
 
     occ = np.full((n_configs, n_arms), -1, np.int64)  # local location per (configuration, arm)
     where = np.full(len(pool), -1, np.int64)  # configuration of each pooled target
@@ -247,7 +248,7 @@ def tabu_pack(inc: Incompatibility, pool: np.ndarray, n_configs: int, *, time_li
         if unplaced - 1 < best_unplaced:  # aspiration: a free location gives a new best
             is_tabu &= n_hit[:, rows] != 0
         cost[is_tabu] = BIG
-        clock.charge(clock.TABU_MOVE_S + clock.TABU_CELL_S * (cost.size + 2 * n_loc))
+        clock.charge(TABU_MOVE_S + TABU_CELL_S * (cost.size + 2 * n_loc))
         low = cost.min()
         if low >= BIG:
             continue  # everything tabu: let the tenures run out

@@ -8,6 +8,7 @@ import numpy as np
 
 from models import clock
 from solvers.allocation.semigreedy.prepare import DISP_EPS, Prepared, State
+from solvers.effort import SEMIGREEDY_PASS_S
 
 
 def swap_pass(st: Prepared, s: State, rng: np.random.Generator) -> bool:
@@ -226,5 +227,5 @@ def local_search(st: Prepared, s: State, rng: np.random.Generator, max_moves: in
         moves += made
         if not made:  # a replace can enable new swaps: repeat until a quiet round
             break
-    clock.charge(passes * clock.SEMIGREEDY_PASS_S)
+    clock.charge(passes * SEMIGREEDY_PASS_S)
     return moves

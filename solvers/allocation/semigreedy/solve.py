@@ -72,6 +72,7 @@ from solvers.allocation.options import SEMIGREEDY_SEQUENCING, SemiGreedyOptions
 from solvers.allocation.semigreedy.construct import construct, pad
 from solvers.allocation.semigreedy.local_search import local_search
 from solvers.allocation.semigreedy.prepare import DISP_EPS, Prepared, State, prepare
+from solvers.effort import SEMIGREEDY_ITERATION_S, SEMIGREEDY_PREPARE_COLUMN_S
 from solvers.problem import ConfigProblem, ConfigSolution
 
 WARM_START_ITERATIONS = 5  # a MIP start / hint: the exact solver improves on it anyway
@@ -110,7 +111,7 @@ def _multistart(st: Prepared, opts: SemiGreedyOptions, rng: np.random.Generator,
     best_iter = -1
     for it in range(opts.n_iter):
         s = construct(st, opts.alpha, opts.arm_selection, rng, opts.lookahead)
-        clock.charge(clock.SEMIGREEDY_ITERATION_S)
+        clock.charge(SEMIGREEDY_ITERATION_S)
         if not pad(st, s):
             continue  # thesis line 9: only complete solutions go on
         if opts.local_search:
@@ -152,7 +153,7 @@ def solve_semigreedy(problem: ConfigProblem, options: SemiGreedyOptions | None =
     rng = np.random.default_rng(seed)
     limit = problem.time_limit_s if opts.time_limit_s is None else opts.time_limit_s
     st = prepare(problem, opts)
-    clock.charge(len(problem.assignments) * clock.SEMIGREEDY_PREPARE_COLUMN_S)
+    clock.charge(len(problem.assignments) * SEMIGREEDY_PREPARE_COLUMN_S)
     t_prep = clock.now()
     best, best_key, n_done, ls_moves, best_iter = _multistart(st, opts, rng, t0, limit)
     if best is None:

@@ -1,0 +1,42 @@
+"""What the motion planner's work costs on the effort clock (:mod:`models.clock`).
+
+Every module of planner/ reports its work through ``clock.work(kind, units)``; this module
+prices every such kind, in reference seconds as ``(per call, per unit)``, and registers the
+table with :func:`models.clock.register_work_costs` when it is imported (``planner``'s
+``__init__`` imports it, so the table is registered before any planner module runs).
+
+The costs are a non-negative least-squares fit of the CPU seconds of real legs on the
+counts of each kind (``python benchmarks/effort_motion.py`` prints one as ``fitted_work_s``),
+scaled so that an effort second is a CPU second of the reference machine: every cost of the
+fit by 0.576, the earliest departure's by 0.256 (scaled as the others, the regression legs of
+``tests/data/motion_legs.json``, where the departure search is most of the work, cost 1.7
+effort seconds per CPU second). Measured with these costs
+(2 cores, another process on the other core):
+
+* ``python benchmarks/effort_motion.py --fields 2 --seed 5``: effort / CPU seconds per leg
+  of median 0.99, all 60 legs within 0.52-1.32;
+* ``tests/test_effort_calibration.py`` (the five regression legs, 3 s budget): 0.96-1.09
+  over the legs together (eight runs). It fails outside 0.7-1.4: then re-fit with the command above.
+"""
+
+from __future__ import annotations
+
+from models import clock
+
+__all__ = ["PLANNER_WORK_S"]
+
+#: Reference seconds of each kind of planner work, as (per call, per unit).
+PLANNER_WORK_S: dict[str, tuple[float, float]] = {
+    "departure": (0.0, 2.82e-07),  # planner.timeline: one earliest departure; unit: move samples
+    "free_after": (0.0, 0.0),  # planner.timeline: a rest check; unit: poses
+    "move_samples": (0.0, 0.0),  # planner.timeline: a straight move sampled; unit: samples
+    "clearance_rows": (0.0, 2.25e-08),  # planner.clearance: unit: rows of body pairs
+    "clearance_to_arms": (5.59e-05, 0.0),  # planner.clearance: unit: arm x sample clearances
+    "walk": (0.0, 6.34e-07),  # planner.clearance: delay-table walks; unit: exact clearances
+    "segments": (4.38e-05, 3.34e-07),  # planner.geometry: forward kinematics; unit: poses
+    "zoa_edges": (0.0, 1.09e-06),  # planner.geometry: ZoA test of straight edges; unit: edges
+    "csp_nodes": (1.84e-05, 0.0),  # planner.delays: unit: search nodes
+    "verify": (0.0, 3.92e-06),  # planner.verify: unit: pair samples computed
+}
+
+clock.register_work_costs(PLANNER_WORK_S)
