@@ -56,7 +56,8 @@ class Settings(BaseSettings):
         50_000_000, ge=1024, description="Largest body of POST /v1/target-lists (the uploaded "
         "file and its multipart framing).")
     default_time_limit_s: float = Field(
-        30.0, gt=0, description="Solver time limit when a request gives none."
+        30.0, gt=0, description="Time limit of a stage request (allocation, motion plan) that "
+        "gives none; a plan's limit is plan_budget_s / job_budget_s."
     )
     max_time_limit_s: float = Field(600.0, gt=0, description="Largest time limit a request may ask.")
     plan_budget_s: float = Field(
