@@ -43,6 +43,7 @@ import numpy as np
 
 import planner.strategies  # noqa: F401 - registers the strategies
 from models import clock
+from models.budget import Budget
 from models.instrument import Instrument
 from models.kinematics import positive_turn_move_time_s
 from models.types import ArmTrajectory, MotionPlan
@@ -51,7 +52,6 @@ from planner.commands import stop_count
 from planner.options import DEFAULT_STRATEGIES, MotionOptions
 from planner.strategy import (
     STRATEGIES,
-    Budget,
     Candidate,
     Leg,
     LegCache,
@@ -287,7 +287,7 @@ def plan_motion(
                                 max_attempts=max_attempts, grid=grid, strategies=tuple(strategies), rpp=rpp,
                                 rpp_max_paths=rpp_max_paths, turn_sense=turn_sense, turn_bias_s=turn_bias_s,
                                 via=via)
-    budget = Budget.of(time_budget_s)
+    budget = Budget.start(time_budget_s)
     return plan_leg(Leg.build(instrument, start_q, goal_q, options), budget)
 
 

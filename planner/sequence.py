@@ -35,7 +35,7 @@ from typing import Literal
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
@@ -177,15 +177,6 @@ def _key(config: Configuration) -> bytes:
     return np.ascontiguousarray(config.q, dtype=float).tobytes()
 
 
-class _Clock:
-    def __init__(self, limit_s: float | None) -> None:
-        self.t0 = clock.now()
-        self.limit_s = limit_s
-
-    def left_s(self) -> float:
-        return math.inf if self.limit_s is None else self.limit_s - (clock.now() - self.t0)
-
-
 class _Sequencer:
     """The state of one pointing's plan while its legs are planned and repaired."""
 
@@ -197,7 +188,7 @@ class _Sequencer:
         self.opt = options
         self.priority_of = priority_of
         self.configs = list(configurations)
-        self.clock = _Clock(options.time_limit_s)
+        self.budget = Budget.start(options.time_limit_s)  # the whole sequence's (None: unlimited)
         self.changes: list[PlanChange] = []
         self.dropped: list[Unallocated] = []
         self.legs: list[MotionPlan] = []
@@ -210,10 +201,10 @@ class _Sequencer:
 
     def budget_s(self) -> float:
         legs_left = max(1, len(self.configs) + 1 - len(self.legs))
-        return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.clock.left_s() / legs_left))
+        return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.budget.left_s() / legs_left))
 
     def plan(self, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan:
-        if self.clock.left_s() <= 0:  # the sequence's time limit has passed: no more planning
+        if self.budget.left_s() <= 0:  # the sequence's time limit has passed: no more planning
             arms = tuple(range(self.ins.n_arms))
             return MotionPlan("failed", math.nan, (), arms,
                               {"reasons": {k: "no time left in the sequence's time limit" for k in arms}})
@@ -272,7 +263,7 @@ class _Sequencer:
     def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan | None:
         """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
         leg = failed
-        while leg.status != "ok" and self.edits < self.opt.max_changes and self.clock.left_s() > MIN_LEG_S:
+        while leg.status != "ok" and self.edits < self.opt.max_changes and self.budget.left_s() > MIN_LEG_S:
             if self._rested(i, leg.failed_arms):
                 leg = self._replan(i, start_q)
                 continue
@@ -334,7 +325,7 @@ class _Sequencer:
         """Arm k of configuration i on the same target through another IK branch, if that plans."""
         for changed in other_branches(self.ins, self.configs[i], k, self.buffer_mm,
                                       self.opt.park_move_limit_s):
-            if self.edits >= self.opt.max_changes or self.clock.left_s() <= MIN_LEG_S:
+            if self.edits >= self.opt.max_changes or self.budget.left_s() <= MIN_LEG_S:
                 break
             self.edits += 1
             old, self.configs[i] = self.configs[i], changed
@@ -409,13 +400,13 @@ class _Sequencer:
             i += 1
         configs = tuple(replace(c, index=n) for n, c in enumerate(self.configs))
         stats = {"legs": len(self.legs), "plans": self.plans, "edits": self.edits,
-                 "compute_s": clock.now() - self.clock.t0}
+                 "compute_s": self.budget.elapsed_s()}
         return SequencePlan(configs, tuple(self.legs), tuple(self.changes), tuple(self.dropped), stats)
 
     def _lighten_last(self) -> bool:
         """Take one blocking target out of the last configuration (from its park -> c plan)."""
         n = len(self.configs)
-        if self.edits >= self.opt.max_changes or self.clock.left_s() <= MIN_LEG_S:
+        if self.edits >= self.opt.max_changes or self.budget.left_s() <= MIN_LEG_S:
             return False
         config = self.configs[-1]
         back = self.park_to(config)

@@ -31,15 +31,16 @@ driver verifies it (:mod:`planner.verify`). Each attempt is deterministic.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from models.kinematics import direct_move_time_s
 from planner.clearance import clearance_to_arms
 from planner.geometry import ArmGeom, timed_collisions
-from planner.strategy import Budget, Leg, same_configuration
+from planner.strategy import Leg, same_configuration
 from planner.timeline import MoveSamples, Timeline
 
 TWO_PI = 2.0 * np.pi
@@ -385,7 +386,8 @@ def plan_sequenced(leg: Leg, budget: Budget, max_attempts: int = 64) -> Sequence
         if budget.expired():
             break
         share = 1.0 if i == len(starts) - 1 else START_SHARE
-        part = Budget(clock.now() + share * budget.left_s(), budget.total_s, budget.hard_deadline)
+        t_s = clock.now()  # this start's part of what is left; its shares stay fractions of the leg's
+        part = replace(budget, start_s=t_s, deadline_s=t_s + share * budget.left_s())
         stats["starts"] += 1
         best, left = search_from(sub, order, part, max_attempts, base_of(sub, rev), stats)
         if best is not None:

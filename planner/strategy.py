@@ -8,17 +8,23 @@ it could not plan and why). Strategies never call each other through the driver:
 strategy learns that another can use (the delay CSP's straight-move problem, the cluster
 strategy's removal sets, roadmap paths) goes into the leg's :class:`LegCache`, which the
 driver owns.
+
+A strategy plans within a :class:`models.budget.Budget`: the leg's, or the part of it
+:func:`stage_budget` gives. Its ``hard_deadline_s`` is the whole leg's deadline, which a
+strategy's share never extends: a strategy may finish work it cannot do without (such as the
+straight-move tables the later strategies start from) up to it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from models.collision import colliding_arm_pairs
 from models.errors import InputError
 from models.instrument import Instrument
@@ -98,38 +104,6 @@ class Leg:
     def disabled(self) -> list[int]:
         en = set(self.enabled)
         return [k for k in range(self.n_arms) if k not in en]
-
-
-class Budget:
-    """A deadline on ``clock.now()``; ``total_s`` is the budget the shares refer to;
-    ``hard_deadline`` the whole leg's deadline, which a strategy's share never extends (a
-    strategy may finish work it cannot do without, such as the straight-move tables the
-    later strategies start from, up to it)."""
-
-    def __init__(self, deadline: float, total_s: float, hard_deadline: float | None = None) -> None:
-        self.deadline = float(deadline)
-        self.total_s = float(total_s)
-        self.hard_deadline = self.deadline if hard_deadline is None else float(hard_deadline)
-
-    @staticmethod
-    def of(seconds: float) -> Budget:
-        """A budget of ``seconds`` from now."""
-        return Budget(clock.now() + seconds, seconds)
-
-    def left_s(self) -> float:
-        return self.deadline - clock.now()
-
-    def expired(self) -> bool:
-        return clock.now() > self.deadline
-
-    def share(self, fraction: float, cap_s: float) -> Budget:
-        """A sub-deadline: ``min(fraction * total_s, cap_s)`` from now, within this budget."""
-        d = clock.now() + min(fraction * self.total_s, cap_s)
-        return Budget(min(d, self.deadline), self.total_s, self.hard_deadline)
-
-    def keep(self, seconds: float) -> Budget:
-        """This budget with ``seconds`` kept back at its end (for a later strategy)."""
-        return Budget(self.deadline - seconds, self.total_s, self.hard_deadline)
 
 
 @dataclass(frozen=True, eq=False)
@@ -233,11 +207,11 @@ def stage_budget(name: str, leg: Leg, budget: Budget) -> Budget:
     if name == "sequenced":
         return budget.share(*sh.SEQUENCED_SHARE)
     if name == "detours":
-        d = leg.cache.delay_deadline if leg.cache.delay_deadline is not None else budget.deadline
+        d = leg.cache.delay_deadline if leg.cache.delay_deadline is not None else budget.deadline_s
         if leg.cache.cluster_s is not None:  # the cluster's time is its own, not the delay stage's
             f, cap = sh.DETOURS_AFTER_CLUSTER_SHARE
             d = min(d + leg.cache.cluster_s, clock.now() + min(f * budget.total_s, cap))
-        return Budget(d, budget.total_s, budget.hard_deadline)
+        return replace(budget, deadline_s=d)
     if name == "prioritized" and o.via is not None and o.max_start_stop >= 1:
         f, cap = sh.VIA_RESERVE_SHARE
         return budget.keep(min(f * budget.total_s, cap))

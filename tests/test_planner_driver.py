@@ -10,12 +10,13 @@ import numpy as np
 import pytest
 
 import planner.driver as driver
+from models.budget import Budget
 from models.errors import InputError
 from models.instrument import default_instrument
 from models.types import ArmTrajectory
 from planner import MotionOptions, plan_motion, verify_trajectories
 from planner.strategies.reversed import reverse_trajectories
-from planner.strategy import STRATEGIES, Budget, Candidate, Leg, Refusal
+from planner.strategy import STRATEGIES, Candidate, Leg, Refusal
 from tests.test_planner import _en_route
 
 INST = default_instrument()
@@ -247,7 +248,7 @@ def test_planner_recheck_agrees_with_the_verifier(case):
         start = PARK
     leg = Leg.build(inst, start, goal, MotionOptions())
     trajs = plan_motion(inst, start, goal).trajectories if case == "planned" else \
-        Unsafe().plan(leg, Budget.of(1.0)).trajectories
+        Unsafe().plan(leg, Budget.start(1.0)).trajectories
     rep = verify_trajectories(inst, trajs, start, goal, max_start_stop=None)
     expected = sorted(v.arms for v in rep.violations if v.kind == "collision")
     timed = [(tr.t_s, np.column_stack([tr.theta1_rad, tr.theta2_rad])) for tr in trajs]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from models.budget import Budget
 from models.collision import segment_distance_mm
 from models.instrument import default_instrument
 from planner import options as planner_options
@@ -30,7 +31,7 @@ from planner.sequenced import (
     search_starts,
     via_grid,
 )
-from planner.strategy import STRATEGIES, Budget, Candidate, Leg
+from planner.strategy import STRATEGIES, Candidate, Leg
 from planner.timeline import Timeline
 from planner.verify import verify_trajectories
 
@@ -108,7 +109,7 @@ def test_real_failing_legs_plan_and_verify(spec):
     at a few seconds), so that a slow or shared machine does not decide the outcome."""
     start, goal = np.array(spec["start_q"]), np.array(spec["goal_q"])
     leg = _leg(start, goal)
-    out = STRATEGIES["sequenced"].plan(leg, Budget.of(60.0))
+    out = STRATEGIES["sequenced"].plan(leg, Budget.start(60.0))
     assert isinstance(out, Candidate), out.reasons
     rep = verify_trajectories(INST, out.trajectories, start, goal, max_start_stop=1, exhaustive=True)
     assert rep.ok and rep.min_clearance_mm >= INST.collision_buffer_mm
@@ -118,8 +119,8 @@ def test_real_failing_legs_plan_and_verify(spec):
 def test_sequenced_plan_is_deterministic_and_within_stops():
     spec = LEGS[0]
     leg = _leg(spec["start_q"], spec["goal_q"], seed=3)
-    a = plan_sequenced(leg, Budget.of(30.0))
-    b = plan_sequenced(leg, Budget.of(30.0))
+    a = plan_sequenced(leg, Budget.start(30.0))
+    b = plan_sequenced(leg, Budget.start(30.0))
     assert a.timeline is not None and b.timeline is not None
     for k in range(leg.n_arms):
         ta, qa = a.timeline.waypoints(k)
@@ -131,7 +132,7 @@ def test_sequenced_plan_is_deterministic_and_within_stops():
 def test_no_stop_allowed_means_straight_moves_only():
     spec = LEGS[1]
     leg = _leg(spec["start_q"], spec["goal_q"], max_start_stop=0)
-    res = plan_sequenced(leg, Budget.of(5.0))
+    res = plan_sequenced(leg, Budget.start(5.0))
     if res.timeline is not None:
         assert all(len(m) <= 1 for m in res.timeline.moves)
     else:
@@ -156,7 +157,7 @@ def test_arms_already_at_goal_stay_and_are_obstacles():
     """A leg where nothing moves: every arm stays where it is (no move) and counts as an obstacle."""
     leg = _leg(PARK, PARK)
     tl = Timeline(leg.geoms, leg.start_q, horizon_s=60.0, dt_s=0.1, buffer_mm=leg.buffer_mm, max_moves=2)
-    att = Attempt(leg, first_order(leg), Budget.of(5.0), tl)
+    att = Attempt(leg, first_order(leg), Budget.start(5.0), tl)
     assert att.run() == ()
     assert all(not m for m in att.tl.moves) and att.tl.visible.all()
 
@@ -354,7 +355,7 @@ def _planned(spec, order=None, prefixes=None, holds=None) -> Attempt:
     leg = _leg(spec["start_q"], spec["goal_q"])
     base = Timeline(leg.geoms, leg.start_q, horizon_s=leg.options.horizon_s, dt_s=0.1, buffer_mm=leg.buffer_mm,
                     max_moves=2, margin=0.25)
-    att = Attempt(leg, order or first_order(leg), Budget.of(60.0), base, holds)
+    att = Attempt(leg, order or first_order(leg), Budget.start(60.0), base, holds)
     att.run(prefixes)
     return att
 

@@ -11,13 +11,14 @@ back into the cache for the detour rounds (:mod:`planner.strategies.delays`).
 from __future__ import annotations
 
 from models import clock
+from models.budget import Budget
 from models.types import ArmTrajectory
 from planner.cluster import ClusterStats, plan_cluster, removal_sets
 from planner.commands import arm_trajectory, stop_count
 from planner.geometry import timed_collisions
 from planner.roadmap import RoadmapParams
 from planner.single_arm import SearchParams, SearchStats
-from planner.strategy import Budget, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 
 # cheapest and most often successful first: forward without head start for every set
 TRIES = ((0, False), (0, True), (3, False), (3, True))  # (lead steps, reverse)
@@ -52,7 +53,7 @@ class Cluster:
             return Refusal()
         t_c = clock.now()
         try:
-            return self.plan_straight(leg, search.straight, list(search.blamed), budget.deadline)
+            return self.plan_straight(leg, search.straight, list(search.blamed), budget.deadline_s)
         finally:
             leg.cache.cluster_s = clock.now() - t_c
 

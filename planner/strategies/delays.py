@@ -19,11 +19,12 @@ verifies the result.
 from __future__ import annotations
 
 from models import clock
+from models.budget import Budget
 from models.types import ArmTrajectory
 from planner.commands import arm_trajectory
 from planner.delays import DelayResult, DelaySearch, DelayStats, trajectory_points
 from planner.geometry import timed_collisions
-from planner.strategy import Budget, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 
 NO_SCHEDULE = "no collision-free departure-delay schedule"
 
@@ -86,8 +87,8 @@ class Delays:
         search.t0 = clock.now()
         search.finished = False
         leg.cache.delay_search = search
-        leg.cache.delay_deadline = budget.deadline
-        res = search.straight_phase(budget.deadline, first_round_deadline=budget.hard_deadline)
+        leg.cache.delay_deadline = budget.deadline_s
+        res = search.straight_phase(budget.deadline_s, first_round_deadline=budget.hard_deadline_s)
         if res is None:  # paused: every straight option failed, the detour rounds may go on
             stats: dict = {}
             _report(search, stats)
@@ -112,4 +113,4 @@ class Detours:
             # unsolvable, so detours for them cannot help either (a removed arm is the loosest
             # detour; beyond pairs this is a heuristic): leave the time to later strategies
             futile = not sets and leg.cache.removal_complete
-        return finish(leg, search, search.detour_phase(budget.deadline, prefer=prefer, futile=futile))
+        return finish(leg, search, search.detour_phase(budget.deadline_s, prefer=prefer, futile=futile))

@@ -12,10 +12,11 @@ strategy does); the driver verifies the result.
 from __future__ import annotations
 
 from models import clock
+from models.budget import Budget
 from planner.delays import DelayStats
 from planner.evasion import plan_evasion
 from planner.strategies.delays import NO_SCHEDULE, delay_trajectories
-from planner.strategy import Budget, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 
 
 class Evasion:
@@ -33,7 +34,7 @@ class Evasion:
         initial = getattr(search, "straight", None) if search is not None else None
         res = plan_evasion(list(leg.geoms), leg.start_q, leg.goal_q, dt_s=o.dt_s, dt_col_s=o.dt_col_s,
                            horizon_s=o.horizon_s, buffer_mm=leg.buffer_mm, movable=list(leg.enabled),
-                           stats=dst, deadline=budget.deadline, initial=initial)
+                           stats=dst, deadline=budget.deadline_s, initial=initial)
         stats = {"collision_checks": dst.pair_samples, "states_explored": dst.nodes,
                  "evasion": {"rounds": res.rounds, "log": res.log, "compute_s": clock.now() - t0}}
         if res.assignment is None:

@@ -25,11 +25,12 @@ import math
 
 import numpy as np
 
+from models.budget import Budget
 from planner.geometry import timed_collisions
 from planner.prioritized import assemble, conflict_order, plan_in_order
 from planner.roadmap import RoadmapParams, RoadmapPath, candidate_paths
 from planner.single_arm import SearchParams, SearchStats
-from planner.strategy import Budget, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 
 DIRECTIONS = ("forward", "reverse")
 
@@ -105,7 +106,7 @@ class Prioritized:
             a_start = leg.start_q if direction == "forward" else leg.goal_q
             st = SearchStats()
             plans, failed = plan_in_order(leg.instrument, leg.geoms, roadmap_paths(leg, direction), a_start, order,
-                                          leg.disabled, leg.buffer_mm, params, st, rpp_params, budget.deadline)
+                                          leg.disabled, leg.buffer_mm, params, st, rpp_params, budget.deadline_s)
             stats["attempts"] = attempt + 1
             stats["collision_checks"] += st.collision_checks
             stats["states_explored"] += st.states_explored

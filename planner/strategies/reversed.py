@@ -13,9 +13,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from models.budget import Budget
 from models.types import ArmTrajectory
 from planner.commands import arm_trajectory
-from planner.strategy import Budget, Candidate, Leg, Refusal, Strategy
+from planner.strategy import Candidate, Leg, Refusal, Strategy
 
 TWO_PI = 2.0 * np.pi
 

@@ -10,10 +10,11 @@ arrives. The driver verifies the result.
 
 from __future__ import annotations
 
+from models.budget import Budget
 from planner.commands import arm_trajectory
 from planner.sequenced import plan_sequenced
 from planner.strategies.reversed import reverse_trajectories
-from planner.strategy import Budget, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 
 NO_ORDER = "no priority order tried let every arm move"
 

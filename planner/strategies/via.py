@@ -11,13 +11,15 @@ clearances, speeds and stops); the delay CSP plans start -> via directly just as
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from models.budget import Budget
 from planner.commands import arm_trajectory
 from planner.options import VIA_MIN_BUDGET_S, MotionOptions
 from planner.strategies.delays import Delays, Detours
 from planner.strategy import (
-    Budget,
     Candidate,
     FirstOf,
     Leg,
@@ -77,7 +79,7 @@ class Via:
         parts: list[Candidate] = []
         cur = leg.start_q
         for target in (via_q, leg.goal_q):
-            out = self.legs.plan(leg.with_ends(cur, target, sub), Budget(budget.deadline, each_s, budget.hard_deadline))
+            out = self.legs.plan(leg.with_ends(cur, target, sub), replace(budget, total_s=each_s))
             if not isinstance(out, Candidate):
                 failed = list(out.arms) or list(leg.enabled)
                 return Refusal((), {}, {"attempt_log": [{"direction": "via", "failed_arms": failed}]})

@@ -1,10 +1,11 @@
 """The time budget of a sequence: every constant of the driver and its post-passes, named once.
 
 :class:`SequenceBudget` holds the constants (fractions of the call's limit, caps and margins
-in seconds, model sizes, seed offsets) and computes each stage's allowance from a
-:class:`Clock`.  The greedy loop shares what is left between the configurations still
-needed; the post-passes (rescue, repair, packing, bounds) get what the loop left, minus a
-reserve for building models and verifying results, which no solver's own limit covers.
+in seconds, model sizes, seed offsets) and computes each stage's allowance from the call's
+:class:`models.budget.Budget` (started with the call's limit, so its ``total_s`` is that
+limit).  The greedy loop shares what is left between the configurations still needed; the
+post-passes (rescue, repair, packing, bounds) get what the loop left, minus a reserve for
+building models and verifying results, which no solver's own limit covers.
 """
 
 from __future__ import annotations
@@ -12,31 +13,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from models import clock
+from models.budget import Budget
 
-__all__ = ["BUDGET", "Clock", "SequenceBudget"]
-
-
-@dataclass(frozen=True)
-class Clock:
-    """The call's clock: started at ``t0_s`` (a :func:`models.clock.now` reading) with ``limit_s``."""
-
-    t0_s: float
-    limit_s: float
-
-    @staticmethod
-    def start(limit_s: float) -> Clock:
-        return Clock(clock.now(), float(limit_s))
-
-    def elapsed_s(self) -> float:
-        return clock.now() - self.t0_s
-
-    def left_s(self) -> float:
-        return self.limit_s - self.elapsed_s()
-
-    @property
-    def deadline_s(self) -> float:
-        return self.t0_s + self.limit_s
+__all__ = ["BUDGET", "SequenceBudget"]
 
 
 @dataclass(frozen=True)
@@ -91,29 +70,33 @@ class SequenceBudget:
     prefix_seed_offset: int = 50_000
     attempt_seed_stride: int = 101
 
-    def config_limit_s(self, remaining_s: float, clock: Clock, n_pending: int, n_active: int, cap_s: float,
+    def config_limit_s(self, remaining_s: float, budget: Budget, n_pending: int, n_active: int, cap_s: float,
                        adaptive: bool, reserve_fraction: float) -> float:
         """One configuration's solve limit: at most ``cap_s`` and ``remaining_s``; with
         ``adaptive``, at most ``share_slack`` times its share of what is left after the
-        reserve (``reserve_fraction`` of the call's limit, held back for the post-passes),
-        shared by the configurations still needed at best (ceil(pending / arms))."""
+        reserve (``reserve_fraction`` of the call's limit, ``budget.total_s``, held back for
+        the post-passes), shared by the configurations still needed at best (ceil(pending / arms))."""
         remaining = remaining_s
         if not adaptive:
             return min(cap_s, remaining)
         n_left = max(math.ceil(n_pending / max(n_active, 1)), 1)
-        share = max(remaining - reserve_fraction * clock.limit_s, self.min_share_s)
+        share = max(remaining - reserve_fraction * budget.total_s, self.min_share_s)
         return min(cap_s, remaining, max(self.share_slack * share / n_left, self.min_share_s))
 
-    def keep_back_s(self, clock: Clock) -> float:
-        return min(self.keep_back_fraction * clock.limit_s, self.keep_back_max_s)
+    def keep_back_s(self, budget: Budget) -> float:
+        """The seconds kept back at the end of the call for model building and verification."""
+        return min(self.keep_back_fraction * budget.total_s, self.keep_back_max_s)
 
-    def repair_s(self, clock: Clock, cap_s: float) -> float:
-        left = clock.limit_s - self.keep_back_s(clock) - clock.elapsed_s()
+    def repair_s(self, budget: Budget, cap_s: float) -> float:
+        """The repair pass's seconds: a fraction of what is left before the keep-back, at most ``cap_s``."""
+        left = budget.total_s - self.keep_back_s(budget) - budget.elapsed_s()
         return min(self.repair_left_fraction * left, cap_s)
 
-    def repack_s(self, clock: Clock, attempt_s: float, max_window: int) -> float:
-        return min(clock.limit_s - self.keep_back_s(clock) - clock.elapsed_s(),
-                   max(attempt_s * self.repack_window_attempts * max_window, self.repack_call_fraction * clock.limit_s))
+    def repack_s(self, budget: Budget, attempt_s: float, max_window: int) -> float:
+        """The repacking passes' seconds: what is left before the keep-back, at most the
+        larger of the attempts' allowance and a fraction of the call's limit."""
+        return min(budget.total_s - self.keep_back_s(budget) - budget.elapsed_s(),
+                   max(attempt_s * self.repack_window_attempts * max_window, self.repack_call_fraction * budget.total_s))
 
 
 BUDGET = SequenceBudget()

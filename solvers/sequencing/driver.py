@@ -31,12 +31,13 @@ import numpy as np
 
 import solvers.effort  # noqa: F401  (prices the work of the incompatibility structure)
 from models import clock
+from models.budget import Budget
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import matching_lower_bound
-from solvers.sequencing.budget import BUDGET, Clock
+from solvers.sequencing.budget import BUDGET
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.passes import POST_PASSES, PassContext
 from solvers.sequencing.state import (
@@ -83,11 +84,11 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
         if opt.max_configurations is not None and len(s.steps) >= opt.max_configurations:
             s.stop_reason = "max_configurations"
             break
-        remaining = ctx.clock.left_s()
+        remaining = ctx.budget.left_s()
         if remaining <= BUDGET.min_solve_s:
             s.stop_reason = "no_time"
             break
-        limit_i = BUDGET.config_limit_s(remaining, ctx.clock, int(s.pending.sum()), s.n_active,
+        limit_i = BUDGET.config_limit_s(remaining, ctx.budget, int(s.pending.sum()), s.n_active,
                                         opt.config_time_limit_s, opt.adaptive_limits, opt.reserve_fraction)
         if opt.tie_break and opt.tie_break != "reach":
             s.tie = hard_to_place(s.inc, s.n_arms, s.xy, s.pending)
@@ -125,7 +126,7 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
     s.greedy_count = len(s.steps)
 
 
-def _result(s: SequenceState, t0: float, engines: dict[str, str] | None) -> AllocationResult:
+def _result(s: SequenceState, budget: Budget, engines: dict[str, str] | None) -> AllocationResult:
     """The configurations (main, then rescue), the unallocated targets with their reason, the stats."""
     targets, n = s.targets, len(s.targets)
     out = [make_configuration(i, st.problem, st.chosen, targets, st.status, st.stats)
@@ -146,7 +147,7 @@ def _result(s: SequenceState, t0: float, engines: dict[str, str] | None) -> Allo
                for i in np.flatnonzero(~allocated)]
     total_p = sum(int(p) for p in s.priority)
     got_p = sum(int(p) for p in s.priority[allocated])
-    s.timers["total_s"] = clock.now() - t0
+    s.timers["total_s"] = budget.elapsed_s()
     stats = {
         "n_targets": n,
         "n_reachable": s.n_reachable,
@@ -211,7 +212,7 @@ def sequence_configurations(
     target at a time (default: CP-SAT); ``engines`` (which engine did which part) is
     returned as ``stats["engines"]``.
     """
-    clock = Clock.start(time_limit_s)
+    budget = Budget.start(time_limit_s)
     opts = (SequencingOptions() if options is None else options).resolved()
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
@@ -219,17 +220,17 @@ def sequence_configurations(
         incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed,
                                                       blank_per_arm=opts.sequence.blank_per_arm, seed=seed,
                                                       park_move_limit_s=opts.sequence.park_move_limit_s)
-    t_inc = clock.elapsed_s()
+    t_inc = budget.elapsed_s()
     if progress:
         progress(PROGRESS_READY, "incompatibility ready")
     s = _initial_state(instrument, targets, incompatibility, start_q, seed, opts)
     s.timers["incompatibility_s"] = t_inc
-    ctx = PassContext(opts, clock, solve_one, exact_one, fixed, buffer_mm)
+    ctx = PassContext(opts, budget, solve_one, exact_one, fixed, buffer_mm)
     _greedy(s, ctx, progress)
     for post_pass in POST_PASSES:
         if post_pass.applies(s, ctx):
             post_pass.run(s, ctx)
-    result = _result(s, clock.t0_s, engines)
+    result = _result(s, budget, engines)
     if progress:
         progress(1.0, "done")
     return result

@@ -26,9 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import INNER_DISCS_MM, configuration_lp_bound, crowding_lower_bound
-from solvers.sequencing.budget import BUDGET, Clock
+from solvers.sequencing.budget import BUDGET
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.packing import complete_partial, pack_targets
 from solvers.sequencing.repack import repack_bulk, repack_prefix
@@ -43,10 +44,10 @@ __all__ = ["POST_PASSES", "BoundsPass", "BulkPackingPass", "PassContext", "Prefi
 
 @dataclass(frozen=True)
 class PassContext:
-    """What the passes read and never change: the options, the clock, the engines."""
+    """What the passes read and never change: the options, the call's budget, the engines."""
 
     options: SequencingOptions
-    clock: Clock
+    budget: Budget
     solve_one: Callable[[ConfigProblem], ConfigSolution]
     exact_one: Callable[[ConfigProblem], ConfigSolution] | None
     fixed: dict[int, tuple[float, float]] | None
@@ -67,7 +68,7 @@ class RescuePass:
         q_last = s.steps[-1].problem.assignments.q[s.steps[-1].chosen] if s.steps else s.q
         s.extra = rescue_conflicts(s.instrument, s.targets, s.priority, np.flatnonzero(s.pending),
                                    ~s.pending & ~s.unreachable, q_last, ctx.solve_one, ctx.fixed, ctx.buffer_mm,
-                                   s.speeds, len(s.steps), ctx.clock.deadline_s,
+                                   s.speeds, len(s.steps), ctx.budget.deadline_s,
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
                                    None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one,
                                    park_move_limit_s=ctx.options.sequence.park_move_limit_s)
@@ -88,7 +89,7 @@ class RepairPass:
         n0 = s.n_configurations
         rescued_t = [observed(c) for c in s.extra]
         new, absorbed_g = absorb_configurations(s.inc, [st.chosen for st in s.steps], s.priority,
-                                                budget_s=BUDGET.repair_s(ctx.clock, ctx.options.repair.time_limit_s),
+                                                budget_s=BUDGET.repair_s(ctx.budget, ctx.options.repair.time_limit_s),
                                                 loose=rescued_t, min_keep=s.lower_bound)
         s.steps = rebuild(s.instrument, s.inc, s.priority, s.steps, new, s.speeds, s.xy, s.tie, s.q_start)
         s.extra = [c for c, g in zip(s.extra, absorbed_g, strict=True) if not g]
@@ -105,7 +106,7 @@ class BulkPackingPass:
     def run(self, s: SequenceState, ctx: PassContext) -> None:
         tr = clock.now()
         pk = ctx.options.packing
-        budget = BUDGET.repack_s(ctx.clock, pk.attempt_time_limit_s, pk.max_window)
+        budget = BUDGET.repack_s(ctx.budget, pk.attempt_time_limit_s, pk.max_window)
         n0 = len(s.steps)
         if not s.extra:
             s.steps = repack_bulk(s.instrument, s.inc, s.priority, s.steps, s.lower_bound, s.speeds, s.xy, s.tie,
@@ -113,7 +114,7 @@ class BulkPackingPass:
                                   s.seed, s.threads)
         s.timers["repack_bulk_s"] = clock.now() - tr
         s.timers["repack_bulk_saved"] = n0 - len(s.steps)
-        s.repack_budget_s = min(ctx.clock.left_s(), budget - (clock.now() - tr))
+        s.repack_budget_s = min(ctx.budget.left_s(), budget - (clock.now() - tr))
         s.rescued = [observed(c) for c in s.extra]
         s.repack_t0, s.repack_n1 = tr, s.n_configurations
 
