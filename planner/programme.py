@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from models import clock
+from models.budget import Budget
 from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument
 from models.types import AllocationResult, PlaneTargets
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
@@ -301,17 +302,15 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         seq = plan_sequence(inst, (), SequenceOptions(seed=options.seed))
         return PointingPlan(targets, None, seq, stats={
             "allocation": {"skipped": "request time limit exhausted"},
-            "motion": {"legs": len(seq.legs), "leg_budget_s": 0.0, "effort_s": 0.0}})
-    effort_s = table.effort_share * share_s  # inf without a limit
-    t0 = clock.now()
+            "motion": {"legs": len(seq.legs), "budget_s": 0.0}})
+    budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
     result = allocate(inst, targets, method=options.method, solver=options.solver,
                       configurations="all", seed=options.seed,
-                      time_limit_s=table.allocation_share * effort_s,
+                      time_limit_s=table.allocation_share * budget.total_s,
                       progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
                       options=allocation_options(options.park_move_limit_s))
     progress(0.5)
-    tm = clock.now()
-    motion_s = effort_s - (tm - t0)
+    motion_s = budget.left_s()
     legs = len(result.configurations) + 1
     if motion_s < MIN_LEG_S:
         seq, err = SequencePlan(tuple(result.configurations), ()), (
@@ -321,8 +320,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         seq, err = _sequence(inst, result, targets, options, motion_s,
                              lambda f: progress(0.5 + 0.5 * f))
     stats = {"allocation": result.stats,
-             "motion": {"legs": len(seq.legs) if err is None else legs,
-                        "budget_s": motion_s, "effort_s": clock.now() - tm}}
+             "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s}}
     return PointingPlan(targets, result, seq, err, stats)
 
 

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
@@ -321,7 +321,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     The whole plan ends within :func:`plan_limit_s`: a pointing's share is cut to what the
     limit has left when a slow machine left less (then the limit comes first)."""
     limit = plan_limit_s(req, budget_s)
-    t0 = clock.now()
+    budget = Budget.start(limit - reserve_s(limit))  # the wall clock: outside any effort block
     seg = segment_plan(req, inst)
     progress(0.05)
     n = max(len(seg.pointings), 1)
@@ -331,10 +331,9 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
         for task in tasks:
             i = task.index
             lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
-            left = max(limit - reserve_s(limit) - (clock.now() - t0), 0.0)
             answer = pointing_result(pointing_task(req, seg, task), inst,
                                      lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f),
-                                     wall_limit_s=left)
+                                     wall_limit_s=max(budget.left_s(), 0.0))
             answers[i] = keep_better(answers.get(i), answer, i)
             progress(hi)
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
@@ -342,7 +341,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     history = run_rounds(pointing_needs(seg), limit, compute)
     return seg, [answers[i] for i in range(len(seg.pointings))], {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
-        "elapsed_s": clock.now() - t0}
+        "elapsed_s": budget.elapsed_s()}
 
 
 def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
