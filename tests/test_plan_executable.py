@@ -1,7 +1,7 @@
 """Executable whole-field plans: `executable`, `reasons` and `changes` of POST /v1/plans, of a
 plan job's result and of `mxs-planner plan` (exit code 4 when a leg could not be planned).
 
-The fast tests replace ``service.pipeline.plan_sequence`` with a fake that returns a
+The fast tests replace ``planner.programme.plan_sequence`` with a fake that returns a
 ``SequencePlan`` of real domain objects (segmentation and allocation run for real); the last
 test runs the whole pipeline unchanged on a tiny field."""
 
@@ -19,8 +19,9 @@ from fastapi.testclient import TestClient
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets
+from planner import programme
 from planner.sequence import PlanChange, SequenceOptions, SequencePlan
-from service import jobs, pipeline
+from service import jobs
 from service.app import create_app
 from service.cli import EXIT_NOT_EXECUTABLE, build_parser, main
 from service.job_schemas import PlanJobStatus
@@ -110,17 +111,21 @@ def check_failed(out: dict[str, Any]) -> None:
 @pytest.mark.parametrize("fail", [True, False])
 def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail: bool) -> None:
     fake = fake_plan_sequence(fail)
-    monkeypatch.setattr(pipeline, "plan_sequence", fake)
+    monkeypatch.setattr(programme, "plan_sequence", fake)
     app = create_app(Settings(job_db=tmp_path / "j.db", api_token=TOKEN))
     with TestClient(app) as c:
         r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3},
                    headers=AUTH)
     assert r.status_code == 200, r.text
     out = r.json()
-    assert len(fake.calls) == 1 and fake.calls[0].seed == 1
-    if fail:
+    assert fake.calls[0].seed == 1
+    if fail:  # the pointing is planned again, on other seeds, while the limit has time left
+        assert len(fake.calls) == programme.SHARES.rounds
+        assert len({o.seed for o in fake.calls}) == len(fake.calls)
+        assert [r["round"] for r in out["pointings"][0]["stats"]["rounds"]] == [1, 2, 3, 4]
         check_failed(out)
         return
+    assert len(fake.calls) == 1
     PlanResponse.model_validate(out)
     assert out["executable"] is True and out["reasons"] == []
     (p,) = out["pointings"]
@@ -135,7 +140,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
     def broken(*_: Any, **__: Any) -> Any:
         raise RuntimeError("a bug")
 
-    monkeypatch.setattr(pipeline, "plan_sequence", broken)
+    monkeypatch.setattr(programme, "plan_sequence", broken)
     app = create_app(Settings(job_db=tmp_path / "j.db"))
     with TestClient(app) as c:
         r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3})
@@ -151,7 +156,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
 
 def test_plan_job_result_carries_executable(tmp_path: Path, monkeypatch) -> None:
     """The worker's own function, run here so the fake applies; read back with GET /v1/jobs."""
-    monkeypatch.setattr(pipeline, "plan_sequence", fake_plan_sequence(fail=True))
+    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=True))
     db = tmp_path / "j.db"
     app = create_app(Settings(job_db=db))
     with TestClient(app) as c:
@@ -176,7 +181,7 @@ def _target_file(tmp_path: Path) -> Path:
 
 
 def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(pipeline, "plan_sequence", fake_plan_sequence(fail=True))
+    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=True))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
                  "--seed", "1", "--time-limit", "3", "--quiet"])
     cap = capsys.readouterr()
@@ -190,7 +195,7 @@ def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys
 
 
 def test_cli_exit_code_0_when_executable(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(pipeline, "plan_sequence", fake_plan_sequence(fail=False))
+    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=False))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
                  "--seed", "1", "--time-limit", "3", "--quiet"])
     cap = capsys.readouterr()

@@ -46,15 +46,17 @@ def test_every_stage_is_imported_statically() -> None:
     """The pipeline calls the domain functions themselves (no dynamic look-up, no 501)."""
     import inspect
 
-    from planner import plan_motion
+    from planner import plan_motion, programme
     from planner.sequence import plan_sequence
     from solvers.allocation import allocate
     from solvers.segmentation import segment_field
 
     assert pipeline.segment_field is segment_field and pipeline.allocate is allocate
-    assert pipeline.plan_motion is plan_motion and pipeline.plan_sequence is plan_sequence
-    src = inspect.getsource(pipeline)
-    assert "import_module" not in src and "inspect.signature" not in src
+    assert pipeline.plan_motion is plan_motion
+    assert programme.allocate is allocate and programme.plan_sequence is plan_sequence
+    for module in (pipeline, programme):
+        src = inspect.getsource(module)
+        assert "import_module" not in src and "inspect.signature" not in src
 
 
 TIP_TOL_MM = 0.01
