@@ -52,6 +52,7 @@ from scipy import sparse
 from models import clock
 from solvers.effort import MODEL_COLUMN_S, MODEL_NONZERO_S
 from solvers.problem import ConfigProblem
+from solvers.thread_cache import thread_cache
 
 MAX_EXACT_DOUBLE = 2**53
 
@@ -135,20 +136,21 @@ def safe_weights(problem: ConfigProblem, assignment_index: np.ndarray) -> tuple[
     return w, yield_mult, tie_mult
 
 
-_ADJ: dict[int, tuple[weakref.ref, sparse.csr_matrix]] = {}
+_ADJ = "model.adjacency"  # thread_cache name: id(inc) -> (weakref to inc, CSR matrix)
 
 
 def conflict_adjacency(inc) -> sparse.csr_matrix:
     """The incompatibility as a CSR matrix, built once per structure (it does not change
     between the configurations of a sequence; 4 M entries on a dense 1,200-target field)."""
-    hit = _ADJ.get(id(inc))
+    cache = thread_cache(_ADJ)
+    hit = cache.get(id(inc))
     if hit is not None and hit[0]() is inc:
         return hit[1]
     n = len(inc.assignments)
     adj = sparse.csr_matrix((np.ones(len(inc.indices), np.int8), inc.indices, inc.indptr), shape=(n, n))
-    if len(_ADJ) > 8:
-        _ADJ.clear()
-    _ADJ[id(inc)] = (weakref.ref(inc), adj)
+    if len(cache) > 8:
+        cache.clear()
+    cache[id(inc)] = (weakref.ref(inc), adj)
     return adj
 
 

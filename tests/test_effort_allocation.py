@@ -152,3 +152,20 @@ def test_position_angles_run_on_effort_clocks_of_their_own(monkeypatch: pytest.M
     assert signature(slow) == signature(normal)
     assert slow.stats["position_angle_search"] == normal.stats["position_angle_search"]
     assert c1.t_s == c2.t_s and c1.t_s > 2 * 0.8 * 0.9  # both rotations' work charged
+
+
+def test_engine_table_caches_belong_to_their_thread() -> None:
+    """Rotations run in threads: a table one builds is not found (or evicted) by another, so
+    a rotation's work does not depend on how the threads interleave."""
+    import threading
+
+    from solvers.thread_cache import thread_cache
+
+    mine = thread_cache("bitset.fields")
+    mine["k"] = 1
+    seen = {}
+    t = threading.Thread(target=lambda: seen.update(other=thread_cache("bitset.fields")))
+    t.start()
+    t.join()
+    assert seen["other"] == {} and seen["other"] is not mine
+    assert thread_cache("bitset.fields") is mine and mine.pop("k") == 1

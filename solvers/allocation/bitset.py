@@ -43,6 +43,7 @@ from models import clock
 from solvers.effort import BNB_NODE_S, BNB_TABLE_BIT_S, BNB_TABLE_ROW_S, PRUNE_PROBE_S
 from solvers.model import coarse_weights, conflict_adjacency, safe_weights
 from solvers.problem import ConfigProblem
+from solvers.thread_cache import thread_cache
 
 __all__ = ["BnbField", "consistent", "prepare_field", "prune_columns", "solve_bnb_chosen"]
 
@@ -66,7 +67,7 @@ class BnbField:
     target_coarse: np.ndarray  # (n_targets,) coarse weight of an assignment on the target
 
 
-_CACHE: dict[int, tuple[weakref.ref, BnbField]] = {}
+_CACHE = "bitset.fields"  # thread_cache name: id(inc) -> (weakref to inc, BnbField)
 
 
 def _pack_tables(adj: sparse.csr_matrix, order: list[np.ndarray]) -> dict[int, list[int]]:
@@ -112,7 +113,8 @@ def prepare_field(problem: ConfigProblem) -> BnbField:
     n_arms = len(a.arm_start) - 1
     w = coarse_weights(problem, np.arange(len(a)))
     key = w.tobytes()
-    hit = _CACHE.get(id(inc))
+    cache = thread_cache(_CACHE)
+    hit = cache.get(id(inc))
     if hit is not None and hit[0]() is inc and hit[1].weight_key == key:
         return hit[1]
     order = []
@@ -131,9 +133,9 @@ def prepare_field(problem: ConfigProblem) -> BnbField:
     t_coarse = np.zeros(n_t, np.int64)
     np.maximum.at(t_coarse, tgt[real], w[real])
     f = BnbField(n_arms, order, pos, nconf, key, coarse, [int(v) for v in tgt], t_coarse)
-    if len(_CACHE) > 8:
-        _CACHE.clear()
-    _CACHE[id(inc)] = (weakref.ref(inc), f)
+    if len(cache) > 8:
+        cache.clear()
+    cache[id(inc)] = (weakref.ref(inc), f)
     return f
 
 

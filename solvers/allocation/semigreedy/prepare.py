@@ -20,6 +20,7 @@ from solvers.allocation.semigreedy.patrolling import (
     validate_penalty_matrix,
 )
 from solvers.problem import ConfigProblem
+from solvers.thread_cache import thread_cache
 
 Q_TOL_RAD = 1e-9  # a rest location "is" the current position within this tolerance
 DISP_EPS = 1e-9  # displacement improvements smaller than this are noise
@@ -46,7 +47,7 @@ class FieldStatic:
     pairs: dict = field(default_factory=dict)  # radius -> [neighbour CSR ptr, idx, last (live, counts)]
 
 
-_FIELD_CACHE: dict[tuple, tuple[object, FieldStatic]] = {}
+_FIELD_CACHE = "semigreedy.fields"  # thread_cache name: key -> (inc, FieldStatic)
 
 
 @functools.lru_cache(maxsize=8)
@@ -70,7 +71,8 @@ def field_static(problem: ConfigProblem, penalty: np.ndarray, first_slice_deg: f
     inc = problem.incompatibility
     key = (id(inc), penalty.shape, penalty.tobytes(), float(first_slice_deg),
            None if problem.target_xy_mm is None else id(problem.target_xy_mm))
-    hit = _FIELD_CACHE.get(key)
+    cache = thread_cache(_FIELD_CACHE)
+    hit = cache.get(key)
     if hit is not None and hit[0] is inc:
         return hit[1]
     a = problem.assignments
@@ -105,9 +107,9 @@ def field_static(problem: ConfigProblem, penalty: np.ndarray, first_slice_deg: f
     reach_h = np.where(apt > 0, n_arms - apt, 0).astype(np.int64)
     fs = FieldStatic(pen, r, max(int(in_service.sum()), 1), park_idx, rn_ptr, rn_idx,
                       inc.indices.astype(np.intp), inc.indptr.tolist(), reach_h, apt > 0)
-    if len(_FIELD_CACHE) > 8:
-        _FIELD_CACHE.clear()
-    _FIELD_CACHE[key] = (inc, fs)
+    if len(cache) > 8:
+        cache.clear()
+    cache[key] = (inc, fs)
     return fs
 
 
