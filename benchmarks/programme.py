@@ -233,7 +233,8 @@ def main() -> None:
     ap.add_argument("--targets", type=int, default=2000)
     ap.add_argument("--side-deg", type=float, default=0.5)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--time-limit-s", type=float, default=30.0, help="per solver call")
+    ap.add_argument("--time-limit-s", type=float, default=30.0,
+                    help="stored with the job (a plan job is bounded by --budget-s alone)")
     ap.add_argument("--budget-s", type=float, default=3600.0, help="the whole job")
     ap.add_argument("--timeout-s", type=float, default=1800.0, help="kill-restart: give up after")
     a = ap.parse_args()
