@@ -56,7 +56,13 @@ FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml"
            ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
 MAX_ID_CHARS = 128
 
-_DECIMAL = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
+# unambiguous (no two ways to match a digit run), so a match takes time linear in the cell
+_DECIMAL = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)([eE][+-]?\d+)?$")
+#: An RA or Dec cell longer than this is refused before any parsing (the longest sexagesimal
+#: form with its separators and many decimals is well under it).
+MAX_ANGLE_CELL_CHARS = 64
+#: At most this much of an offending cell is echoed in an error message.
+ECHO_CHARS = 40
 _SEXAGESIMAL = re.compile(r"^[+-]?\d{1,3}\s*[:\shd°]\s*\d[\d\s:.hdms°′″'\"]*$")
 
 
@@ -255,10 +261,13 @@ def _angle_cell(text: str, field: str, sexa_unit: Any, unit: Any, cell: str) -> 
 
     if not text:
         raise TargetFileError(f"{cell}: empty {field} value")
+    if len(text) > MAX_ANGLE_CELL_CHARS:
+        raise TargetFileError(f"{cell}: {field} value of {len(text)} characters "
+                              f"({_echo(text)}) is longer than {MAX_ANGLE_CELL_CHARS}: not an angle")
     if _DECIMAL.match(text):
         return float(text) * (unit.to(u.deg) if unit is not None else 1.0), "decimal"
     if not _SEXAGESIMAL.match(text):
-        raise TargetFileError(f"{cell}: {text!r} is not an angle (decimal degrees, or "
+        raise TargetFileError(f"{cell}: {_echo(text)} is not an angle (decimal degrees, or "
                               f"sexagesimal such as {'16:41:41.7' if field == 'ra_deg' else '+36:27:41'})")
     try:
         named = re.search(r"[hd°]", text) is not None
@@ -267,8 +276,13 @@ def _angle_cell(text: str, field: str, sexa_unit: Any, unit: Any, cell: str) -> 
             angle = Angle(text) if named else Angle(text, unit=sexa_unit)
         value = float(angle.to_value(u.deg))
     except (ValueError, u.UnitsError, Warning) as exc:
-        raise TargetFileError(f"{cell}: {text!r} is not an angle ({exc})") from exc
+        raise TargetFileError(f"{cell}: {_echo(text)} is not an angle ({exc})") from exc
     return value, "sexagesimal"
+
+
+def _echo(text: str) -> str:
+    """``text`` quoted for an error message, cut to :data:`ECHO_CHARS` characters."""
+    return repr(text) if len(text) <= ECHO_CHARS else repr(text[:ECHO_CHARS]) + f"... ({len(text)} characters)"
 
 
 def _row_list(rows: Sequence[int], most: int = 8) -> str:

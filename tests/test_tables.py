@@ -175,3 +175,60 @@ def test_fits_table_with_bytes_ids(tmp_path: Path) -> None:
     t.write(tmp_path / "t.fits")
     assert [(r["id"], r["priority"]) for r in read_targets(tmp_path / "t.fits")] == [
         ("s1", 3), ("s2", 7)]
+
+
+ADVERSARIAL_CELLS = [
+    lambda n: "1" * n + "x",            # a digit run that fails at its end
+    lambda n: "1" * n + ".",            # ... or ends in a point
+    lambda n: "1." + "1" * n + "e",     # a mantissa whose exponent is missing
+    lambda n: "12:" + "1" * n + "x",    # a sexagesimal-looking run
+    lambda n: "+" + "0" * n + "e+",
+]
+
+
+@pytest.mark.parametrize("make", ADVERSARIAL_CELLS)
+def test_angle_cell_patterns_take_linear_time(make) -> None:
+    """The number patterns never backtrack: 64 KB of an adversarial cell takes no longer, per
+    character, than 4 KB (a quadratic pattern takes 16 times longer per character)."""
+    import time
+
+    from service.tables import _DECIMAL, _SEXAGESIMAL
+
+    def per_char_s(n: int) -> float:
+        cell = make(n)
+        t0 = time.perf_counter()
+        for _ in range(3):
+            _DECIMAL.match(cell)
+            _SEXAGESIMAL.match(cell)
+        return (time.perf_counter() - t0) / (3 * len(cell))
+
+    small, large = per_char_s(4_000), per_char_s(64_000)
+    assert large < 4 * small + 1e-7, (small, large)
+
+
+@given(st.from_regex(r"[+-]?[0-9.eE+x-]{0,12}", fullmatch=True))
+def test_the_decimal_pattern_reads_what_float_reads(cell: str) -> None:
+    """Independent oracle: a plain decimal cell is whatever Python's float() accepts among
+    strings of digits, signs, points and exponents (no spaces, underscores, inf or nan)."""
+    from service.tables import _DECIMAL
+
+    try:
+        float(cell)
+        ok = True
+    except ValueError:
+        ok = False
+    assert bool(_DECIMAL.match(cell)) == ok
+
+
+def test_a_long_cell_is_refused_at_once_naming_the_cell_and_echoing_little(tmp_path: Path) -> None:
+    import time
+
+    p = tmp_path / "long.csv"
+    p.write_text("id,ra,dec\na,10,20\nb," + "1" * 30_000 + "x,20\n")
+    t0 = time.perf_counter()
+    with pytest.raises(TargetFileError) as exc:
+        read_targets(p)
+    assert time.perf_counter() - t0 < 2.0
+    msg = str(exc.value)
+    assert "row 2, line 3, column 'ra'" in msg and "longer than 64" in msg
+    assert len(msg) < 300
