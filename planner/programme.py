@@ -25,6 +25,7 @@ may be slower than the effort clock's calibration before the wall-clock guard st
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ __all__ = [
 ]
 
 Progress = Callable[[float], None]
+log = logging.getLogger("planner")
 
 
 def _noop(_: float) -> None:
@@ -342,7 +344,5 @@ def _sequence(inst: Instrument, allocation: AllocationResult, targets: PlaneTarg
     try:
         return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress), None
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
-        import logging
-
-        logging.getLogger("planner").exception("motion sequence planning failed")
+        log.exception("motion sequence planning failed")
         return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"

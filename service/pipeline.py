@@ -266,7 +266,7 @@ def pointing_result(task: PointingTask, inst: Instrument,
                     ) -> dict[str, Any]:
     """:func:`plan_pointing` as a PlanPointing dict: the unit of work a plan job commits, and
     what a Dask worker returns. Its ``stats.rounds`` holds the outcome of this round
-    (:func:`outcome`)."""
+    (:func:`outcome_out`)."""
     ids = {int(k): t.id for k, t in zip(task.pointing.target_indices, task.members, strict=True)}
     t0 = time.monotonic()
     pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
@@ -283,6 +283,7 @@ def pointing_result(task: PointingTask, inst: Instrument,
 
 
 def outcome_out(o: PointingOutcome) -> dict[str, Any]:
+    """One round's outcome as an entry of a PlanPointing's ``stats.rounds``."""
     return {"round": o.round, "share_s": o.share_s, "effort_s": o.effort_s,
             "executable": o.executable, "failed_legs": o.failed_legs, "observed": o.observed,
             "overran": o.overran}
@@ -302,11 +303,10 @@ def keep_better(old: dict[str, Any] | None, new: dict[str, Any], index: int) -> 
     (:func:`planner.programme.better`), recording both rounds' outcomes."""
     if old is None:
         return new
-    history = outcomes_of(old, index) + outcomes_of(new, index)
-    old_best = max(outcomes_of(old, index), key=rank)
-    kept = new if better(outcomes_of(new, index)[-1], old_best) else old
-    kept = {**kept, "stats": {**kept["stats"], "rounds": [outcome_out(o) for o in history]}}
-    return kept
+    earlier, latest = outcomes_of(old, index), outcomes_of(new, index)
+    kept = new if better(latest[-1], max(earlier, key=rank)) else old
+    return {**kept, "stats": {**kept["stats"],
+                              "rounds": [outcome_out(o) for o in earlier + latest]}}
 
 
 def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,

@@ -557,13 +557,15 @@ class PlanPointing(PointingOut):
     stats: Stats = Field(default_factory=dict, description="Allocation and motion statistics "
                          "of this pointing; `allocation` is the allocator's (its completeness "
                          "before the motion planner's changes, over the pointing's targets); "
-                         "`motion` holds legs, leg_budget_s, compute_s, "
-                         "failed_legs, targets_moved, legs_via_park, configurations_added, "
+                         "`motion` holds legs, budget_s (the effort seconds its legs were "
+                         "given), failed_legs, targets_moved, legs_via_park, configurations_added, "
                          "targets_dropped; `compute_s` is the pointing's wall time; `effort` "
                          "holds effort_s (the work its searches were budgeted on, in reference "
                          "seconds) and overran (true when its wall-clock share, not its effort "
                          "budget, stopped them: only then can the same request give another "
-                         "plan).")
+                         "plan); `rounds` holds the outcome of every round that planned the "
+                         "pointing (round, share_s, effort_s, executable, failed_legs, observed, "
+                         "overran); the plan returned is the best of them.")
 
 
 class PlanResponse(Response):
