@@ -81,6 +81,22 @@ WARM_START_ITERATIONS = 5  # a MIP start / hint: the exact solver improves on it
 # ----------------------------------------------------------- multistart (Alg. 3)
 
 
+def preset_clashes(st: Prepared) -> list[tuple[int, int]]:
+    """Pairs of out-of-service arms whose only locations are incompatible with each other.
+
+    Such arms are placed before anything else and never moved, so when any pair clashes no
+    complete collision-free choice exists: the problem is infeasible, as the exact model
+    finds it."""
+    fixed = {int(st.preset[k]): int(k) for k in np.flatnonzero(st.preset >= 0)}
+    pairs = set()
+    for x, k in fixed.items():
+        for y in st.indices[st.indptr[x]:st.indptr[x + 1]].tolist():
+            j = fixed.get(int(y))
+            if j is not None:
+                pairs.add((min(k, j), max(k, j)))
+    return sorted(pairs)
+
+
 def _fallback(st: Prepared) -> State | None:
     """Every arm at rest (current, else park), when compatible: the last resort."""
     s = State.empty(st)
@@ -143,7 +159,8 @@ def solve_semigreedy(problem: ConfigProblem, options: SemiGreedyOptions | None =
     ``seed`` defaults to ``problem.seed``; the same problem and options give the same
     solution. ``time_limit_s`` (default ``problem.time_limit_s``) bounds the multistart
     (at least one iteration runs). The returned status is ``"feasible"`` (a heuristic
-    proves nothing) or ``"infeasible"`` when no complete collision-free choice was found;
+    proves nothing) or ``"infeasible"`` when no complete collision-free choice was found
+    (at once, without iterating, when out-of-service arms clash: :func:`preset_clashes`);
     ``gap`` is the relative gap to the collision-free matching upper bound, an upper
     bound on the true optimality gap. ``stats`` holds the bounds, iterations, timings.
     """
@@ -155,9 +172,15 @@ def solve_semigreedy(problem: ConfigProblem, options: SemiGreedyOptions | None =
     st = prepare(problem, opts)
     clock.charge(len(problem.assignments) * SEMIGREEDY_PREPARE_COLUMN_S)
     t_prep = clock.now()
-    best, best_key, n_done, ls_moves, best_iter = _multistart(st, opts, rng, t0, limit)
-    if best is None:
-        best = _fallback(st)
+    clashes = preset_clashes(st)
+    best: State | None = None
+    best_key: tuple | None = None
+    n_done = ls_moves = 0
+    best_iter = -1
+    if not clashes:
+        best, best_key, n_done, ls_moves, best_iter = _multistart(st, opts, rng, t0, limit)
+        if best is None:
+            best = _fallback(st)
     stats = {
         "method": "semigreedy", "iterations": n_done, "best_iteration": best_iter,
         "local_search_moves": ls_moves, "upper_bound_priority": st.ub_priority_all,
@@ -165,6 +188,7 @@ def solve_semigreedy(problem: ConfigProblem, options: SemiGreedyOptions | None =
         "live_targets": int(len(st.eta)), "seed": int(seed) if seed is not None else None,
         "alpha": opts.alpha, "gamma": opts.gamma, "arm_selection": opts.arm_selection,
         "time_prepare_s": t_prep - t0, "time_s": clock.now() - t0,
+        "out_of_service_clashes": [list(p) for p in clashes],
     }
     if best is None:
         park = np.array([int(st.current_idx[k]) if st.current_idx[k] >= 0 else int(st.park_idx[k])
