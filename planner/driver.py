@@ -264,6 +264,7 @@ def plan_motion(
     turn_bias_s: float = 0.0,
     via: np.ndarray | None | str = "park",
     options: MotionOptions | None = None,
+    budget: Budget | None = None,
 ) -> MotionPlan:
     """Collision-free, verified trajectories of all arms from ``start_q`` to ``goal_q`` (thesis 6.3).
 
@@ -278,8 +279,9 @@ def plan_motion(
     The keywords are the fields of :class:`~planner.options.MotionOptions` (thesis table
     6.1: ``dt_s`` the motion-action step, ``dt_col_s`` the collision-check step,
     ``max_start_stop`` the stops allowed per arm, ``horizon_s`` T_f); ``options``, when
-    given, replaces them all. ``time_budget_s`` is shared by the strategies (module
-    docstring). Same input and ``seed`` -> same plan.
+    given, replaces them all. ``budget`` (on the caller's clock; default:
+    ``time_budget_s`` from now) is shared by the strategies (module docstring). Same input,
+    ``seed`` and budget -> same plan.
     """
     if options is None:
         options = MotionOptions(dt_s=dt_s, dt_col_s=dt_col_s, max_start_stop=max_start_stop,
@@ -287,7 +289,7 @@ def plan_motion(
                                 max_attempts=max_attempts, grid=grid, strategies=tuple(strategies), rpp=rpp,
                                 rpp_max_paths=rpp_max_paths, turn_sense=turn_sense, turn_bias_s=turn_bias_s,
                                 via=via)
-    budget = Budget.start(time_budget_s)
+    budget = Budget.start(time_budget_s) if budget is None else budget
     return plan_leg(Leg.build(instrument, start_q, goal_q, options), budget)
 
 

@@ -308,7 +308,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
     result = allocate(inst, targets, method=options.method, solver=options.solver,
                       configurations="all", seed=options.seed,
-                      time_limit_s=table.allocation_share * budget.total_s,
+                      budget=budget.share(table.allocation_share),
                       progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
                       options=allocation_options(options.park_move_limit_s))
     progress(0.5)
@@ -319,7 +319,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
             f"no time left for motion planning ({max(motion_s, 0.0):.2f} s of the pointing's "
             "share for its legs)")
     else:
-        seq, err = _sequence(inst, result, targets, options, motion_s,
+        seq, err = _sequence(inst, result, targets, options, budget,
                              lambda f: progress(0.5 + 0.5 * f))
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s}}
@@ -327,22 +327,20 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
 
 
 def _sequence(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets,
-              options: PointingOptions, motion_s: float,
+              options: PointingOptions, budget: Budget,
               progress: Progress) -> tuple[SequencePlan, str | None]:
-    """``planner.sequence.plan_sequence`` on one pointing's configurations within
-    ``motion_s``; never raises: a planner failure comes back as the unchanged configurations
-    with its reason."""
+    """``planner.sequence.plan_sequence`` on one pointing's configurations within what
+    ``budget`` (the pointing's) has left; never raises: a planner failure comes back as the
+    unchanged configurations with its reason."""
     configs = tuple(allocation.configurations)
-    # a leg may use the whole motion time (the sequence shares what is left over the legs
-    # still to plan); a leg the sequence starts gets at least MIN_LEG_S, so its limit ends
-    # that much early
-    leg_s = motion_s if math.isfinite(motion_s) else 60.0
-    limit_s = None if math.isinf(motion_s) else max(motion_s - MIN_LEG_S, 0.01)
+    # a leg may use all the motion time left (the sequence shares it over the legs still
+    # to plan); an unlimited pointing gives each leg the library's minute
+    leg_s = budget.limit_s if math.isfinite(budget.limit_s) else 60.0
     seq_options = SequenceOptions(seed=options.seed, leg_time_limit_s=float(leg_s),
-                                  time_limit_s=limit_s,
                                   park_move_limit_s=options.park_move_limit_s)
     try:
-        return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress), None
+        return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress,
+                             budget=budget), None
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
         log.exception("motion sequence planning failed")
         return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"

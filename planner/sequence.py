@@ -110,7 +110,10 @@ class SequenceOptions:
 
     seed: int = 0
     leg_time_limit_s: float = 10.0  # each plan_motion call
-    time_limit_s: float | None = None  # the whole sequence (None: no limit beyond the legs')
+    # the whole sequence, used when plan_sequence is given no budget (None: no limit beyond
+    # the legs'); a leg is started only while MIN_LEG_S of it is left, so the sequence ends
+    # within it
+    time_limit_s: float | None = None
     max_changes: int = 24  # allocation changes tried before a leg is left failed
     # a target moved or put on another IK branch stays within this of park (the allocation's
     # park move limit, solvers.sequencing.options.SequenceOptions; None: no limit)
@@ -181,14 +184,15 @@ class _Sequencer:
     """The state of one pointing's plan while its legs are planned and repaired."""
 
     def __init__(self, instrument: Instrument, configurations: Sequence[Configuration],
-                 options: SequenceOptions, priority_of: dict[str, int],
+                 options: SequenceOptions, priority_of: dict[str, int], budget: Budget,
                  progress: Callable[[float], None] | None = None) -> None:
         self.ins = instrument
         self.progress = progress
         self.opt = options
         self.priority_of = priority_of
         self.configs = list(configurations)
-        self.budget = Budget.start(options.time_limit_s)  # the whole sequence's (None: unlimited)
+        self.whole = budget  # the sequence's: every leg ends within it
+        self.budget = budget.keep(MIN_LEG_S)  # a leg is started only before this deadline
         self.changes: list[PlanChange] = []
         self.dropped: list[Unallocated] = []
         self.legs: list[MotionPlan] = []
@@ -209,8 +213,8 @@ class _Sequencer:
             return MotionPlan("failed", math.nan, (), arms,
                               {"reasons": {k: "no time left in the sequence's time limit" for k in arms}})
         self.plans += 1
-        return plan_motion(self.ins, start_q, goal_q, seed=self.opt.seed, time_budget_s=self.budget_s(),
-                           via=None)
+        return plan_motion(self.ins, start_q, goal_q, seed=self.opt.seed,
+                           budget=self.whole.child(self.budget_s()), via=None)
 
     def park_to(self, config: Configuration) -> MotionPlan:
         key = _key(config)
@@ -429,8 +433,14 @@ class _Sequencer:
 
 def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration],
                   options: SequenceOptions | None = None, *, targets: PlaneTargets | None = None,
-                  progress: Callable[[float], None] | None = None) -> SequencePlan:
+                  progress: Callable[[float], None] | None = None,
+                  budget: Budget | None = None) -> SequencePlan:
     """Plans park -> c1 -> ... -> park and repairs the plan where a leg cannot be planned.
+
+    ``budget`` is the sequence's time, on the caller's clock (default: ``options.time_limit_s``
+    from now): every leg gets a child of it (its share of what is left over the legs still to
+    plan, at most ``options.leg_time_limit_s``, at least :data:`MIN_LEG_S`) and none is
+    started in its last :data:`MIN_LEG_S`, so the sequence ends within it.
 
     ``targets`` (the pointing's targets, as given to the allocator) supply the priorities that
     decide which blocking target moves first (the lowest); without them all count the same.
@@ -441,7 +451,8 @@ def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration
     priority_of = {} if targets is None else {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
     if not configurations:
         return SequencePlan((), (_stationary(instrument),), (), (), {"legs": 1})
-    return _Sequencer(instrument, configurations, options, priority_of, progress).run()
+    budget = Budget.start(options.time_limit_s) if budget is None else budget.child(math.inf)
+    return _Sequencer(instrument, configurations, options, priority_of, budget, progress).run()
 
 
 def _stationary(instrument: Instrument) -> MotionPlan:

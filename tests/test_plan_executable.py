@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from models.budget import Budget
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets
@@ -56,7 +57,7 @@ def fake_plan_sequence(fail: bool):
     calls: list[SequenceOptions] = []
 
     def plan_sequence(inst: Any, configurations: Any, options: SequenceOptions, *,
-                      targets: PlaneTargets, progress: Any) -> SequencePlan:
+                      targets: PlaneTargets, progress: Any, budget: Budget) -> SequencePlan:
         assert isinstance(options, SequenceOptions) and options.leg_time_limit_s > 0
         progress(1.0)
         assert isinstance(targets, PlaneTargets) and len(targets.ids) == len(TARGETS)

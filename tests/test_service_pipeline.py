@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from models import clock
+from models.budget import Budget
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import AllocationResult, ArmAssignment, Configuration, MotionPlan, PlaneTargets
@@ -127,16 +128,18 @@ class SlowStages:
         self.allocation_limits: list[float] = []
         self.sequence_limits: list[tuple[float, float | None]] = []
 
-    def allocate(self, inst: Any, targets: PlaneTargets, *, time_limit_s: float, **_: Any
+    def allocate(self, inst: Any, targets: PlaneTargets, *, budget: Budget, **_: Any
                  ) -> AllocationResult:
-        self.allocation_limits.append(time_limit_s)
-        _use(time_limit_s)
+        self.allocation_limits.append(budget.limit_s)
+        _use(budget.left_s())
         return AllocationResult((_configuration(0, targets), _configuration(1, targets)), ())
 
     def plan_sequence(self, inst: Any, configurations: Any, options: SequenceOptions, *,
-                      targets: Any = None, progress: Any = None) -> SequencePlan:
-        self.sequence_limits.append((options.leg_time_limit_s, options.time_limit_s))
-        _use(options.time_limit_s if options.time_limit_s is not None else 0.0)
+                      targets: Any = None, progress: Any = None, budget: Budget | None = None
+                      ) -> SequencePlan:
+        left_s = 0.0 if budget is None else max(budget.left_s(), 0.0)  # None: no configurations
+        self.sequence_limits.append((options.leg_time_limit_s, left_s))
+        _use(left_s)
         legs = tuple(MotionPlan("ok", 0.0, ()) for _ in range(len(configurations) + 1))
         return SequencePlan(tuple(configurations), legs)
 

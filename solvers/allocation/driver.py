@@ -21,6 +21,7 @@ import numpy as np
 
 import solvers.effort  # noqa: F401  (prices the work of the incompatibility structure)
 from models import clock
+from models.budget import Budget
 from models.errors import InputError, TimeLimitExceeded
 from models.incompatibility import build_assignments, incompatibility_for_targets
 from models.instrument import Instrument
@@ -140,9 +141,11 @@ def allocate(
     progress: Progress | None = None,
     position_angles_deg: tuple[float, ...] | None = None,
     options: AllocationOptions | None = None,
+    budget: Budget | None = None,
 ) -> AllocationResult:
     """Allocate arms to targets: ``configurations="one"`` (best single configuration) or
-    ``"all"`` (sequence to full completeness).  ``time_limit_s`` bounds the whole call.
+    ``"all"`` (sequence to full completeness).  ``budget`` (on the caller's clock) bounds
+    the whole call; without one, ``time_limit_s`` from now does.
 
     ``method``: "ilp" (exact, engine ``solver``: "bnb", "highs" or "cpsat") or
     "semigreedy" (SGPBTA).  ``options``: the typed options of the engine and of the
@@ -151,54 +154,58 @@ def allocate(
     the returned x/y of assignments are in the rotated frame of that angle.
     """
     name = backend_name(method, solver)
-    start_q = _check_inputs(instrument, configurations, time_limit_s, seed, collision_buffer_mm, start_q, fixed)
+    if budget is not None and not isinstance(budget, Budget):
+        raise InputError("budget", f"must be a Budget, got {type(budget).__name__}")
+    limit_s = time_limit_s if budget is None else budget.limit_s
+    start_q = _check_inputs(instrument, configurations, limit_s, seed, collision_buffer_mm, start_q, fixed)
     opts = AllocationOptions() if options is None else options
     if not isinstance(opts, AllocationOptions):
         raise InputError("options", f"must be an AllocationOptions, got {type(opts).__name__}")
     backend = get_backend(name)
     solve_one = backend.solver(opts.engine_for(name))
-    sequencing = opts.sequencing(configurations, float(time_limit_s), backend.sequencing)
+    sequencing = opts.sequencing(configurations, float(limit_s), backend.sequencing)
     exact_one, engines = stage_engines(backend)
 
-    def run(tgts: PlaneTargets) -> AllocationResult:
-        # the structure build counts against the call's limit: it gets the same deadline
-        # and the sequence only what is left
-        t0 = clock.now()
+    def run(tgts: PlaneTargets, call: Budget) -> AllocationResult:
+        # the structure build counts against the call's budget; the sequence gets a budget
+        # of its own of what is left
         try:
             inc = incompatibility_for_targets(
                 instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
                 blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
-                deadline_s=t0 + time_limit_s, time_limit_s=time_limit_s,
+                deadline_s=call.deadline_s, time_limit_s=call.limit_s,
                 park_move_limit_s=sequencing.sequence.park_move_limit_s)
         except TimeLimitExceeded:
-            return timed_out_result(instrument, tgts, fixed, clock.now() - t0,
+            return timed_out_result(instrument, tgts, fixed, call.elapsed_s(),
                                     sequencing.sequence.park_move_limit_s)
-        left_s = max(time_limit_s - (clock.now() - t0), 1e-3)
+        rest = Budget.start(max(call.left_s(), 1e-3))
         return sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
-                                       buffer_mm=collision_buffer_mm, time_limit_s=left_s, seed=int(seed),
+                                       buffer_mm=collision_buffer_mm, budget=rest, seed=int(seed),
                                        progress=progress, incompatibility=inc, exact_one=exact_one,
                                        engines=engines)
 
     if not position_angles_deg:
-        return run(targets)
+        return run(targets, Budget.start(limit_s) if budget is None else budget)
     angles = [float(a) for a in position_angles_deg]
-    return _best_angle(angles, _rotations(run, targets, angles))
+    rotation_s = limit_s if budget is None else budget.left_s()
+    return _best_angle(angles, _rotations(run, targets, angles, rotation_s))
 
 
-def _rotations(run: Callable[[PlaneTargets], AllocationResult], targets: PlaneTargets,
-               angles: list[float]) -> list[AllocationResult]:
-    """``run`` on every rotation of ``targets``, in parallel threads.  In effort mode each
-    rotation runs on an effort clock of its own (same wall-clock guard), so that its budget
-    does not depend on how the threads interleave, and the work of all of them is then
-    charged to the caller's clock."""
+def _rotations(run: Callable[[PlaneTargets, Budget], AllocationResult], targets: PlaneTargets,
+               angles: list[float], limit_s: float) -> list[AllocationResult]:
+    """``run`` on every rotation of ``targets``, in parallel threads, each with a budget of
+    ``limit_s``.  In effort mode each rotation runs on an effort clock of its own (same
+    wall-clock guard), and its budget is started on that clock, so that it does not depend
+    on how the threads interleave; the work of all of them is then charged to the caller's
+    clock."""
     parent = clock.effort_clock()
 
     def one(angle: float) -> tuple[AllocationResult, clock.EffortClock | None]:
         if parent is None:
-            return run(rotate_targets(targets, angle)), None
+            return run(rotate_targets(targets, angle), Budget.start(limit_s)), None
         wall_s = None if parent.wall_end is None else parent.wall_end - time.perf_counter()
         with clock.effort(wall_limit_s=wall_s) as own:
-            return run(rotate_targets(targets, angle)), own
+            return run(rotate_targets(targets, angle), Budget.start(limit_s)), own
 
     with ThreadPoolExecutor(max_workers=min(len(angles), MAX_ANGLE_THREADS)) as ex:
         done = list(ex.map(one, angles))

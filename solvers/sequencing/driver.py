@@ -193,13 +193,15 @@ def sequence_configurations(
     incompatibility: Incompatibility | None = None,
     exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
     engines: dict[str, str] | None = None,
+    budget: Budget | None = None,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
     ``solve_one``: the engine of one configuration; ``options``: the typed options of the
     loop and its post-passes (:class:`~solvers.sequencing.options.SequencingOptions`;
-    fields left at None take the driver's defaults).  ``time_limit_s`` bounds the whole
-    sequence (pending targets then get reason ``no_time``); ``config_time_limit_s`` caps
+    fields left at None take the driver's defaults).  ``budget`` (on the caller's clock;
+    default: ``time_limit_s`` from now) bounds the whole sequence, and its shares are
+    fractions of its ``total_s`` (pending targets then get reason ``no_time``); ``config_time_limit_s`` caps
     each single solve, and with ``adaptive_limits`` each solve gets at most twice its share
     of the remaining time (remaining / ceil(pending / arms)), so a few hard configurations
     cannot starve the rest; a solve cut short reports ``feasible`` with its gap.
@@ -212,7 +214,7 @@ def sequence_configurations(
     target at a time (default: CP-SAT); ``engines`` (which engine did which part) is
     returned as ``stats["engines"]``.
     """
-    budget = Budget.start(time_limit_s)
+    budget = Budget.start(time_limit_s) if budget is None else budget
     opts = (SequencingOptions() if options is None else options).resolved()
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
