@@ -42,7 +42,7 @@ from solvers.sequencing.options import SequenceOptions as AllocationSequenceOpti
 __all__ = [
     "DEFAULT_LIMIT_S", "SHARES", "PointingOptions", "PointingOutcome", "PointingPlan", "ProgrammeShares", "RoundTask",
     "better", "next_round", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares",
-    "rank", "reserve_s", "run_rounds", "usable_s",
+    "plan_progress", "rank", "reserve_s", "run_rounds", "usable_s",
 ]
 
 Progress = Callable[[float], None]
@@ -80,9 +80,27 @@ class ProgrammeShares:
 
 
 SHARES = ProgrammeShares()
+#: A plan's progress once its field is segmented.
+SEGMENTED = 0.05
+#: A plan's progress once every pointing has its first-round plan; the later rounds (those
+#: that plan again the pointings with a failed leg) share the rest equally.
+FIRST_ROUND_DONE = 0.85
 #: The limit of a whole plan when the caller gives none: the instrument's configuration time
 #: goal, and the default of ``POST /v1/plans`` and ``mxs-planner plan``.
 DEFAULT_LIMIT_S = 120.0
+
+
+def plan_progress(round_: int, done: float, total: int, table: ProgrammeShares = SHARES) -> float:
+    """A plan's progress with ``done`` of the ``total`` tasks of round ``round_`` computed (a
+    fraction for the part done of one being computed): :data:`SEGMENTED`, then round 1 to
+    :data:`FIRST_ROUND_DONE` in proportion to its pointings, then each later round an equal
+    part of the rest. It never decreases from one round to the next, and a plan ends at 1
+    whichever round it stops after."""
+    part = min(max(done / max(total, 1), 0.0), 1.0)
+    if round_ <= 1:
+        return SEGMENTED + (FIRST_ROUND_DONE - SEGMENTED) * part
+    step = (1.0 - FIRST_ROUND_DONE) / max(table.rounds - 1, 1)
+    return min(FIRST_ROUND_DONE + step * (round_ - 2 + part), 1.0)
 
 
 # ------------------------------------------------------------------------ shares

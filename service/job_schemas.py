@@ -67,9 +67,12 @@ class JobStatusBase(Response):
     updated_at: float = Field(description="Unix time of the last state change.")
     pointings_done: int | None = Field(None, ge=0, description="A plan job: pointings whose "
                                        "plan is computed and stored. `progress` is 0.05 once "
-                                       "the field is segmented, then 0.05 + 0.95 * "
-                                       "pointings_done / pointings_total (plus the part done "
-                                       "of a pointing being computed in the job pool).")
+                                       "the field is segmented, then 0.05 + 0.80 * "
+                                       "pointings_done / pointings_total in the first round "
+                                       "(plus the part done of a pointing being computed in "
+                                       "the job pool); each later round, which plans again the "
+                                       "pointings with a failed leg, takes an equal part of "
+                                       "the last 0.15.")
     pointings_total: int | None = Field(None, ge=0, description="A plan job: its pointings "
                                         "(known once the field is segmented).")
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from planner.programme import SEGMENTED, plan_progress
 from service.errors import json_safe
 
 if TYPE_CHECKING:
@@ -87,17 +88,14 @@ _COLUMNS = {
 }
 _PUBLIC = ("job_id", "kind", "status", "progress", "result", "error", "created_at", "updated_at",
            "pointings_done", "pointings_total")
-# the progress of a plan job once its field is segmented; its pointings share the rest
-SEGMENTED = 0.05
 # the job may take a commit: open, and (when an owner is named) still that owner's
 _OURS = f"job_id = ? AND status IN {OPEN} AND (? = '' OR owner = ?)"
 
 
 def pointing_progress(done: float, total: int) -> float:
-    """The progress of a plan job with ``done`` of its ``total`` pointings computed (a
-    fraction for the part done of one being computed): :data:`SEGMENTED`, then the rest in
-    proportion to the pointings, as the synchronous pipeline reports it."""
-    return min(SEGMENTED + (1.0 - SEGMENTED) * done / max(total, 1), 1.0)
+    """The progress of a plan job with ``done`` of its ``total`` pointings planned in its
+    first round (:func:`planner.programme.plan_progress`, as the synchronous plan reports it)."""
+    return plan_progress(1, done, total)
 
 
 def connect(db_path: str | Path) -> sqlite3.Connection:
@@ -308,8 +306,8 @@ class JobStore:
 
     def start_pointings(self, job_id: str, owner: str, total: int) -> bool:
         """Record that the job's field is segmented into ``total`` pointings (progress
-        :data:`SEGMENTED`, then :func:`pointing_progress`); False when the job is no longer
-        ``owner``'s (``owner`` '' : any open job)."""
+        :data:`planner.programme.SEGMENTED`, then :func:`pointing_progress`); False when the
+        job is no longer ``owner``'s (``owner`` '' : any open job)."""
         with _closing(connect(self.db_path)) as con:
             return con.execute(
                 "UPDATE jobs SET pointings_total=?, pointings_done=(SELECT COUNT(*) FROM "

@@ -35,6 +35,7 @@ from planner.programme import (
     PointingPlan,
     RoundTask,
     better,
+    plan_progress,
     pointing_need,
     pointing_seed,
     rank,
@@ -323,19 +324,18 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     limit = plan_limit_s(req, budget_s)
     budget = Budget.start(limit - reserve_s(limit))  # the wall clock: outside any effort block
     seg = segment_plan(req, inst)
-    progress(0.05)
-    n = max(len(seg.pointings), 1)
+    progress(plan_progress(1, 0, 1))
     answers: dict[int, dict[str, Any]] = {}
 
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
-        for task in tasks:
+        for done, task in enumerate(tasks):
             i = task.index
-            lo, hi = 0.05 + 0.95 * i / n, 0.05 + 0.95 * (i + 1) / n
-            answer = pointing_result(pointing_task(req, seg, task), inst,
-                                     lambda f, lo=lo, hi=hi: progress(lo + (hi - lo) * f),
-                                     wall_limit_s=max(budget.left_s(), 0.0))
+            answer = pointing_result(
+                pointing_task(req, seg, task), inst,
+                lambda f, d=done, r=task.round: progress(plan_progress(r, d + f, len(tasks))),
+                wall_limit_s=max(budget.left_s(), 0.0))
             answers[i] = keep_better(answers.get(i), answer, i)
-            progress(hi)
+            progress(plan_progress(task.round, done + 1, len(tasks)))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
     history = run_rounds(pointing_needs(seg), limit, compute)

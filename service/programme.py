@@ -23,9 +23,9 @@ from collections.abc import Sequence
 from typing import Any
 
 from models.instrument import Instrument
-from planner.programme import PointingOutcome, RoundTask, run_rounds
+from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
 from service import adapters, pipeline
-from service.jobs import JobStore, pointing_progress
+from service.jobs import JobStore
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
 
@@ -41,8 +41,8 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     """Run (or resume) plan job ``job_id`` owned by ``owner`` on ``runner``; its
     PlanResponse dict, or None when it stopped before its end: ``cancelled`` was set, or the
     job is no longer open and ``owner``'s (cancelled, finished elsewhere, or taken over after
-    a lost lease). ``progress`` hears :func:`~service.jobs.pointing_progress` of the pointings
-    committed plus the part done of the one being computed, when the runner sees it.
+    a lost lease). ``progress`` hears :func:`planner.programme.plan_progress` of the round's
+    tasks done plus the part done of the one being computed, when the runner sees it.
 
     The rounds are :func:`planner.programme.run_rounds`', as in the synchronous plan; a round
     whose outcome a committed answer already records (``stats.rounds``) is not computed
@@ -90,8 +90,21 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
         todo = [pipeline.pointing_task(req, seg, t) for t in tasks if recorded(t) is None]
         computed[0] += len(todo)
-        if not runner.run(todo, inst, on_done, keep_going,
-                          lambda f: progress(pointing_progress(committed[0] + f, n))):
+        round_ = tasks[0].round
+        first = committed[0] if round_ == 1 else len(tasks) - len(todo)  # done before the run
+        n_tasks = n if round_ == 1 else len(tasks)
+        settled = [0]  # the tasks of a later round the runner has handed over
+
+        def done(index: int, answer: dict[str, Any]) -> bool:
+            ok = on_done(index, answer)
+            settled[0] += ok and round_ > 1
+            return ok
+
+        def part(f: float) -> None:  # f: the part done of the pointing being computed
+            done_tasks = committed[0] if round_ == 1 else first + settled[0]
+            progress(plan_progress(round_, done_tasks + f, n_tasks))
+
+        if not runner.run(todo, inst, done, keep_going, part):
             raise _Stopped()
         missing = [t.index for t in tasks if recorded(t) is None]
         if missing:  # pragma: no cover - the runner handed every task over

@@ -146,3 +146,58 @@ def test_the_reproduction_programme_is_executable_at_the_default_limit() -> None
     assert out["stats"]["motion_plans_failed"] == 0
     assert out["stats"]["allocated_targets"] == 60
     assert out["stats"]["elapsed_s"] <= 120.0
+
+
+def _progress_of_rounds(n_rounds_failing: int) -> list[tuple[int, float]]:
+    """(round, progress) after every task of a programme whose pointing 0 fails its first
+    ``n_rounds_failing`` rounds, as the plan loop reports it."""
+    seen: list[tuple[int, float]] = []
+    inner = fake_compute({0: 1.0, 1: 1.0, 2: 1.0}, {}, [])  # each leaves time for the next round
+
+    def compute(tasks):
+        out = []
+        for done, t in enumerate(tasks):
+            (o,) = inner([t])
+            if t.index == 0 and t.round <= n_rounds_failing:
+                o = PointingOutcome(o.index, o.round, o.share_s, o.effort_s, False, 1, 3)
+            out.append(o)
+            seen.append((t.round, pp.plan_progress(t.round, done + 1, len(tasks))))
+        return out
+
+    pp.run_rounds([30.0, 20.0, 20.0], 120.0, compute)
+    return seen
+
+
+@pytest.mark.parametrize("n_rounds_failing", [0, 1, 2, SHARES.rounds])
+def test_progress_never_falls_and_reaches_one_only_when_the_rounds_are_done(n_rounds_failing) -> None:
+    seen = _progress_of_rounds(n_rounds_failing)
+    values = [p for _, p in seen]
+    assert values == sorted(values) and all(0.0 < p <= 1.0 for p in values)
+    first = [p for r, p in seen if r == 1]
+    assert first[-1] == pytest.approx(pp.FIRST_ROUND_DONE) and pp.FIRST_ROUND_DONE < 1.0
+    last_round = seen[-1][0]
+    assert last_round == min(n_rounds_failing + 1, SHARES.rounds)
+    # only the last possible round ends at 1: earlier rounds leave room for the next one
+    assert (values[-1] == pytest.approx(1.0)) == (last_round == SHARES.rounds)
+
+
+def test_a_synchronous_plan_reports_later_rounds_below_one(monkeypatch) -> None:
+    """POST /v1/plans' loop: pointing 0 fails its first round; the progress heard never
+    falls, and stays below 1 until the second round has planned it."""
+    from service import pipeline
+    from service.schemas import PlanRequest
+
+    def fake_result(task, inst, progress, *, wall_limit_s=None):
+        progress(0.5)
+        ok = task.index != 0 or task.round > 1
+        o = PointingOutcome(task.index, task.round, task.share_s, 0.1, ok, 0 if ok else 1, 2)
+        return {"stats": {"rounds": [pipeline.outcome_out(o)]}}
+
+    monkeypatch.setattr(pipeline, "pointing_result", fake_result)
+    heard: list[float] = []
+    targets = _case_targets()
+    req = PlanRequest.model_validate({"targets": targets, "seed": 12})
+    seg, answers, stats = pipeline.plan_pointings(req, INST, heard.append, budget_s=120.0)
+    assert stats["rounds"] == 2 and len(answers) == 6
+    assert heard == sorted(heard) and heard[-1] < 1.0
+    assert sum(p > pp.FIRST_ROUND_DONE for p in heard) == 2  # round 2: its half-way and its end
