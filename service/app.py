@@ -23,6 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from models.errors import InputError
 from models.instrument import Instrument
 from service import pipeline
+from service.admission import check_stage
 from service.auth import Auth, AuthMiddleware, describe_security, effective_token, warn_if_empty
 from service.errors import (
     BodyLimitMiddleware,
@@ -156,17 +157,21 @@ def _lists_of(request: Request) -> TargetListStore:
 async def _admit(req: Any, st: ServiceState, prefix: tuple[str | int, ...] = ("body",), *,
                  job: bool = False) -> tuple[Any, float]:
     """The request with a stored list's targets in place of its ``target_list_id`` (loaded
-    off the event loop), checked against this server's limits; returns it and the solver
-    time limit. A limit a stored list breaks is a 422 naming ``target_list_id``."""
+    off the event loop), checked against this server's limits and by the stage's domain
+    (:func:`service.admission.check_stage`, off the event loop): the one check of a stage
+    request, at its endpoint and as a job. Returns it and the solver time limit. An error
+    a stored list's targets cause is a 422 naming ``target_list_id``."""
     list_id = getattr(req, "target_list_id", None)
-    if list_id is None:
-        return req, check_request(req, st.settings, st.instrument, prefix, job=job)
-    lists = st.lists
-    req = await run_in_threadpool(resolve, req, lists, prefix)
+    if list_id is not None:
+        req = await run_in_threadpool(resolve, req, st.lists, prefix)
     try:
-        return req, check_request(req, st.settings, st.instrument, prefix, job=job)
+        limit = check_request(req, st.settings, st.instrument, prefix, job=job)
+        await run_in_threadpool(check_stage, req, st.instrument, prefix)
     except FieldError as exc:
+        if list_id is None:
+            raise
         raise _in_list(exc, list_id, prefix) from exc
+    return req, limit
 
 
 def _in_list(exc: FieldError | InputError, list_id: str,
@@ -386,14 +391,14 @@ def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def allocations(req: AllocationRequest, st: StateDep, request: Request) -> JSONResponse:
-        limit = check_request(req, st.settings, st.instrument)
+        req, limit = await _admit(req, st)
         return await _heavy(request, st, AllocationResponse, lambda progress, left: pipeline.allocation(
             req, st.instrument, progress, time_limit_s=left(limit)))
 
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def motion_plans(req: MotionPlanRequest, st: StateDep, request: Request) -> JSONResponse:
-        limit = check_request(req, st.settings, st.instrument)
+        req, limit = await _admit(req, st)
         return await _heavy(request, st, MotionPlanResponse, lambda progress, left: pipeline.motion_plan(
             req, st.instrument, progress, time_limit_s=left(limit)))
 

@@ -111,19 +111,22 @@ def sky_plane_targets(targets: Sequence[SkyTarget], ra_deg: float, dec_deg: floa
 # ------------------------------------------------------------------- segmentation
 
 
+def field_args(req: SegmentationRequest, inst: Instrument) -> dict[str, Any]:
+    """The request as the field arguments of ``segment_field`` and of ``field_plane`` (its
+    checks, without the clustering)."""
+    tp = req.tangent_point
+    return {"ra_deg": np.array([t.ra_deg for t in req.targets], float),
+            "dec_deg": np.array([t.dec_deg for t in req.targets], float),
+            "threshold_mm": req.threshold_mm,
+            "tangent_point": None if tp is None else (tp.ra_deg, tp.dec_deg),
+            "fov_radius_mm": inst.fov_radius_mm,
+            "plate_scale_arcsec_per_mm": inst.plate_scale_arcsec_per_mm,
+            "mode": req.mode}
+
+
 def segment(req: SegmentationRequest, inst: Instrument) -> Segmentation:
     """``solvers.segmentation.segment_field`` on the request (thesis ch. 4)."""
-    tp = req.tangent_point
-    return segment_field(
-        np.array([t.ra_deg for t in req.targets], float),
-        np.array([t.dec_deg for t in req.targets], float),
-        threshold_mm=req.threshold_mm,
-        tangent_point=None if tp is None else (tp.ra_deg, tp.dec_deg),
-        fov_radius_mm=inst.fov_radius_mm,
-        plate_scale_arcsec_per_mm=inst.plate_scale_arcsec_per_mm,
-        mode=req.mode,
-        seed=int(req.seed or 0),
-    )
+    return segment_field(**field_args(req, inst), seed=int(req.seed or 0))
 
 
 def segmentation(
@@ -230,10 +233,15 @@ def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
     return min(limits) if limits else DEFAULT_LIMIT_S
 
 
+def plan_segmentation(req: PlanRequest) -> SegmentationRequest:
+    """The segmentation request of a plan."""
+    return SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
+                               mode=req.segmentation_mode, seed=req.seed)
+
+
 def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
     """The segmentation stage of a plan (deterministic for the request and its seed)."""
-    return segment(SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
-                                       mode=req.segmentation_mode, seed=req.seed), inst)
+    return segment(plan_segmentation(req), inst)
 
 
 def pointing_needs(seg: Segmentation) -> list[float]:

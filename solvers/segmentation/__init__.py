@@ -3,7 +3,13 @@
 smallest enclosing circle (:mod:`.enclosing_circle`, Algorithm 2)."""
 
 from solvers.segmentation.enclosing_circle import smallest_enclosing_circle
-from solvers.segmentation.field import FOV_TOL_MM, Pointing, Segmentation, segment_field
+from solvers.segmentation.field import (
+    FOV_TOL_MM,
+    Pointing,
+    Segmentation,
+    field_plane,
+    segment_field,
+)
 from solvers.segmentation.linkage import (
     SCIPY_MAX_POINTS,
     nn_chain_complete_linkage,
@@ -11,5 +17,5 @@ from solvers.segmentation.linkage import (
     threshold_complete_linkage,
 )
 
-__all__ = ["FOV_TOL_MM", "SCIPY_MAX_POINTS", "Pointing", "Segmentation", "nn_chain_complete_linkage",
+__all__ = ["FOV_TOL_MM", "SCIPY_MAX_POINTS", "Pointing", "Segmentation", "field_plane", "nn_chain_complete_linkage",
            "segment_field", "smallest_enclosing_circle", "sparse_complete_linkage", "threshold_complete_linkage"]

@@ -274,6 +274,33 @@ def _validate(ra_deg, dec_deg, threshold_mm, tangent_point, R, scale, mode):
     return ra, dec, t
 
 
+def field_plane(
+    ra_deg, dec_deg, *,
+    threshold_mm: float | None = None,
+    tangent_point: tuple[float, float] | None = None,
+    fov_radius_mm: float = 125.0,
+    plate_scale_arcsec_per_mm: float = 1.2,
+    mode: Mode = "complete-linkage",
+) -> tuple[np.ndarray, np.ndarray, float, tuple[float, float], np.ndarray]:
+    """The checks of :func:`segment_field` and step 1 of its pipeline, without the clustering:
+    (ra, dec, threshold_mm, tangent point, (n, 2) focal-plane mm about the tangent point).
+
+    O(n) and vectorised, so a caller can refuse a field before admitting its segmentation.
+    Raises InputError naming the field: a bad coordinate or option, targets spread over the
+    whole sphere (no centre), a target >= 90 deg from the tangent point ("targets[i].dec_deg").
+    """
+    R, scale = float(fov_radius_mm), float(plate_scale_arcsec_per_mm)
+    ra, dec, t = _validate(ra_deg, dec_deg, threshold_mm, tangent_point, R, scale, mode)
+    tangent = (tuple(float(v) for v in tangent_point) if tangent_point is not None
+               else spherical_centroid_deg(ra, dec))
+    try:
+        x, y = sky_to_focal_mm(ra, dec, tangent[0], tangent[1], scale)
+    except InputError as e:  # rename "dec_deg[i]" to the target it is about
+        raise InputError(e.field.replace("dec_deg[", "targets[").replace("]", "].dec_deg"),
+                         e.message) from None
+    return ra, dec, t, (float(tangent[0]), float(tangent[1])), np.column_stack([x, y])
+
+
 def segment_field(
     ra_deg, dec_deg, *,
     threshold_mm: float | None = None,
@@ -306,15 +333,9 @@ def segment_field(
             raise TimeLimitExceeded("segmentation", time_limit_s)
 
     R, scale = float(fov_radius_mm), float(plate_scale_arcsec_per_mm)
-    ra, dec, t = _validate(ra_deg, dec_deg, threshold_mm, tangent_point, R, scale, mode)
-    tangent = (tuple(float(v) for v in tangent_point) if tangent_point is not None
-               else spherical_centroid_deg(ra, dec))
-    try:
-        x, y = sky_to_focal_mm(ra, dec, tangent[0], tangent[1], scale)
-    except InputError as e:  # rename "dec_deg[i]" to the target it is about
-        raise InputError(e.field.replace("dec_deg[", "targets[").replace("]", "].dec_deg"),
-                         e.message) from None
-    xy = np.column_stack([x, y])
+    ra, dec, t, tangent, xy = field_plane(ra_deg, dec_deg, threshold_mm=threshold_mm,
+                                          tangent_point=tangent_point, fov_radius_mm=R,
+                                          plate_scale_arcsec_per_mm=scale, mode=mode)
     labels = threshold_complete_linkage(xy, t, check=check)
     check()
     groups = _groups(labels)
