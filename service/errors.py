@@ -95,7 +95,9 @@ def json_safe(obj: Any, max_depth: int | None = None) -> Any:
 
 
 def error_body(code: str, message: str) -> dict[str, str]:
-    return {"error": code, "detail": message}
+    """The body of every error but a 422: its message quotes at most :data:`ECHO_CHARS`
+    characters of any input (a path parameter, a file name)."""
+    return {"error": code, "detail": clip_message(message)}
 
 
 def _encodable(obj: Any) -> Any:
@@ -110,25 +112,96 @@ def _encodable(obj: Any) -> Any:
     return obj
 
 
+ECHO_CHARS = 100  # an answer quotes at most this many characters of any one input
+MAX_MESSAGE_CHARS = 1000  # and no error message is longer
+MAX_ERRORS = 50  # errors listed in a 422's detail (the message sums up the first 10)
+# a run of non-blank characters this long is an echo (a clipped one, with its quotes, is shorter)
+_LONG_RUN = re.compile(rf"\S{{{ECHO_CHARS + 11},}}")
+
+
+def clip(text: str, limit: int = ECHO_CHARS) -> str:
+    """``text`` if it has at most ``limit`` characters, else its first ``limit`` and its length."""
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text)} characters)"
+
+
+def clip_message(message: str, inputs: tuple[str, ...] = ()) -> str:
+    """``message`` quoting at most about :data:`ECHO_CHARS` characters of any input: each
+    long string of ``inputs`` and every longer run of non-blank characters is clipped
+    (:func:`clip`), and the whole to :data:`MAX_MESSAGE_CHARS`."""
+    for text in inputs:
+        if len(text) > ECHO_CHARS and text in message:
+            message = message.replace(text, clip(text))
+    if len(message) > ECHO_CHARS:
+        message = _LONG_RUN.sub(lambda m: clip(m.group()), message)
+    return clip(message, MAX_MESSAGE_CHARS)
+
+
+def _huge(v: Any) -> bool:
+    """An integer whose decimal form would be longer than :data:`ECHO_CHARS` digits."""
+    return isinstance(v, int) and not isinstance(v, bool) and v.bit_length() > 3.33 * ECHO_CHARS
+
+
+def _huge_text(v: int) -> str:
+    """A huge integer described, not written out (``str()`` refuses over 4300 digits)."""
+    return f"<an integer of about {v.bit_length() * 0.30103:.0f} digits>"
+
+
 def _short(value: Any) -> Any:
-    """An echoed input as it goes into the answer: at most ~500 characters of JSON."""
-    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > 10**100:
-        return OMITTED  # a huge integer: its decimal form is as long as the input
+    """An echoed input as it goes into the answer: itself when its JSON has at most
+    :data:`ECHO_CHARS` characters, else the first of them as a string (:func:`clip`)."""
+    if _huge(value):
+        return _huge_text(value)
     v = _encodable(json_safe(value, MAX_ECHO_DEPTH))
-    if isinstance(v, (str, list, dict)) and len(json.dumps(v)) > 500:
-        return OMITTED
+    if isinstance(v, str):
+        return clip(v)
+    if isinstance(v, (list, dict)):
+        text = json.dumps(v)
+        return v if len(text) <= ECHO_CHARS else clip(text)
     return v
 
 
+def _strings(value: Any) -> tuple[str, ...]:
+    """The strings an error's input or context holds at its top level."""
+    if isinstance(value, str):
+        return (value,)
+    if isinstance(value, dict):
+        return tuple(v for v in value.values() if isinstance(v, str))
+    return ()
+
+
+def _ctx_value(v: Any, inputs: tuple[str, ...]) -> Any:
+    """A value of an error's ``ctx`` (a limit, a pattern, the error raised) as answered."""
+    if _huge(v):
+        return _huge_text(v)
+    if isinstance(v, (bool, int, float)):
+        return v
+    return clip_message(_encodable(str(json_safe(v, MAX_ECHO_DEPTH))), inputs)
+
+
+def _answer_item(raw: dict[str, Any]) -> dict[str, Any]:
+    """One error of a 422 with every echo of the input clipped: ``input``, the string parts
+    of ``loc`` (an unknown field's name), ``ctx`` and ``msg``."""
+    e = {k: v for k, v in raw.items() if k not in ("input", "url", "ctx")}
+    e = _encodable(json_safe(e, MAX_ECHO_DEPTH))
+    e["loc"] = [clip(p) if isinstance(p, str) else p for p in e.get("loc", [])]
+    inputs = _strings(raw.get("input")) + _strings(raw.get("ctx"))
+    if "msg" in e:
+        e["msg"] = clip_message(str(e["msg"]), inputs)
+    if isinstance(raw.get("ctx"), dict):
+        e["ctx"] = {str(k): _ctx_value(v, inputs) for k, v in raw["ctx"].items()}
+    if "input" in raw:
+        e["input"] = _short(raw["input"])
+    return e
+
+
 def _validation_answer(errors: list[dict[str, Any]]) -> JSONResponse:
-    errs = []
-    for raw in errors:
-        e = {k: v for k, v in raw.items() if k not in ("input", "url")}
-        e = _encodable(json_safe(e, MAX_ECHO_DEPTH))
-        if "input" in raw:
-            e["input"] = _short(raw["input"])
-        errs.append(e)
+    errs = [_answer_item(raw) for raw in errors[:MAX_ERRORS]]
     msg = "; ".join(f"{_loc_str(e.get('loc', []))}: {e.get('msg', '')}" for e in errs[:10])
+    if len(errors) > 10:
+        shown = min(len(errors), MAX_ERRORS)
+        msg += f"; ... {len(errors)} errors in all, the first {shown} in detail"
     return JSONResponse(status_code=422, content={"detail": errs, "message": msg})
 
 
