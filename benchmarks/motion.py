@@ -1,7 +1,8 @@
 """Motion-planning benchmark on the allocations users meet (thesis 6.4.2 protocol): prints JSON.
 
 What it measures: how :func:`planner.plan_motion` does on the legs of real allocator output,
-park -> c1 -> c2 -> ... -> cn -> park, and how often a whole field ends up executable.
+park -> c1 -> c2 -> ... -> cn -> park, and how often a whole field ends up executable through
+the plan's own per-pointing function, :func:`planner.programme.plan_pointing`.
 
 Protocol "thesis" (the default; Sabater 2019, 6.4.2: 200 prioritised SGPBTA assignment plans,
 97 % of park -> targets and 93 % of chained plans in one pass, median configuration time
@@ -12,34 +13,38 @@ Protocol "thesis" (the default; Sabater 2019, 6.4.2: 200 prioritised SGPBTA assi
   about the centre (sigma 40, 60, 90 mm, clipped to the FOV); priorities 10 % 500,
   40 % 100, 40 % 10, 10 % 1 (thesis 5.5.3).
 * every method of ``--methods`` (``ilp``: the exact allocator with the bnb solver;
-  ``semigreedy``: SGPBTA) allocates each field with
-  ``solvers.allocation.allocate(..., configurations="all")`` and the options the plan
-  pipeline passes: every location within ``--park-move-limit`` seconds of park (default
-  120 s, as ``PlanRequest.park_move_limit_s``; ``none``, the allocator's own default, is a
-  secondary row: some moves from park then need up to 200 s); the configurations planned
-  are exactly those it returns (the first ``--max-configurations`` of them).
-* each leg is ``plan_motion(instrument, start_q, goal_q, seed=seed, time_budget_s=leg_budget)``
-  with the planner's defaults otherwise (thesis table 6.1). A leg starts where the previous
-  one ended (the last way-point of every arm), or at its intended goal after a failed leg.
+  ``semigreedy``: SGPBTA) plans each field as a single-pointing plan does: one call of
+  ``plan_pointing`` (allocation with every configuration, then the executable motion sequence
+  ``planner.sequence.plan_sequence``, on the effort clock) at the share a one-pointing plan gets
+  at the plan's limit ``--time-limit`` (default 120 s, as ``POST /v1/plans`` and the CLI:
+  ``pointing_shares(limit, [pointing_need(targets)])[0]``), with the seed of its first pointing
+  and the allocation's park move limit ``--park-move-limit`` (default 120 s, as
+  ``PlanRequest.park_move_limit_s``; ``none``, the allocator's own default, is a secondary row:
+  some moves from park then need up to 200 s).
+* legs, planner alone: the configurations of that pointing's allocation (the first
+  ``--max-configurations`` of them), each leg ``plan_motion(instrument, start_q, goal_q,
+  seed=seed, time_budget_s=leg_budget)`` with the planner's defaults otherwise (thesis table
+  6.1). A leg starts where the previous one ended (the last way-point of every arm), or at its
+  intended goal after a failed leg; park -> c_i is planned for every other configuration too.
 
-Reported per method and per leg kind ("park_to_configuration": leg 0, "chained":
-c_i -> c_(i+1), "to_park": the last leg): legs, success rate, compute time (median, p90,
-p99, max), makespan (median; ratio to the lower bound max_k direct-move time, median and
-p90; share <= 120 s), stops per arm (max, mean), strategies, the failed legs and the five
-slowest legs with the strategy that planned them. For the
-whole field: the share of fields with no failed leg (a) with the planner alone and (b) through
-``planner.sequence.plan_sequence``, which changes the plan (legs through park, moved targets,
-new configurations) where a leg fails; (b) is ``{"available": false}`` when that function is
-absent.
+Reported per method and per leg kind ("park_to_configuration": leg 0 and park -> c_i,
+"chained": c_i -> c_(i+1), "to_park": the last leg): legs, success rate, compute time
+(median, p90, p99, max), makespan (median; ratio to the lower bound max_k direct-move time,
+median and p90; share <= 120 s), stops per arm (max, mean), strategies, the failed legs and
+the five slowest legs with the strategy that planned them. For the whole field: the share of
+fields with no failed leg (a) with the planner alone and (b) in the pointing's plan
+(``plan_pointing``: every configuration, with the changes ``plan_sequence`` makes where a leg
+fails: legs through park, moved targets, new configurations), with its wall time, its effort
+seconds and the wall time of its allocation.
 
 Protocol "easy" (secondary, a lighter load than users meet): fields of 100 uniform targets,
 all of priority 1, drawn one after another from ``np.random.default_rng(seed)``; the first
-configuration of each (``configurations="one"``); legs park -> c_i and, across fields,
-chained c_i -> c_(i+1).
+configuration of each (``allocate(..., configurations="one")`` with the time a pointing's plan
+gives its allocation); legs park -> c_i and, across fields, chained c_i -> c_(i+1).
 
 Usage:
     python benchmarks/motion.py                      # thesis protocol, 20 fields, both methods
-    python benchmarks/motion.py --smoke              # 2 fields, 60 targets, 2 configurations
+    python benchmarks/motion.py --smoke              # 2 fields, 60 targets, 2 configurations, 10 s limit
     python benchmarks/motion.py --fields 100 --methods semigreedy --out motion.json
     python benchmarks/motion.py --save-legs failed_legs.npz   # start/goal of failed legs
     python benchmarks/motion.py --protocol easy --fields 200
@@ -64,19 +69,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import planner.sequence as sequence_module  # noqa: E402
+import planner.programme as programme  # noqa: E402
+from benchmarks.motion_fields import easy_field, thesis_field, thesis_field_parameters  # noqa: E402
 from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument, default_instrument  # noqa: E402
 from models.kinematics import positive_turn_move_time_s  # noqa: E402
 from models.types import AllocationResult, MotionPlan, PlaneTargets  # noqa: E402
 from planner import MotionOptions, plan_motion, stop_count  # noqa: E402
-from planner.programme import allocation_options as plan_allocation_options  # noqa: E402
+from planner.programme import PointingOptions, PointingPlan, plan_pointing  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 from solvers.allocation.options import AllocationOptions  # noqa: E402
 
-FOV_RADIUS_MM = 125.0
-FIELD_SIGMAS_MM: tuple[float | None, ...] = (None, 40.0, 60.0, 90.0)  # None: uniform
-PRIORITY_VALUES = (500, 100, 10, 1)
-PRIORITY_SHARES = (0.1, 0.4, 0.4, 0.1)
 MAKESPAN_GOAL_S = CONFIGURATION_TIME_GOAL_S
 INSTRUMENT = default_instrument()
 LEG_KINDS = ("park_to_configuration", "chained", "to_park")
@@ -85,52 +87,14 @@ THESIS_REFERENCE = {
                               "makespan_s_range": [96.0, 114.0]},
     "chained": {"success_rate": 0.93, "makespan_s_median": 90.6, "makespan_s_max": 108.0},
 }
-SMOKE = {"fields": 2, "targets": 60, "max_configurations": 2, "leg_budget": 3.0}
-DEFAULTS = {"fields": 20, "targets": 150, "max_configurations": None, "leg_budget": 10.0}
+SMOKE = {"fields": 2, "targets": 60, "max_configurations": 2, "leg_budget": 3.0, "time_limit": 10.0}
+DEFAULTS = {"fields": 20, "targets": 150, "max_configurations": None, "leg_budget": 10.0,
+            "time_limit": programme.DEFAULT_LIMIT_S}
 EASY_TARGETS = 100
 
 
 def log(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
-
-
-# ---------------------------------------------------------------------- fields
-
-
-def shape_name(sigma_mm: float | None) -> str:
-    return "uniform" if sigma_mm is None else f"gauss{sigma_mm:g}"
-
-
-def field_xy_mm(n: int, sigma_mm: float | None, rng: np.random.Generator,
-                radius_mm: float = FOV_RADIUS_MM) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` points uniform in the FOV disc (sigma None) or Gaussian about the centre, clipped."""
-    if sigma_mm is None:
-        r_mm = radius_mm * np.sqrt(rng.random(n))
-        a_rad = rng.random(n) * 2 * np.pi
-        return r_mm * np.cos(a_rad), r_mm * np.sin(a_rad)
-    pts = np.zeros((0, 2))
-    while len(pts) < n:
-        p = rng.normal(0.0, sigma_mm, (2 * n, 2))
-        pts = np.vstack([pts, p[np.hypot(p[:, 0], p[:, 1]) <= radius_mm]])
-    return pts[:n, 0], pts[:n, 1]
-
-
-def make_field(n: int, sigma_mm: float | None, rng: np.random.Generator) -> PlaneTargets:
-    """A field of ``n`` targets with the thesis priority mix (as benchmarks/allocation.py)."""
-    x_mm, y_mm = field_xy_mm(n, sigma_mm, rng)
-    priority = rng.choice(PRIORITY_VALUES, size=n, p=PRIORITY_SHARES).astype(np.int64)
-    return PlaneTargets.from_lists([f"t{i}" for i in range(n)], x_mm, y_mm, priority)
-
-
-def thesis_field(n: int, seed: int, field_index: int) -> tuple[str, PlaneTargets]:
-    sigma_mm = FIELD_SIGMAS_MM[field_index % len(FIELD_SIGMAS_MM)]
-    rng = np.random.default_rng([seed, field_index])
-    return shape_name(sigma_mm), make_field(n, sigma_mm, rng)
-
-
-def easy_field(n: int, rng: np.random.Generator) -> PlaneTargets:
-    x_mm, y_mm = field_xy_mm(n, None, rng)
-    return PlaneTargets.from_lists(range(n), x_mm, y_mm, np.ones(n, dtype=np.int64))
 
 
 # ---------------------------------------------------------------------- legs
@@ -294,54 +258,85 @@ def fields_without_failed_legs(records: Sequence[LegRecord], n_fields: int) -> d
             "share": n_ok / n_fields if n_fields else None}
 
 
-# ---------------------------------------------------------------------- plan_sequence
+# ---------------------------------------------------------------------- plan_pointing
 
 
 @dataclass(frozen=True)
-class SequenceRecord:
+class PointingRecord:
+    """One field's plan through ``plan_pointing`` and what the benchmark reports of it."""
+
     field: int
     executable: bool
-    compute_s: float
+    wall_s: float
+    allocation_s: float  # wall time until the allocation was done (the plan's progress 0.5)
+    effort_s: float
+    overran: bool
+    legs: int
+    failed_legs: int
     changes_by_kind: dict[str, int]
     targets_moved: int
     configurations_added: int
     targets_dropped: int
+    unplanned_reason: str | None
 
 
-def run_plan_sequence(plan_sequence, instrument: Instrument, result: AllocationResult,
-                      targets: PlaneTargets, n_configurations: int, *, field: int, seed: int,
-                      leg_budget_s: float, park_move_limit_s: float | None) -> SequenceRecord:
-    """The same configurations through ``planner.sequence.plan_sequence``."""
-    configurations = result.configurations[:n_configurations]
-    options = sequence_module.SequenceOptions(seed=seed, leg_time_limit_s=leg_budget_s,
-                                              park_move_limit_s=park_move_limit_s)
+def pointing_record(pointing: PointingPlan, *, field: int, wall_s: float,
+                    allocation_s: float) -> PointingRecord:
+    seq = pointing.sequence
+    allocated = () if pointing.allocation is None else pointing.allocation.configurations
+    kinds = Counter(c.kind for c in seq.changes)
+    moved = sum(len(c.target_ids) for c in seq.changes if c.kind == "moved_target")
+    # a pointing not attempted, or whose legs were not planned, has no executable plan
+    executable = (pointing.allocation is not None and pointing.unplanned_reason is None
+                  and bool(seq.executable))
+    return PointingRecord(field, executable, wall_s, allocation_s, float(pointing.effort_s),
+                          bool(pointing.overran), len(seq.legs), len(seq.failed_legs),
+                          dict(sorted(kinds.items())), moved,
+                          len(seq.configurations) - len(allocated), len(seq.dropped),
+                          pointing.unplanned_reason)
+
+
+def run_plan_pointing(instrument: Instrument, targets: PlaneTargets, options: PointingOptions,
+                      share_s: float, *, field: int) -> tuple[PointingPlan, PointingRecord]:
+    """One field as a single-pointing plan plans it; the allocation's wall time is read from
+    the plan's progress (0.5 once the allocation is done)."""
     t0 = time.perf_counter()
-    plan = plan_sequence(instrument, configurations, options, targets=targets)
-    compute_s = time.perf_counter() - t0
-    kinds = Counter(c.kind for c in plan.changes)
-    moved = sum(len(c.target_ids) for c in plan.changes if c.kind == "moved_target")
-    return SequenceRecord(field, bool(plan.executable), compute_s, dict(sorted(kinds.items())),
-                          moved, len(plan.configurations) - len(configurations), len(plan.dropped))
+    marks: dict[str, float] = {}
+
+    def progress(p: float) -> None:
+        if p >= 0.5 and "allocation_s" not in marks:
+            marks["allocation_s"] = time.perf_counter() - t0
+
+    pointing = plan_pointing(instrument, targets, options, share_s, progress)
+    wall_s = time.perf_counter() - t0
+    return pointing, pointing_record(pointing, field=field, wall_s=wall_s,
+                                     allocation_s=marks.get("allocation_s", wall_s))
 
 
-def sequence_summary(records: Sequence[SequenceRecord]) -> dict:
+def pointing_summary(records: Sequence[PointingRecord]) -> dict:
     kinds: Counter[str] = Counter()
     for r in records:
         kinds.update(r.changes_by_kind)
     n_exec = sum(r.executable for r in records)
     return {
-        "available": True,
         "fields": len(records),
         "fields_executable": n_exec,
         "share": n_exec / len(records) if records else None,
+        "legs": sum(r.legs for r in records),
+        "legs_failed": sum(r.failed_legs for r in records),
         "changes_by_kind": dict(sorted(kinds.items())),
         "targets_moved": sum(r.targets_moved for r in records),
         "legs_through_park": kinds.get("via_park", 0),
         "configurations_added": sum(r.configurations_added for r in records),
         "targets_dropped": sum(r.targets_dropped for r in records),
-        "compute_s_median": _pct([r.compute_s for r in records], 50),
-        "compute_s_max": _max([r.compute_s for r in records]),
-        "fields_not_executable": [r.field for r in records if not r.executable],
+        "wall_s_median": _pct([r.wall_s for r in records], 50),
+        "wall_s_max": _max([r.wall_s for r in records]),
+        "effort_s_median": _pct([r.effort_s for r in records], 50),
+        "effort_s_max": _max([r.effort_s for r in records]),
+        "overran": sum(r.overran for r in records),
+        "fields_not_executable": [{"field": r.field, "failed_legs": r.failed_legs,
+                                   "unplanned_reason": r.unplanned_reason}
+                                  for r in records if not r.executable],
     }
 
 
@@ -356,14 +351,28 @@ class Params:
     methods: tuple[str, ...]
     targets: int
     leg_budget_s: float
-    alloc_time_limit_s: float
+    time_limit_s: float
     max_configurations: int | None
     smoke: bool
     park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
 
     def allocation_options(self) -> AllocationOptions:
         """What the plan pipeline passes (``PlanRequest.park_move_limit_s``, default T_p)."""
-        return plan_allocation_options(self.park_move_limit_s)
+        return programme.allocation_options(self.park_move_limit_s)
+
+    def pointing_share_s(self, n_targets: int) -> float:
+        """The share of a single-pointing plan of ``n_targets`` at the plan's limit."""
+        return programme.pointing_shares(self.time_limit_s, [programme.pointing_need(n_targets)])[0]
+
+    def pointing_options(self, method: str) -> PointingOptions:
+        """A single-pointing plan's options: its first pointing's seed, the pipeline's limit."""
+        return PointingOptions(method=method, solver="bnb", seed=programme.pointing_seed(self.seed, 0),
+                               park_move_limit_s=self.park_move_limit_s)
+
+    def allocation_limit_s(self, n_targets: int) -> float:
+        """The effort seconds ``plan_pointing`` gives a pointing's allocation (the easy protocol's
+        single-configuration allocations get as much)."""
+        return programme.SHARES.effort_share * programme.SHARES.allocation_share * self.pointing_share_s(n_targets)
 
 
 def allocation_summary(results: Sequence[AllocationResult], alloc_s: Sequence[float]) -> dict:
@@ -384,42 +393,40 @@ def allocation_summary(results: Sequence[AllocationResult], alloc_s: Sequence[fl
     }
 
 
+def planned_configurations(pointing: PointingPlan, max_configurations: int | None) -> list[np.ndarray]:
+    """The joint angles of the pointing's allocation, the first ``max_configurations`` of them."""
+    configurations = () if pointing.allocation is None else pointing.allocation.configurations
+    return [c.q for c in configurations[:max_configurations]]
+
+
 def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
-    plan_sequence = getattr(sequence_module, "plan_sequence", None)
     legs: list[LegRecord] = []
-    seq: list[SequenceRecord] = []
-    results, alloc_s, shapes = [], [], []
+    pointings: list[PointingRecord] = []
+    results, shapes = [], []
+    share_s = params.pointing_share_s(params.targets)
     for i in range(params.fields):
         shape, targets = thesis_field(params.targets, params.seed, i)
-        t0 = time.perf_counter()
-        result = allocate(instrument, targets, method=method, solver="bnb", configurations="all",
-                          time_limit_s=params.alloc_time_limit_s, seed=params.seed,
-                          options=params.allocation_options())
-        alloc_s.append(time.perf_counter() - t0)
-        results.append(result)
+        pointing, record = run_plan_pointing(instrument, targets, params.pointing_options(method),
+                                             share_s, field=i)
+        pointings.append(record)
         shapes.append(shape)
-        n_conf = len(result.configurations)
-        if params.max_configurations is not None:
-            n_conf = min(n_conf, params.max_configurations)
-        configurations_q = [c.q for c in result.configurations[:n_conf]]
+        if pointing.allocation is not None:
+            results.append(pointing.allocation)
+        configurations_q = planned_configurations(pointing, params.max_configurations)
         field_legs = plan_field_legs(instrument, configurations_q, method=method, field=i,
                                      seed=params.seed, leg_budget_s=params.leg_budget_s)
         legs.extend(field_legs)
-        failed = sum(not r.ok for r in field_legs)
-        log(f"[{method}] field {i} ({shape}): {len(result.configurations)} configurations, "
-            f"{len(field_legs)} legs planned, {failed} failed, allocation {alloc_s[-1]:.1f} s")
-        if plan_sequence is not None:
-            seq.append(run_plan_sequence(plan_sequence, instrument, result, targets, n_conf, field=i,
-                                         seed=params.seed, leg_budget_s=params.leg_budget_s,
-                                         park_move_limit_s=params.park_move_limit_s))
-            log(f"[{method}] field {i}: plan_sequence executable={seq[-1].executable}")
+        log(f"[{method}] field {i} ({shape}): {len(results[-1].configurations) if results else 0} "
+            f"configurations, allocation {record.allocation_s:.1f} s; plan_pointing "
+            f"executable={record.executable} in {record.wall_s:.1f} s ({record.effort_s:.1f} effort-s); "
+            f"{len(field_legs)} legs planned alone, {sum(not r.ok for r in field_legs)} failed")
     return {
-        "allocation": {**allocation_summary(results, alloc_s), "shapes": shapes},
+        "allocation": {**allocation_summary(results, [r.allocation_s for r in pointings]),
+                       "shapes": shapes},
         "legs": summaries_by_kind(legs, LEG_KINDS),
         "whole_field": {
             "planner_alone": fields_without_failed_legs(legs, params.fields),
-            "plan_sequence": sequence_summary(seq) if plan_sequence is not None
-            else {"available": False},
+            "plan_pointing": {"share_s": share_s, **pointing_summary(pointings)},
         },
         "_records": legs,
     }
@@ -435,7 +442,7 @@ def easy_method(instrument: Instrument, params: Params, method: str) -> dict:
         t0 = time.perf_counter()
         result = allocate(instrument, targets, method=method, solver="bnb", configurations="one",
                           options=params.allocation_options(),
-                          time_limit_s=params.alloc_time_limit_s, seed=params.seed)
+                          time_limit_s=params.allocation_limit_s(EASY_TARGETS), seed=params.seed)
         alloc_s.append(time.perf_counter() - t0)
         results.append(result)
         configurations_q.append(result.configurations[0].q if result.configurations else park_q)
@@ -473,11 +480,6 @@ def git_commit() -> str | None:
     return out.stdout.strip() or None
 
 
-def thesis_field_parameters() -> dict:
-    return {"field_shapes": [shape_name(s) for s in FIELD_SIGMAS_MM],
-            "priority_mix": dict(zip(map(str, PRIORITY_VALUES), PRIORITY_SHARES, strict=True))}
-
-
 def planner_defaults() -> dict:
     """The planning options the benchmark leaves at their defaults (thesis table 6.1)."""
     o = MotionOptions()
@@ -507,12 +509,14 @@ def parse_args(argv: list[str] | None) -> tuple[Params, Path | None, Path | None
     ap.add_argument("--targets", type=int, default=None, help="targets per field (default 150)")
     ap.add_argument("--leg-budget", type=float, default=None,
                     help="plan_motion time_budget_s per leg (default 10)")
-    ap.add_argument("--alloc-time-limit", type=float, default=20.0,
-                    help="allocate time_limit_s per field")
+    ap.add_argument("--time-limit", type=float, default=None, metavar="S",
+                    help="the plan's limit, s: each field is planned with the share a single-pointing "
+                    "plan gets at it (default 120, as POST /v1/plans and the CLI)")
     ap.add_argument("--max-configurations", type=int, default=None,
                     help="plan only the first K configurations of each field (default: all)")
     ap.add_argument("--smoke", action="store_true",
-                    help="2 fields, 60 targets, 2 configurations, 3 s per leg (explicit options win)")
+                    help="2 fields, 60 targets, 2 configurations, 3 s per leg, a 10 s plan limit "
+                    "(explicit options win)")
     ap.add_argument("--out", type=Path, default=None, help="also write the JSON to this file")
     ap.add_argument("--park-move-limit", default=str(CONFIGURATION_TIME_GOAL_S), metavar="S",
                     help="the allocation's park move limit, s, as the plan pipeline sets it (default "
@@ -529,12 +533,12 @@ def parse_args(argv: list[str] | None) -> tuple[Params, Path | None, Path | None
     params = Params(protocol=args.protocol, fields=pick("fields"), seed=args.seed,
                     methods=tuple(m for m in args.methods.split(",") if m),
                     targets=pick("targets"), leg_budget_s=float(pick("leg_budget")),
-                    alloc_time_limit_s=args.alloc_time_limit,
+                    time_limit_s=float(pick("time_limit")),
                     max_configurations=pick("max_configurations"), smoke=args.smoke,
                     park_move_limit_s=None if args.park_move_limit.lower() == "none"
                     else float(args.park_move_limit))
-    if params.fields < 1 or params.targets < 1 or not params.methods:
-        ap.error("--fields, --targets must be >= 1 and --methods non-empty")
+    if params.fields < 1 or params.targets < 1 or not params.methods or params.time_limit_s <= 0:
+        ap.error("--fields, --targets, --time-limit must be positive and --methods non-empty")
     if params.max_configurations is not None and params.max_configurations < 1:
         ap.error("--max-configurations must be >= 1")
     return params, args.out, args.save_legs
@@ -558,7 +562,9 @@ def main(argv: list[str] | None = None) -> dict:
         "parameters": {
             "fields": params.fields, "seed": params.seed, "methods": list(params.methods),
             "targets": params.targets if params.protocol == "thesis" else EASY_TARGETS,
-            "leg_budget_s": params.leg_budget_s, "alloc_time_limit_s": params.alloc_time_limit_s,
+            "leg_budget_s": params.leg_budget_s, "time_limit_s": params.time_limit_s,
+            "pointing_share_s": params.pointing_share_s(
+                params.targets if params.protocol == "thesis" else EASY_TARGETS),
             "max_configurations": params.max_configurations, "smoke": params.smoke,
             "park_move_limit_s": params.park_move_limit_s,
             "ilp_solver": "bnb",
