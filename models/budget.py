@@ -53,6 +53,15 @@ class Budget:
             return Budget(t_s, math.inf, math.inf)
         return Budget(t_s, t_s + limit_s, limit_s)
 
+    @staticmethod
+    def ending_at(deadline_s: float | None) -> Budget:
+        """A budget that ends at the clock instant ``deadline_s`` (None or ``math.inf``:
+        unlimited), for a caller that holds only that instant; it does not read the clock. Its
+        start is unknown (``-math.inf``) and its ``total_s`` is ``math.inf``, so a
+        :meth:`share` of it is all of what is left."""
+        end_s = math.inf if deadline_s is None else deadline_s
+        return Budget(-math.inf, end_s, math.inf)
+
     @property
     def limit_s(self) -> float:
         """The seconds from the start to the deadline (``math.inf``: unlimited)."""
@@ -80,6 +89,18 @@ class Budget:
         if self.unlimited:
             return False
         return clock.now() > self.deadline_s
+
+    def past_deadline(self) -> bool:
+        """True once the clock is past the deadline. It reads the clock on every call, also
+        when the budget is unlimited (where :meth:`expired` does not): a search loop that polls
+        it charges one tick per poll whatever its limit."""
+        return clock.now() > self.deadline_s
+
+    def part(self, fraction: float) -> Budget:
+        """The first ``fraction`` of this budget counted from its start: the same start, the
+        deadline ``start_s + fraction * total_s`` (never past this budget's deadline), the same
+        ``total_s`` and ``hard_deadline_s``. It does not read the clock."""
+        return replace(self, deadline_s=min(self.start_s + fraction * self.total_s, self.deadline_s))
 
     def share(self, fraction: float, cap_s: float = math.inf) -> Budget:
         """A sub-budget of ``min(fraction * total_s, cap_s)`` from now, never past this

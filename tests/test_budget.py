@@ -138,3 +138,36 @@ def test_outside_effort_a_budget_counts_wall_time() -> None:
     assert not b.expired()
     time.sleep(0.03)
     assert b.expired() and b.elapsed_s() >= 0.03
+
+
+def test_ending_at_an_instant_reads_no_clock(fake: FakeNow) -> None:
+    b = Budget.ending_at(107.0)
+    assert fake.reads == 0 and b.deadline_s == 107.0 and not b.unlimited
+    assert b.left_s() == 7.0 and not b.expired()
+    fake.t_s = 103.0
+    assert b.share(0.5).deadline_s == 107.0  # no known total: a share is all that is left
+    assert b.child(2.0).deadline_s == 105.0
+    assert Budget.ending_at(None).unlimited and Budget.ending_at(math.inf).unlimited
+
+
+def test_past_deadline_reads_the_clock_even_when_unlimited(fake: FakeNow) -> None:
+    u = Budget.start(None)
+    fake.reads = 0
+    assert not u.expired() and fake.reads == 0
+    assert not u.past_deadline() and fake.reads == 1
+    b = Budget.start(5.0)
+    fake.t_s = 105.0
+    assert not b.past_deadline()
+    fake.t_s = 105.5
+    assert b.past_deadline() and b.expired()
+
+
+def test_part_is_counted_from_the_start_without_reading_the_clock(fake: FakeNow) -> None:
+    b = Budget.start(10.0)
+    fake.t_s = 104.0
+    fake.reads = 0
+    p = b.part(0.3)
+    assert fake.reads == 0
+    assert (p.start_s, p.deadline_s, p.total_s, p.hard_deadline_s) == (100.0, 100.0 + 0.3 * 10.0, 10.0, 110.0)
+    assert b.part(1.0).deadline_s == b.deadline_s and b.part(2.0).deadline_s == b.deadline_s
+    assert p.expired() and b.part(0.3).left_s() == pytest.approx(-1.0)

@@ -40,6 +40,7 @@ import numpy as np
 from scipy import sparse
 
 from models import clock
+from models.budget import Budget
 from solvers.effort import BNB_NODE_S, BNB_TABLE_BIT_S, BNB_TABLE_ROW_S, PRUNE_PROBE_S
 from solvers.model import coarse_weights, conflict_adjacency, safe_weights
 from solvers.problem import ConfigProblem
@@ -172,7 +173,7 @@ class _Limit(Exception):
 
 
 def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minimize_move: bool = True,
-                     deadline: float | None = None, hint: np.ndarray | None = None,
+                     budget: Budget | None = None, hint: np.ndarray | None = None,
                      field: BnbField | None = None, tie_node_limit: int = 3_000,
                      move_node_limit: int = 30_000, coarse_optimum: tuple[int, np.ndarray] | None = None) -> dict:
     """The search itself, lexicographic in three exact searches over the same bitsets:
@@ -187,7 +188,8 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
 
     Returns a dict: ``chosen`` (None if infeasible / nothing found), ``weight`` (full),
     ``proved`` (stage 1), ``tie_proved``, ``move_proved``, ``bound`` (coarse root bound
-    scaled to full weights), ``nodes``.
+    scaled to full weights), ``nodes``. Every search also stops once ``budget`` (None: no
+    limit but the node limits) has expired, checked every 1,024 nodes.
     """
     f = field or prepare_field(problem)
     n_arms = f.n_arms
@@ -245,7 +247,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
                 raise _Limit
             if not state["nodes"] & 1023:
                 settle()
-                if deadline is not None and clock.now() > deadline:
+                if budget is not None and budget.expired():
                     raise _Limit
             if not free:
                 if target >= 0:

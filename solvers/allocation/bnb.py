@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from solvers.allocation.backends import Backend, get_backend
 from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
 from solvers.allocation.options import BnbOptions, CpsatOptions, SemiGreedyOptions
@@ -44,23 +45,21 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
     configurations; the node-limited incumbent is then returned as ``feasible`` + gap.
     """
     validate_problem(problem)
-    t0 = clock.now()
+    budget = Budget.start(problem.time_limit_s)
     if problem.time_limit_s < fallback_min_s:
         fallback = None
     n_arms = len(problem.assignments.arm_start) - 1
-    deadline = t0 + problem.time_limit_s
     f = prepare_field(problem)
-    stats: dict = {"backend": "bnb", "prepare_s": clock.now() - t0}
+    stats: dict = {"backend": "bnb", "prepare_s": budget.elapsed_s()}
     h = None
     if hint == "semigreedy":
         sg = get_backend("semigreedy").solve(problem, SemiGreedyOptions(n_iter=WARM_START_ITERATIONS))
         h = np.asarray(sg.chosen, dtype=np.int64)
     kw = dict(minimize_move=minimize_move, hint=h, field=f, tie_node_limit=tie_node_limit,
               move_node_limit=move_node_limit)
-    r = solve_bnb_chosen(problem, node_limit=node_limit, deadline=t0 + (0.3 if fallback else 1.0)
-                         * problem.time_limit_s, **kw)
+    r = solve_bnb_chosen(problem, node_limit=node_limit, budget=budget.part(0.3 if fallback else 1.0), **kw)
     stats["nodes"] = r["nodes"]
-    if not r["proved"] and fallback == "cpsat" and deadline - clock.now() > 0.05:
+    if not r["proved"] and fallback == "cpsat" and budget.left_s() > 0.05:
         # CP-SAT on priority / yield (then its own exact stage 2 for the longest move), hinted
         cols = None
         if r["chosen"] is not None:
@@ -72,7 +71,7 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
             cols[np.asarray(r["chosen"], np.int64)] = True
             stats.update(prune_s=clock.now() - tp, columns=int(cols.sum()),
                          columns_allowed=int(problem.allowed().sum()))
-        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(deadline - clock.now(), 0.05))
+        coarse = dataclasses.replace(problem, tie_break=None, time_limit_s=max(budget.left_s(), 0.05))
         sol = get_backend("cpsat").solve(coarse, CpsatOptions(minimize_move=minimize_move, candidates_per_arm=None),
                                          hint=r["chosen"], columns=cols)
         stats.update(backend="bnb+cpsat", cpsat_s=sol.stats.get("total_s"), cpsat_status=sol.status)
@@ -89,7 +88,7 @@ def solve_ilp_bnb(problem: ConfigProblem, *, node_limit: int = 4_000, minimize_m
             r = {**r, "chosen": g}
             stats["fallback"] = "greedy"
     stats.update(move_optimal=bool(r["move_proved"]), tie_optimal=bool(r["tie_proved"]),
-                 total_s=clock.now() - t0)
+                 total_s=budget.elapsed_s())
     if r["chosen"] is None:
         return ConfigSolution(np.full(n_arms, -1), "infeasible" if r["proved"] else "timeout", 0, 0, 0.0, None, stats)
     total, yld, longest = evaluate(problem, r["chosen"])

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from solvers.allocation.bitset import prepare_field, prune_columns, solve_bnb_chosen
 from solvers.allocation.cliques import CliqueOptions, clique_rows, exclusion_matrix
 from solvers.effort import HighsMeter
@@ -126,7 +127,7 @@ def _tie_total(problem: ConfigProblem, chosen: np.ndarray) -> int:
 
 
 def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int,
-                     deadline: float, defer: bool = False, min_engine_s: float = 0.0
+                     budget: Budget | float, defer: bool = False, min_engine_s: float = 0.0
                      ) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """(kept columns mask, incumbent or None, stats): the incumbent (``hint`` if it is a
     valid choice, else a short branch-and-bound dive) and the proven column pruning.
@@ -135,7 +136,10 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
     1 needs no model), the pruning is left to the caller (``stats["pruned"]`` False, every
     allowed column returned): most configurations of a dense sequence then need no model
     of their stage 1 or 2 at all.  So it is when the dive proved its incumbent, or when less
-    than ``min_engine_s`` is left before ``deadline`` (no engine will run)."""
+    than ``min_engine_s`` is left in ``budget`` (no engine will run). ``budget`` may be a
+    :func:`models.clock.now` instant (:meth:`Budget.ending_at`)."""
+    if not isinstance(budget, Budget):
+        budget = Budget.ending_at(budget)
     t0 = clock.now()
     f = prepare_field(problem)
     allowed = problem.allowed()
@@ -149,7 +153,7 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
         # finds the better incumbent at a tier transition
         r = solve_bnb_chosen(problem, node_limit=nodes, minimize_move=True, field=f, tie_node_limit=1000,
                              move_node_limit=INCUMBENT_MOVE_NODES,
-                             deadline=min(deadline, clock.now() + 0.2 * problem.time_limit_s))
+                             budget=budget.child(0.2 * problem.time_limit_s))
         if r["chosen"] is not None:
             incumbent = np.asarray(r["chosen"], np.int64)
             # when the dive's exact longest-move search completed, its longest move is the
@@ -161,7 +165,7 @@ def presolve_columns(problem: ConfigProblem, hint: np.ndarray | None, nodes: int
         return allowed, None, stats
     inc_c = _coarse_total(problem, incumbent)
     stats.update(incumbent_coarse=inc_c, columns_allowed=int(allowed.sum()), pruned=True)
-    if defer and (proved or deadline - clock.now() < min_engine_s or inc_c >= _kept_arm_bound(problem, allowed)):
+    if defer and (proved or budget.left_s() < min_engine_s or inc_c >= _kept_arm_bound(problem, allowed)):
         stats.update(pruned=False, columns=int(allowed.sum()))
         return allowed, incumbent, stats
     tp = clock.now()
@@ -373,9 +377,9 @@ def _stage2(problem: ConfigProblem, m: ModelArrays, run, chosen: np.ndarray, w1:
     return chosen
 
 
-def _finish(problem: ConfigProblem, stats: dict, t0: float, chosen: np.ndarray | None, status: str,
+def _finish(problem: ConfigProblem, stats: dict, budget: Budget, chosen: np.ndarray | None, status: str,
             gap: float | None) -> ConfigSolution:
-    stats["total_s"] = clock.now() - t0
+    stats["total_s"] = budget.elapsed_s()
     stats.setdefault("move_optimal", False)
     stats.setdefault("tie_optimal", False)
     if chosen is None:
@@ -384,23 +388,24 @@ def _finish(problem: ConfigProblem, stats: dict, t0: float, chosen: np.ndarray |
     return ConfigSolution(np.asarray(chosen, np.int64), status, total, yld, longest, gap, stats)
 
 
-def _keep_incumbent(problem: ConfigProblem, stats: dict, t0: float, incumbent: np.ndarray, cols: np.ndarray,
+def _keep_incumbent(problem: ConfigProblem, stats: dict, budget: Budget, incumbent: np.ndarray, cols: np.ndarray,
                     why: str) -> ConfigSolution:
     """The incumbent as ``feasible``, with its gap to the per-arm bound of ``cols``, no model built."""
     arm_bound = _kept_arm_bound(problem, cols)
     inc = _coarse_total(problem, incumbent)
     stats["model"] = why
     stats["rounds"].append({"stage": "priority_yield", "proof": None, "solve_s": 0.0})
-    return _finish(problem, stats, t0, incumbent, "feasible", max(arm_bound - inc, 0) / max(inc, 1))
+    return _finish(problem, stats, budget, incumbent, "feasible", max(arm_bound - inc, 0) / max(inc, 1))
 
 
-def _solve_large(problem: ConfigProblem, large, incumbent: np.ndarray | None, cols: np.ndarray, deadline: float,
-                 options: ExactOptions, stats: dict, t0: float) -> ConfigSolution | None:
+def _solve_large(problem: ConfigProblem, large, incumbent: np.ndarray | None, cols: np.ndarray, budget: Budget,
+                 options: ExactOptions, stats: dict) -> ConfigSolution | None:
     """The ``large`` solve when pruning left more than ``options.max_columns`` columns (or the
-    incumbent, when less than ``min_large_s`` is left); None when no time is left for it."""
-    rest = deadline - clock.now()
+    incumbent, when less than ``min_large_s`` is left of ``budget``, the solve's); None when
+    no time is left for it."""
+    rest = budget.left_s()
     if incumbent is not None and rest < options.min_large_s:
-        return _keep_incumbent(problem, stats, t0, incumbent, cols,
+        return _keep_incumbent(problem, stats, budget, incumbent, cols,
                                f"none: {int(cols.sum())} columns, {rest:.2f} s left (min_large_s)")
     if rest <= 0.005:
         return None
@@ -410,7 +415,7 @@ def _solve_large(problem: ConfigProblem, large, incumbent: np.ndarray | None, co
                              _coarse_total(problem, sol.chosen) >= _coarse_total(problem, incumbent)):
         return sol
     stats["model"] = "lazy (its answer was below the incumbent)"
-    return _finish(problem, stats, t0, incumbent, "feasible", sol.gap)
+    return _finish(problem, stats, budget, incumbent, "feasible", sol.gap)
 
 
 def _stage1_proof(problem: ConfigProblem, incumbent: np.ndarray | None, cols: np.ndarray, stats: dict) -> str | None:
@@ -457,8 +462,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     ``columns``: a column mask the caller has PROVEN to hold every solution at least as good
     as ``hint`` (used as given, no further pruning).  ``large``: see ``ExactOptions.max_columns``."""
     validate_problem(problem)
-    t0 = clock.now()
-    deadline = t0 + problem.time_limit_s
+    budget = Budget.start(problem.time_limit_s)
     n_arms = len(problem.assignments.arm_start) - 1
     stats: dict = {"backend": backend, "form": options.form, "presolve": options.presolve,
                    "cliques": options.cliques, "rounds": []}
@@ -469,7 +473,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
             cols[hint] = True
         incumbent = hint
     elif options.presolve:
-        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, deadline, defer=True,
+        cols, incumbent, s = presolve_columns(problem, hint, options.incumbent_nodes, budget, defer=True,
                                               min_engine_s=options.min_engine_s)
         stats.update(s)
     else:
@@ -477,13 +481,13 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     stats["hint"] = incumbent is not None
 
     def finish(chosen, status, gap):
-        return _finish(problem, stats, t0, chosen, status, gap)
+        return _finish(problem, stats, budget, chosen, status, gap)
 
     def keep_incumbent(why: str):
-        return _keep_incumbent(problem, stats, t0, incumbent, cols, why)
+        return _keep_incumbent(problem, stats, budget, incumbent, cols, why)
 
     if large is not None and columns is None and stats.get("pruned", True) and int(cols.sum()) > options.max_columns:
-        sol = _solve_large(problem, large, incumbent, cols, deadline, options, stats, t0)
+        sol = _solve_large(problem, large, incumbent, cols, budget, options, stats)
         if sol is not None:
             return sol
 
@@ -493,7 +497,7 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
                          stats)
 
     def run(model: ModelArrays, stage: int, w1, start, name: str):
-        remaining = (deadline - clock.now()) * LATER_TIER_SHARE.get(name, 1.0)
+        remaining = budget.left_s() * LATER_TIER_SHARE.get(name, 1.0)
         if remaining <= 0.005:
             return "timeout", None, None
         status, x, gap, r = stage_solver(model, stage, w1, remaining, start)
@@ -507,8 +511,8 @@ def solve_staged(problem: ConfigProblem, stage_solver: StageSolver, *, backend: 
     if proof is not None:
         status, chosen, gap = "optimal", incumbent, 0.0
         stats["rounds"].append({"stage": "priority_yield", "proof": proof, "solve_s": 0.0})
-    elif incumbent is not None and deadline - clock.now() < options.min_engine_s:
-        return keep_incumbent(f"none: {deadline - clock.now():.2f} s left (min_engine_s)")
+    elif incumbent is not None and budget.left_s() < options.min_engine_s:
+        return keep_incumbent(f"none: {budget.left_s():.2f} s left (min_engine_s)")
     else:
         status, chosen, gap = run(model.full(), 1, None, incumbent, "priority_yield")
     if chosen is None or (incumbent is not None and _coarse_total(problem, incumbent) > _coarse_total(problem, chosen)):

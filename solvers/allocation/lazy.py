@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from solvers.model import (
     build_model_arrays,
     chosen_columns,
@@ -47,11 +48,10 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     restricted to them without wildcards (no lazy expansion) and remains exact.
     """
     validate_problem(problem)
-    t_start = clock.now()
+    budget = Budget.start(problem.time_limit_s)
     a = problem.assignments
     n_arms = len(a.arm_start) - 1
     stats: dict = {"backend": backend, "form": form, "rounds": []}
-    deadline = t_start + problem.time_limit_s
     if columns is not None:
         candidates_per_arm = None
     cand = None if candidates_per_arm is None else initial_candidates(problem, candidates_per_arm)
@@ -67,7 +67,7 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     stats["hint"] = hint is not None
 
     def finish(chosen, status, gap):
-        stats["total_s"] = clock.now() - t_start
+        stats["total_s"] = budget.elapsed_s()
         if chosen is None:
             return ConfigSolution(np.full(n_arms, -1), status, 0, 0, 0.0, None, stats)
         total, yld, longest = evaluate(problem, chosen)
@@ -81,13 +81,13 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
     while True:
         tb = clock.now()
         rounds1 += stage == 1
-        if stage == 1 and cand is not None and (rounds1 > max_rounds or clock.now() - t_start
+        if stage == 1 and cand is not None and (rounds1 > max_rounds or budget.elapsed_s()
                                                   > 0.4 * problem.time_limit_s):
             # the relaxation keeps asking for more candidates (dense, collision-bound fields):
             # solve the restricted model without wildcards — feasible for the full problem,
             # not proven optimal; the last relaxation optimum bounds the gap honestly
             m = build_model_arrays(problem, form, cand, wildcards=False)
-            remaining = deadline - clock.now()
+            remaining = budget.left_s()
             if remaining < 0.05:
                 break
             status, x, gap, s = solve_arrays(m, 1, None, remaining, hint)
@@ -105,7 +105,7 @@ def lazy_solve(problem: ConfigProblem, solve_arrays, *, form: str, minimize_move
         build_s = clock.now() - tb
         if (m.eq_indptr[1:] == m.eq_indptr[:-1]).any():
             return finish(None, "infeasible", None)
-        remaining = deadline - clock.now()
+        remaining = budget.left_s()
         if remaining <= 0.005:
             break
         status, x, gap, s = solve_arrays(m, stage, w1, remaining, best[0] if best is not None else hint)
