@@ -22,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from models.collision import (
     arm_pair_clearance_mm,
     body_segments_mm,
@@ -445,12 +446,20 @@ def _chunk_pairs(b: _Bodies, body_pairs, target: np.ndarray, k: int, kk: int,
     return out
 
 
-def _deadline_check(deadline_s: float | None, limit_s: float | None):
-    """A no-argument check raising TimeLimitExceeded once ``deadline_s`` has passed."""
+def _budget_check(budget: Budget | None, limit_s: float | None):
+    """A no-argument check raising TimeLimitExceeded once ``budget`` (None: no limit) has
+    passed its deadline; every call reads the clock (:meth:`Budget.past_deadline`)."""
     def check() -> None:
-        if deadline_s is not None and clock.now() > deadline_s:
+        if budget is not None and budget.past_deadline():
             raise TimeLimitExceeded("incompatibility", limit_s)
     return check
+
+
+def _call_budget(budget: Budget | None, deadline_s: float | None) -> Budget | None:
+    """``budget``, else a budget ending at the instant ``deadline_s`` (None: no limit)."""
+    if budget is not None or deadline_s is None:
+        return budget
+    return Budget.ending_at(deadline_s)
 
 
 def _symmetric_csr(pairs: np.ndarray, n: int, check=lambda: None,
@@ -492,6 +501,7 @@ def compute_incompatibility(
     deadline_s: float | None = None,
     time_limit_s: float | None = None,
     max_pairs: int = MAX_PAIRS,
+    budget: Budget | None = None,
 ) -> Incompatibility:
     """Every incompatible pair of assignments of different arms (thesis 5.4, set H of eq. 5.15).
 
@@ -500,15 +510,16 @@ def compute_incompatibility(
     capsule distance on the survivors. Pairs on the same target are marked first and never
     re-tested. Memory is the result (17 bytes per pair) plus one block.
 
-    ``deadline_s`` (a ``clock.now()`` instant; ``time_limit_s`` is only quoted in the
-    error) is checked between blocks: past it, :class:`~models.errors.TimeLimitExceeded`.
+    ``budget`` (or, without one, the ``clock.now()`` instant ``deadline_s``; ``time_limit_s``
+    is only quoted in the error) is checked between blocks: past its deadline,
+    :class:`~models.errors.TimeLimitExceeded`.
     More than ``max_pairs`` pairs raise :class:`~models.errors.StructureTooLarge` (field
     ``targets``) before the memory is spent.
     """
     t0 = clock.now()
     buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
     asg = reachability.assignments
-    check = _deadline_check(deadline_s, time_limit_s)
+    check = _budget_check(_call_budget(budget, deadline_s), time_limit_s)
     check()
     clock.work("incompatibility_assignment", len(asg))  # the reach and the bodies
     bodies = _bodies(instrument, asg, buffer_mm, check)
@@ -565,17 +576,19 @@ def incompatibility_for_targets(
     time_limit_s: float | None = None,
     max_pairs: int = MAX_PAIRS,
     park_move_limit_s: float | None = None,
+    budget: Budget | None = None,
 ) -> Incompatibility:
     """Reachability plus incompatibility for FOV targets, with per-phase timings.
 
-    ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see :func:`compute_incompatibility`;
+    ``budget`` / ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see
+    :func:`compute_incompatibility`;
     ``park_move_limit_s``: see :func:`build_assignments`.
     """
     t0 = clock.now()
     reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
                               blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s)
     t1 = clock.now()
-    inc = compute_incompatibility(instrument, reach, buffer_mm, deadline_s=deadline_s, time_limit_s=time_limit_s,
-                                  max_pairs=max_pairs)
+    inc = compute_incompatibility(instrument, reach, buffer_mm, time_limit_s=time_limit_s, max_pairs=max_pairs,
+                                  budget=_call_budget(budget, deadline_s))
     inc.timings_s["reachability"] = t1 - t0
     return inc

@@ -13,6 +13,8 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from models import clock
+from models.budget import Budget
 from models.errors import StructureTooLarge, TimeLimitExceeded
 from models.incompatibility import (
     build_assignments,
@@ -45,6 +47,19 @@ def test_structure_with_a_deadline_equals_the_one_without() -> None:
     timed = incompatibility_for_targets(INS, x, y, deadline_s=time.perf_counter() + 600, time_limit_s=600)
     assert np.array_equal(free.pairs, timed.pairs)
     assert np.array_equal(free.indices, timed.indices) and np.array_equal(free.indptr, timed.indptr)
+
+
+def test_structure_build_honours_a_budget_and_charges_the_same_reads_as_its_deadline() -> None:
+    x, y = gaussian_field(200, seed=4)
+    with pytest.raises(TimeLimitExceeded):
+        incompatibility_for_targets(INS, x, y, budget=Budget.ending_at(time.perf_counter() - 1.0))
+    reads = []
+    for kw in ({"deadline_s": 1e6}, {"budget": Budget.ending_at(1e6)}, {"budget": Budget.start(None)}):
+        with clock.effort() as e:
+            inc = incompatibility_for_targets(INS, x, y, time_limit_s=1e6, **kw)
+        reads.append((e.reads, e.t_s, len(inc.pairs)))
+    # an unlimited budget polls the clock as often as a limited one: the same effort
+    assert reads[0] == reads[1] == reads[2] and reads[0][0] > 4
 
 
 def test_csr_rows_are_sorted_symmetric_and_match_the_pairs() -> None:
