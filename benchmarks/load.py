@@ -21,6 +21,10 @@ fresh job database in a temporary directory, and talks to them with httpx.
 * ``slow_bodies``: ``--slow`` connections each sending 95 % of a body just under the body
   limit, slowly; statuses received, time to be answered, server RSS before / peak / 5 s
   after.
+* ``--attack`` (upload attacks, :mod:`benchmarks.upload_attack`): the hostile-upload corpus
+  of ``tests/hostile_corpus.py`` at the upload limit (``--attack-mb``), each file alone and
+  pairs at once: status, answer time and whether it names the problem; ``/v1/health``
+  latency p99/max and the server tree's peak RSS (psutil, children included) meanwhile.
 
 Timings depend on the machine and its load: run it alone.
 
@@ -28,6 +32,7 @@ Usage:
     python benchmarks/load.py                 # 50 clients, 60 s, the full sizes
     python benchmarks/load.py --smoke         # a small size of every scenario (minutes)
     python benchmarks/load.py --only load,flood --out load.json
+    python benchmarks/load.py --attack        # upload attacks only, at the 50 MB upload limit
 """
 
 from __future__ import annotations
@@ -506,7 +511,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", default=",".join(SCENARIOS))
     p.add_argument("--smoke", action="store_true", help="small sizes of every scenario")
     p.add_argument("--out", type=Path)
+    p.add_argument("--attack", action="store_true",
+                   help="run the upload-attack scenario only (benchmarks/upload_attack.py)")
+    p.add_argument("--attack-mb", type=float, default=50.0,
+                   help="size of the big attack files, MB (the upload limit)")
     a = p.parse_args(argv)
+    if a.attack:
+        return _emit({"cpus": os.cpu_count(), "attack": _attack(a)}, a.out)
     if a.smoke:
         a.clients, a.seconds, a.limit, a.jobs, a.settle = 4, 6.0, 2.0, 2, 120.0
         a.job_targets = 3
@@ -519,10 +530,21 @@ def main(argv: list[str] | None = None) -> int:
     out: dict[str, Any] = {"smoke": a.smoke, "cpus": os.cpu_count()}
     for name in only:
         out[name] = globals()[f"scenario_{name}"](a)
+    return _emit(out, a.out)
+
+
+def _attack(a: argparse.Namespace) -> dict[str, Any]:
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.upload_attack import scenario_attack
+
+    return scenario_attack(a, start_server, end, workdir)
+
+
+def _emit(out: dict[str, Any], path: Path | None) -> int:
     text = json.dumps(out, indent=2)
     print(text)
-    if a.out:
-        a.out.write_text(text + "\n")
+    if path:
+        path.write_text(text + "\n")
     return 0
 
 

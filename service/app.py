@@ -58,6 +58,7 @@ from service.schemas import (
 )
 from service.settings import Settings, env_name
 from service.target_lists import TargetListStore, install_target_lists, resolve
+from service.uploads import start_fork_server
 from service.web import install_web
 
 log = logging.getLogger("service")
@@ -152,6 +153,10 @@ def _state(request: Request) -> ServiceState:
 
 def _lists_of(request: Request) -> TargetListStore:
     return _state(request).lists
+
+
+def _heavy_of(request: Request) -> HeavyExecutor:
+    return _state(request).heavy
 
 
 async def _admit(req: Any, st: ServiceState, prefix: tuple[str | int, ...] = ("body",), *,
@@ -285,6 +290,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         _ = state.jobs  # open the job database now: re-queues jobs whose lease expired
         _ = state.lists
         await run_in_threadpool(pipeline.warm_up)  # the planner's compiled kernels, before the first request
+        start_fork_server()  # the upload readers' (in the background)
         heavy = state.heavy
         restore = _on_sigterm(heavy.close)
         yield
@@ -319,7 +325,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             allow_headers=["Authorization", "Content-Type"],
         )
     install_web(app)
-    install_target_lists(app, _lists_of, settings, auth=Auth,
+    install_target_lists(app, _lists_of, _heavy_of, settings, auth=Auth,
                          responses=ERRORS)
     _service_routes(app)
     _stage_routes(app)

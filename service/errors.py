@@ -16,6 +16,7 @@ import json
 import logging
 import math
 import re
+from collections import deque
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -388,11 +389,15 @@ class BodyLimitMiddleware:
                 return
             chunks.append(body)
             more = message.get("more_body", False)
-        replay = [{"type": "http.request", "body": b"".join(chunks), "more_body": False}]
+        # replayed as received: a big body in one message would be parsed (multipart) in
+        # one call on the event loop
+        replay = deque({"type": "http.request", "body": c, "more_body": True} for c in chunks)
+        if replay:
+            replay[-1]["more_body"] = False
 
         async def rest() -> Message:
             if replay:
-                return replay.pop()
+                return replay.popleft()
             return await receive()
 
         await self.app(scope, rest, send)

@@ -55,6 +55,17 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(
         50_000_000, ge=1024, description="Largest body of POST /v1/target-lists (the uploaded "
         "file and its multipart framing).")
+    max_upload_decompressed_bytes: int = Field(
+        100_000_000, ge=1024, description="Most bytes a compressed upload (gzip, bzip2, xz) "
+        "of POST /v1/target-lists may decompress to; 422 beyond.")
+    upload_parse_time_s: float = Field(
+        10.0, gt=0, description="Wall-clock limit of reading one uploaded table (POST "
+        "/v1/target-lists), in a process of its own that is stopped past it; 422. A "
+        "100,000-row table of sexagesimal cells takes about 7 s on one core.")
+    upload_parse_memory_bytes: int = Field(
+        600_000_000, ge=200_000_000, description="Address-space limit (RLIMIT_AS) of the "
+        "process reading one uploaded table (it starts at about 180 MB); reading stops past "
+        "it with a 413.")
     default_time_limit_s: float = Field(
         30.0, gt=0, description="Time limit of a stage request (allocation, motion plan) that "
         "gives none; a plan's limit is plan_budget_s / job_budget_s."

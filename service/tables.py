@@ -26,6 +26,7 @@ a table without a priority column priority 1; both are reported in ``notices``.
 
 from __future__ import annotations
 
+import errno
 import math
 import re
 import warnings
@@ -37,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from models.types import MAX_PRIORITY
+from service.table_checks import RowLimit, TargetFileError, check_table_file, compression
 
 ALIASES: dict[str, tuple[str, ...]] = {
     "id": ("id", "target_id", "name", "target", "source_id", "objid", "obj_id", "designation",
@@ -53,7 +55,9 @@ UCDS: dict[str, tuple[str, ...]] = {
     "dec_deg": ("pos.eq.dec;meta.main", "pos.eq.dec"),
 }
 FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml": "votable",
-           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fits.gz": "fits"}
+           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fts": "fits"}
+#: Suffixes of a compressed file, after its format's (``.fits.gz``, ``.csv.bz2``).
+COMPRESSED = (".gz", ".bz2", ".xz")
 MAX_ID_CHARS = 128
 
 # unambiguous (no two ways to match a digit run), so a match takes time linear in the cell
@@ -64,10 +68,6 @@ MAX_ANGLE_CELL_CHARS = 64
 #: At most this much of an offending cell is echoed in an error message.
 ECHO_CHARS = 40
 _SEXAGESIMAL = re.compile(r"^[+-]?\d{1,3}\s*[:\shd°]\s*\d[\d\s:.hdms°′″'\"]*$")
-
-
-class TargetFileError(ValueError):
-    """A target table that cannot be read; the message names file, row and column."""
 
 
 @dataclass(frozen=True)
@@ -104,13 +104,18 @@ def read_targets(path: str | Path) -> list[dict[str, Any]]:
     return read_target_table(path).rows()
 
 
-def read_target_table(path: str | Path, name: str | None = None) -> TargetTable:
+def read_target_table(path: str | Path, name: str | None = None,
+                      rows: RowLimit | None = None) -> TargetTable:
     """Read and validate the table at ``path``; ``name`` is the file name used in messages
-    and for the format (default: ``path`` itself)."""
+    and for the format (default: ``path`` itself). A plain (uncompressed) file is first
+    checked by :func:`service.table_checks.check_table_file`: columns, cells, names and,
+    with ``rows``, the row limit, all before the table reader sees it."""
     p = Path(path)
     label = name or str(p)
     if not p.is_file():
         raise TargetFileError(f"{label}: no such file")
+    if compression(p) is None:
+        check_table_file(p, _format(label), label, rows)
     table = _read_table(p, label)
     if len(table) == 0:
         raise TargetFileError(f"{label}: the table has no rows")
@@ -148,11 +153,21 @@ def read_target_table(path: str | Path, name: str | None = None) -> TargetTable:
 # --------------------------------------------------------------------------- reading
 
 
+def table_suffix(name: str) -> str | None:
+    """The format suffix of a file name (``.csv``, ``.fits``, ...), looked up after any
+    compression suffix (``x.fits.gz`` -> ``.fits``); None when the name has none known."""
+    low = name.lower()
+    for z in COMPRESSED:
+        if low.endswith(z):
+            low = low[:-len(z)]
+            break
+    suffix = Path(low).suffix
+    return suffix if suffix in FORMATS else None
+
+
 def _format(label: str) -> str | None:
-    low = label.lower()
-    if low.endswith(".fits.gz"):
-        return "fits"
-    return FORMATS.get(Path(low).suffix)
+    suffix = table_suffix(label)
+    return FORMATS[suffix] if suffix else None
 
 
 def _read_table(p: Path, label: str) -> Any:
@@ -163,9 +178,24 @@ def _read_table(p: Path, label: str) -> Any:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # VOTable unit / schema chatter
             table = Table.read(p, format=fmt) if fmt else Table.read(p)
+    except MemoryError:
+        raise
     except Exception as exc:  # noqa: BLE001 - astropy raises many kinds
-        raise TargetFileError(f"{label}: cannot read as a table ({exc})") from exc
+        if _out_of_memory(exc):
+            raise MemoryError(str(exc)) from exc
+        raise TargetFileError(f"{label}: cannot read as a table ({_reason(exc)})") from exc
     return table
+
+
+def _out_of_memory(exc: BaseException | None) -> bool:
+    """Whether ``exc`` or an error it was raised from is the lack of memory (the reader
+    wraps some in its own errors)."""
+    seen = 0
+    while exc is not None and seen < 16:
+        if isinstance(exc, MemoryError) or (isinstance(exc, OSError) and exc.errno == errno.ENOMEM):
+            return True
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return False
 
 
 def _csv_lines(p: Path, n: int) -> list[int] | None:
@@ -201,7 +231,7 @@ class _Where:
 
     def cell(self, i: int, column: str) -> str:
         line = f", line {self.lines[i]}" if self.lines else ""
-        return f"{self.label}: row {i + 1}{line}, column {column!r}"
+        return f"{self.label}: row {i + 1}{line}, column {_echo(column)}"
 
 
 def _masked(col: Any) -> np.ndarray:
@@ -249,7 +279,7 @@ def _angles(col: Any, field: str, where: _Where, notices: list[str]) -> np.ndarr
         hours = field == "ra_deg" and sexa_unit == u.hourangle
         decimal = "decimal degrees" if unit is None else f"decimal values in {unit}"
         notices.append(
-            f"{where.label}: column {col.name!r} mixes {decimal} (rows "
+            f"{where.label}: column {_echo(col.name)} mixes {decimal} (rows "
             f"{_row_list(forms['decimal'])}) and sexagesimal {'hours' if hours else 'degrees'} "
             f"(rows {_row_list(forms['sexagesimal'])}); each value was read by its own form")
     return out
@@ -276,8 +306,15 @@ def _angle_cell(text: str, field: str, sexa_unit: Any, unit: Any, cell: str) -> 
             angle = Angle(text) if named else Angle(text, unit=sexa_unit)
         value = float(angle.to_value(u.deg))
     except (ValueError, u.UnitsError, Warning) as exc:
-        raise TargetFileError(f"{cell}: {_echo(text)} is not an angle ({exc})") from exc
+        raise TargetFileError(f"{cell}: {_echo(text)} is not an angle ({_reason(exc)})") from exc
     return value, "sexagesimal"
+
+
+def _reason(exc: BaseException, most: int = 100) -> str:
+    """A reader's error message for the user, cut to ``most`` characters (it may quote the
+    file's content)."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= most else text[:most] + f"... ({len(text)} characters)"
 
 
 def _echo(text: str) -> str:
@@ -313,7 +350,7 @@ def _ids(col: Any, where: _Where) -> list[str]:
             raise TargetFileError(f"{where.cell(i, col.name)}: id longer than {MAX_ID_CHARS} "
                                   "characters")
         if text in seen:
-            raise TargetFileError(f"{where.cell(i, col.name)}: duplicate id {text!r} (also row "
+            raise TargetFileError(f"{where.cell(i, col.name)}: duplicate id {_echo(text)} (also row "
                                   f"{seen[text] + 1})")
         seen[text] = i
         ids.append(text)
@@ -331,10 +368,10 @@ def _priorities(col: Any, where: _Where) -> list[int]:
         try:
             f = float(text)
         except ValueError:
-            raise TargetFileError(f"{cell}: priority {text!r} is not a number (integers "
+            raise TargetFileError(f"{cell}: priority {_echo(text)} is not a number (integers "
                                   f"1..{MAX_PRIORITY})") from None
         if not math.isfinite(f) or not f.is_integer() or not 1 <= f <= MAX_PRIORITY:
-            raise TargetFileError(f"{cell}: priority {text!r} is not an integer in "
+            raise TargetFileError(f"{cell}: priority {_echo(text)} is not an integer in "
                                   f"1..{MAX_PRIORITY}")
         out.append(int(f))
     return out

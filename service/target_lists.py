@@ -3,10 +3,16 @@
 ``target_list_id`` instead of carrying a ``targets`` array, so that a survey-size list is sent
 once, as a file, and never as inline JSON.
 
+An upload is read in a process of its own (:mod:`service.uploads`), in a heavy-request slot
+(503 with ``Retry-After`` when every slot is taken), under a wall-clock limit
+(``MXS_UPLOAD_PARSE_TIME_S``, 422) and a memory limit (``MXS_UPLOAD_PARSE_MEMORY_BYTES``, 413),
+and stopped when its client leaves. It is limited in bytes (``MXS_MAX_UPLOAD_BYTES``, 413;
+``MXS_MAX_UPLOAD_DECOMPRESSED_BYTES`` once decompressed, 422) and in targets
+(``MXS_MAX_TARGET_LIST_TARGETS``, 422, applied while the file is read); a request that
+references a list is then held to its own stage's target limit.
+
 A list is stored in the job database (its own table ``target_lists``), so every server on that
-database sees it. The upload is limited in bytes (``MXS_MAX_UPLOAD_BYTES``, 413) and in targets
-(``MXS_MAX_TARGET_LIST_TARGETS``, 422); a request that references a list is then held to its own
-stage's target limit. Lists older than ``MXS_TARGET_LIST_RETENTION_S`` or beyond the newest
+database sees it. Lists older than ``MXS_TARGET_LIST_RETENTION_S`` or beyond the newest
 ``MXS_TARGET_LIST_RETENTION_COUNT`` are deleted. A job copies the list's targets into its request
 when it is queued, so a list deleted later never breaks a job.
 """
@@ -15,7 +21,6 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import tempfile
 import time
 import uuid
 from collections.abc import Callable
@@ -30,10 +35,14 @@ from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
 from service.errors import FieldError, NotFound
+from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
 from service.schemas import ErrorResponse, SkyTarget
-from service.settings import Settings
-from service.tables import FORMATS, TargetFileError, TargetTable, read_target_table
+from service.settings import Settings, env_name
+from service.tables import COMPRESSED, table_suffix
+from service.upload_child import ParsedList, ParseLimits
+from service.uploads import parse_upload
 
+#: A longer file name is cut to this many characters, keeping its suffix (``.fits.gz``).
 MAX_FILENAME_CHARS = 200
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS target_lists (
@@ -136,14 +145,12 @@ class TargetListStore:
         finally:
             con.close()
 
-    def put(self, table: TargetTable) -> StoredList:
+    def put(self, table: ParsedList) -> StoredList:
         """Store a read table (then apply the retention); return it as stored."""
         now = time.time()
-        t = table.targets
         stored = StoredList(
             uuid.uuid4().hex, table.source, now, dict(table.columns), list(table.notices),
-            [r.id for r in t], [r.ra_deg for r in t], [r.dec_deg for r in t],
-            [r.priority for r in t], [r.line for r in t])
+            table.ids, table.ra_deg, table.dec_deg, table.priority, table.line)
         blob = json.dumps({"id": stored.ids, "ra_deg": stored.ra_deg, "dec_deg": stored.dec_deg,
                            "priority": stored.priority, "line": stored.line})
         con = _connect(self.db_path)
@@ -191,28 +198,29 @@ class TargetListStore:
 # ----------------------------------------------------------------- reading an upload
 
 
-def _suffix(filename: str) -> str:
-    low = filename.lower()
-    if low.endswith(".fits.gz"):
-        return ".fits.gz"
-    return Path(low).suffix if Path(low).suffix in FORMATS else ".csv"
+def short_name(filename: str | None, most: int = MAX_FILENAME_CHARS) -> str:
+    """The base name of an uploaded file (``upload.csv`` when it has none), cut to ``most``
+    characters keeping its suffix, so that a long ``....fits.gz`` name is still read as FITS."""
+    name = Path(filename or "").name or "upload.csv"
+    if len(name) <= most:
+        return name
+    suffix = table_suffix(name)
+    if suffix is not None:
+        zipped = next((z for z in COMPRESSED if name.lower().endswith(z)), "")
+        tail = name[len(name) - len(suffix) - len(zipped):]
+    else:
+        tail = Path(name).suffix[:16]
+    return name[:most - len(tail) - 3] + "..." + tail
 
 
-def read_upload(data: bytes, filename: str, settings: Settings) -> TargetTable:
-    """Parse an uploaded table; every problem is a 422 naming the file's row and column."""
-    name = Path(filename or "upload.csv").name[:MAX_FILENAME_CHARS] or "upload.csv"
-    with tempfile.TemporaryDirectory(prefix="mxs-upload-") as tmp:
-        path = Path(tmp) / f"upload{_suffix(name)}"
-        path.write_bytes(data)
-        try:
-            table = read_target_table(path, name=name)
-        except TargetFileError as exc:
-            raise FieldError(("body", "file"), str(exc)) from exc
-    most, setting = settings.target_limit("target-list")
-    if len(table.targets) > most:
-        raise FieldError(("body", "file"), f"{name}: {len(table.targets)} targets; at most "
-                         f"{most} in a target list on this server ({setting}={most})", "too_long")
-    return table
+def parse_limits(settings: Settings) -> ParseLimits:
+    """The bounds of reading one upload on this server, each with its setting."""
+    most, rows_setting = settings.target_limit("target-list")
+    return ParseLimits(
+        most, rows_setting,
+        settings.max_upload_decompressed_bytes, env_name("max_upload_decompressed_bytes"),
+        settings.upload_parse_time_s, env_name("upload_parse_time_s"),
+        settings.upload_parse_memory_bytes, env_name("upload_parse_memory_bytes"))
 
 
 def list_out(store: TargetListStore, stored: StoredList, include_targets: bool) -> JSONResponse:
@@ -255,8 +263,10 @@ IncludeTargets = Annotated[bool, Query(description="Return the targets (default)
 
 
 def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListStore],
-                         settings: Settings, *, auth: Depends, responses: dict[Any, Any]) -> None:
-    """Add ``POST /v1/target-lists`` and ``GET /v1/target-lists/{target_list_id}``."""
+                         heavy_of: Callable[[Request], HeavyExecutor], settings: Settings, *,
+                         auth: Depends, responses: dict[Any, Any]) -> None:
+    """Add ``POST /v1/target-lists`` (read in a slot of ``heavy_of(request)``) and
+    ``GET /v1/target-lists/{target_list_id}``."""
 
     @app.post("/v1/target-lists", operation_id="create_target_list", response_model=TargetList,
               tags=["targets"], dependencies=[auth], responses=responses)
@@ -274,14 +284,20 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
         over `MXS_MAX_UPLOAD_BYTES` a 413. Pass `target_list_id` to a segmentation, plan or
         job request instead of `targets`."""
         store = store_of(request)
-        data = await file.read()
-        name = file.filename or "upload.csv"
+        name = short_name(file.filename)
+        limits = parse_limits(settings)
 
-        def work() -> JSONResponse:  # off the event loop: a survey-size table takes seconds
-            table = read_upload(data, name, settings)
-            return list_out(store, store.put(table), include_targets)
+        def work(ticket: Ticket) -> JSONResponse:
+            parsed = parse_upload(file.file, name, limits, ticket.cancel)
+            return list_out(store, store.put(parsed), include_targets)
 
-        return await run_in_threadpool(work)
+        heavy = heavy_of(request)
+        ticket = heavy.submit(work)
+        try:
+            return await wait_or_cancel(heavy, ticket, request.is_disconnected)
+        except Cancelled:
+            raise Overloaded("the upload was cancelled (client gone or server shutting down)",
+                             settings.retry_after_s) from None
 
     @app.get("/v1/target-lists/{target_list_id}", operation_id="get_target_list",
              response_model=TargetList, tags=["targets"], dependencies=[auth],

@@ -1,0 +1,146 @@
+"""The process that reads one uploaded target table (the server side is :mod:`service.uploads`).
+
+:func:`child_main` runs in a process of its own, forked for one upload: it lowers its own
+address-space limit (``RLIMIT_AS``) and CPU-time limit (``RLIMIT_CPU``, a backstop behind the
+server's wall-clock limit), dies with its parent, stream-decompresses a compressed file under
+a bound on the decompressed bytes, reads the table with :func:`service.tables.read_target_table`
+(whose checks refuse a bad shape before the table reader sees it, and apply the row limit
+while reading) and sends one outcome back through a pipe:
+
+* ``("ok", ParsedList)``: the table's columns;
+* ``("invalid", message)``: a :class:`~service.tables.TargetFileError` (422);
+* ``("memory", "")``: a ``MemoryError`` (the address-space limit was reached; 413);
+* ``("failed", reason)``: any other error of the reader (422).
+
+This module imports only the table reader and the standard library, so that a forked child
+starts in milliseconds from a server that preloaded it.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import errno
+import math
+import os
+import signal
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from service.table_checks import RowLimit, decompress
+from service.tables import TargetFileError, TargetTable, read_target_table, table_suffix
+
+#: Exit code of a child that could not even report its ``MemoryError``.
+MEMORY_EXIT = 3
+_PR_SET_PDEATHSIG = 1
+
+
+@dataclass(frozen=True)
+class ParseLimits:
+    """The bounds of reading one upload, each with the setting that sets it."""
+
+    max_rows: int
+    rows_setting: str
+    max_decompressed_bytes: int
+    decompressed_setting: str
+    time_limit_s: float
+    time_setting: str
+    memory_bytes: int
+    memory_setting: str
+
+
+@dataclass(frozen=True)
+class ParseJob:
+    """One upload to read: the file as received, its (client's) name and the limits."""
+
+    path: str
+    name: str
+    limits: ParseLimits
+
+
+@dataclass(frozen=True)
+class ParsedList:
+    """A read table as columns (``line`` None when unknown), cheap to send between processes."""
+
+    source: str
+    columns: dict[str, str | None]
+    notices: list[str]
+    ids: list[str]
+    ra_deg: list[float]
+    dec_deg: list[float]
+    priority: list[int]
+    line: list[int | None]
+
+    @classmethod
+    def of(cls, table: TargetTable) -> ParsedList:
+        t = table.targets
+        return cls(table.source, dict(table.columns), list(table.notices), [r.id for r in t],
+                   [r.ra_deg for r in t], [r.dec_deg for r in t], [r.priority for r in t],
+                   [r.line for r in t])
+
+
+def row_limit(limits: ParseLimits) -> RowLimit:
+    return RowLimit(limits.max_rows, f" in a target list on this server "
+                    f"({limits.rows_setting}={limits.max_rows})")
+
+
+def parse(job: ParseJob) -> ParsedList:
+    """Read ``job``'s file: decompress it when it is compressed, then read the table."""
+    lim = job.limits
+    src = Path(job.path)
+    plain = src.with_name("plain" + (table_suffix(job.name) or ".csv"))
+    path = plain if decompress(src, plain, lim.max_decompressed_bytes, job.name,
+                               lim.decompressed_setting) else src
+    rows = row_limit(lim)
+    table = read_target_table(path, name=job.name, rows=rows)
+    if len(table.targets) > lim.max_rows:
+        raise rows.refuse(job.name, f"{len(table.targets)} targets")
+    return ParsedList.of(table)
+
+
+def _die_with_parent() -> None:
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - no usable libc
+            pass
+
+
+def _limit_resources(limits: ParseLimits) -> None:
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not Unix: the wall-clock limit alone
+        return
+    mem = limits.memory_bytes
+    resource.setrlimit(resource.RLIMIT_AS, (mem, mem))
+    cpu_s = math.ceil(limits.time_limit_s) + 2
+    resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 1))
+
+
+def _reason(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"[:200]
+
+
+def child_main(conn: Any, job: ParseJob) -> None:
+    """The child process: read ``job`` under its limits and send the outcome on ``conn``."""
+    _die_with_parent()
+    outcome: tuple[str, Any]
+    try:
+        _limit_resources(job.limits)
+        outcome = ("ok", parse(job))
+    except TargetFileError as exc:
+        outcome = ("invalid", str(exc))
+    except MemoryError:
+        outcome = ("memory", "")
+    except OSError as exc:
+        outcome = ("memory", "") if exc.errno == errno.ENOMEM else ("failed", _reason(exc))
+    except Exception as exc:  # noqa: BLE001 - the reader raises many kinds on odd files
+        outcome = ("failed", _reason(exc))
+    try:
+        conn.send(outcome)
+        conn.close()
+    except MemoryError:
+        os._exit(MEMORY_EXIT)
