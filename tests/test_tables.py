@@ -234,3 +234,132 @@ def test_a_long_cell_is_refused_at_once_naming_the_cell_and_echoing_little(tmp_p
         msg = str(exc.value)
         assert "row 2, line 3, column 'ra'" in msg and bound in msg, msg
         assert len(msg) < 300
+
+
+# ------------------------------------------------ checks before the table reader sees a file
+
+
+@pytest.fixture
+def no_reader(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Fail the test if astropy's table reader is called (the checks must refuse first)."""
+
+    def refuse(*_: object, **__: object) -> None:
+        raise AssertionError("the table reader saw the file")
+
+    monkeypatch.setattr(Table, "read", refuse)
+
+
+def test_duplicate_columns_are_refused_before_the_reader_in_well_under_a_second(
+        tmp_path: Path, no_reader: None) -> None:
+    import time
+
+    p = tmp_path / "d.csv"
+    p.write_text(",".join(["10", "20"] + ["0"] * 19_998) + "\n")  # 40 KB, 20,000 columns
+    t0 = time.perf_counter()
+    with pytest.raises(TargetFileError, match="line 1 names 20000 columns; at most 1000"):
+        read_targets(p)
+    assert time.perf_counter() - t0 < 0.5
+    p.write_text("ra,dec,x,x\n1,2,3,4\n")
+    with pytest.raises(TargetFileError, match="column 4: the name 'x' repeats column 3"):
+        read_targets(p)
+    p.write_text("ra,dec, \n1,2,3\n")
+    with pytest.raises(TargetFileError, match="line 1, column 3 has no name"):
+        read_targets(p)
+
+
+def test_ecsv_names_are_checked_in_either_delimiter(tmp_path: Path) -> None:
+    t = Table({"id": ["a b", "c"], "ra": [1.0, 2.0], "dec": [3.0, 4.0]})
+    for delimiter in (" ", ","):
+        p = tmp_path / "t.ecsv"
+        t.write(p, format="ascii.ecsv", delimiter=delimiter, overwrite=True)
+        assert [r["id"] for r in read_targets(p)] == ["a b", "c"]
+        text = p.read_text().replace(f"ra{delimiter}dec", f"ra{delimiter}ra")
+        p.write_text(text)
+        with pytest.raises(TargetFileError, match="the name 'ra' repeats column 2"):
+            read_targets(p)
+
+
+def test_the_row_limit_stops_reading_at_the_first_row_over(tmp_path: Path, no_reader: None) -> None:
+    from service.table_checks import RowLimit
+
+    p = tmp_path / "rows.csv"
+    p.write_text("ra,dec\n" + "1,2\n" * 500)
+    with pytest.raises(TargetFileError, match=r"more than 100 rows \(line 102\); at most 100 "
+                       r"targets \(the limit\)"):
+        read_target_table(p, rows=RowLimit(100, " (the limit)"))
+
+
+def test_fits_headers_are_checked_before_the_data_is_read(tmp_path: Path, no_reader: None) -> None:
+    from hostile_corpus import table_fits_header
+
+    from service.table_checks import RowLimit
+
+    p = tmp_path / "big.fits"
+    p.write_bytes(table_fits_header(1000) + bytes(4000 + 2880 - 4000 % 2880))
+    with pytest.raises(TargetFileError, match="HDU 1 declares 1000 rows; at most 999 targets"):
+        read_target_table(p, rows=RowLimit(999))
+    p.write_bytes(table_fits_header(12_000_000) + bytes(2880))  # 48 MB declared, 2880 B sent
+    with pytest.raises(TargetFileError, match=r"declares 48000000 bytes of data \(12000000 rows\) "
+                       "but the file holds 2880 bytes"):
+        read_target_table(p)
+    p.write_bytes(b"not fits")
+    with pytest.raises(TargetFileError, match="cannot read as a table"):
+        read_target_table(p)
+
+
+def test_fits_hdus_reads_what_astropy_wrote(tmp_path: Path) -> None:
+    from astropy.io import fits
+
+    from service.table_checks import fits_hdus
+
+    p = tmp_path / "multi.fits"
+    t1 = fits.BinTableHDU(Table({"ra": np.arange(7.0), "dec": np.zeros(7, ">f4"),
+                                 "mag": ["abc"] * 7}))
+    t2 = fits.TableHDU.from_columns([fits.Column("x", "E10.4", array=np.arange(3.0))])
+    vla = fits.BinTableHDU.from_columns([fits.Column("v", "PJ()", array=[[1, 2], [3], [4, 5, 6]])])
+    fits.HDUList([fits.PrimaryHDU(np.zeros((4, 5), ">f4")), t1, t2, vla]).writeto(p)
+    hdus = fits_hdus(p, "multi.fits")
+    with fits.open(p) as real:
+        assert [h.rows for h in hdus] == [0, 7, 3, 3]
+        assert [h.table for h in hdus] == [False, True, True, True]
+        padded = [-(-h.data_bytes // 2880) * 2880 for h in hdus]
+        assert padded == [h._data_size for h in real]  # astropy's padded data sizes
+    assert [h.data_bytes for h in hdus] == [80, 7 * 15, 3 * 10, 3 * 8 + 6 * 4]
+    assert [r["ra_deg"] for r in read_targets(p)] == list(np.arange(7.0))
+
+
+def test_decompression_is_bounded(tmp_path: Path) -> None:
+    import bz2
+    import gzip
+    import lzma
+    import zipfile
+
+    from service.table_checks import decompress
+
+    plain = b"ra,dec\n" + b"1,2\n" * 1000
+    out = tmp_path / "out"
+    for name, data in (("t.gz", gzip.compress(plain)), ("t.bz2", bz2.compress(plain)),
+                       ("t.xz", lzma.compress(plain))):
+        (tmp_path / name).write_bytes(data)
+        assert decompress(tmp_path / name, out, len(plain), name)
+        assert out.read_bytes() == plain
+        with pytest.raises(TargetFileError, match=f"decompresses to more than {len(plain) - 1} "
+                           r"bytes \(MXS_X=.*\)"):
+            decompress(tmp_path / name, out, len(plain) - 1, name, "MXS_X")
+    (tmp_path / "p.csv").write_bytes(plain)
+    assert not decompress(tmp_path / "p.csv", out, 10, "p.csv")
+    (tmp_path / "2.gz").write_bytes(gzip.compress(gzip.compress(plain)))
+    with pytest.raises(TargetFileError, match="compressed twice"):
+        decompress(tmp_path / "2.gz", out, 10**6, "2.gz")
+    with zipfile.ZipFile(tmp_path / "t.zip", "w") as z:
+        z.writestr("t.csv", plain)
+    with pytest.raises(TargetFileError, match="zip archive"):
+        decompress(tmp_path / "t.zip", out, 10**6, "t.zip")
+
+
+def test_reader_errors_quote_at_most_100_characters(tmp_path: Path) -> None:
+    p = tmp_path / "t.csv"
+    p.write_text("ra,dec\n1,2,3," + "9" * 3000 + "\n")  # astropy's message quotes the line
+    with pytest.raises(TargetFileError) as exc:
+        read_targets(p)
+    assert len(str(exc.value)) < 250, str(exc.value)
