@@ -41,6 +41,7 @@ from service.jobpool import JobManager, PoolOptions
 from service.jobs import CANCELLED, EXPIRED
 from service.limits import check_request
 from service.middleware import BodyTimeoutMiddleware
+from service.schema_rules import describe_limits
 from service.schemas import (
     AllocationRequest,
     AllocationResponse,
@@ -310,6 +311,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(Overloaded, _on_overloaded)  # type: ignore[arg-type]
     warn_if_empty(settings)
     describe_security(app, required=effective_token(settings) is not None)
+    describe_limits(app, settings.max_time_limit_s, 2.0 * state.instrument.fov_radius_mm)
     # outermost last: CORS headers on every answer (401, 413, 503 included); the token is
     # checked before the body is read
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes,
@@ -387,7 +389,13 @@ def _stage_routes(app: FastAPI) -> None:
     async def segmentations(req: SegmentationRequest, st: StateDep, request: Request) -> JSONResponse:
         """Pointings covering the targets (thesis ch. 4): the cheap stage, up to
         `MXS_MAX_SEGMENTATION_TARGETS` targets (default 100,000), inline or as a stored
-        `target_list_id`."""
+        `target_list_id`.
+
+        The schema states exactly one of `targets` and `target_list_id`, at least one target,
+        and this server's `threshold_mm` bound (the FOV diameter). Also a 422 naming the field:
+        duplicate target ids; targets with no centre on the sky (spread over the whole sphere)
+        or one 90 deg or more from the centre (or from `tangent_point`); a `target_list_id`
+        that is not stored."""
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
         return await _from_list(list_id, _heavy(
@@ -397,6 +405,14 @@ def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def allocations(req: AllocationRequest, st: StateDep, request: Request) -> JSONResponse:
+        """The arms' allocation to the targets (thesis ch. 5): one configuration, or all of
+        them to completeness (`configurations: "all"`).
+
+        The schema states at least one target, `pointing` with sky targets, each arm at most
+        once in `start` and in `disabled_arms`, and this server's `time_limit_s` bound
+        (`MXS_MAX_TIME_LIMIT_S`). Also a 422 naming the field: duplicate target ids, a sky
+        target 90 deg or more from the pointing, an arm the instrument does not have. A valid
+        request that cannot be satisfied answers 200 with `unallocated[].reason`."""
         req, limit = await _admit(req, st)
         return await _heavy(request, st, AllocationResponse, lambda progress, left: pipeline.allocation(
             req, st.instrument, progress, time_limit_s=left(limit)))
@@ -404,6 +420,13 @@ def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
     async def motion_plans(req: MotionPlanRequest, st: StateDep, request: Request) -> JSONResponse:
+        """Collision-free trajectories of the 12 arms from `start` to `goal` (thesis ch. 6).
+
+        The schema states that `start` and `goal` each name every arm once, and this server's
+        `time_limit_s` bound. Also a 422 naming the field: `dt_col_s` must divide `dt_s` into
+        a whole number of collision steps (the default `dt_col_s` is 0.1 s, so a `dt_s`
+        alone must be a multiple of 0.1 s), and (220 s / dt_s) x (220 s / dt_col_s) may not
+        exceed 1e6. A plan that cannot be found answers 200 with `status: "failed"`."""
         req, limit = await _admit(req, st)
         return await _heavy(request, st, MotionPlanResponse, lambda progress, left: pipeline.motion_plan(
             req, st.instrument, progress, time_limit_s=left(limit)))
@@ -422,6 +445,11 @@ def _stage_routes(app: FastAPI) -> None:
         At most `MXS_MAX_PLAN_TARGETS` targets (inline or a stored `target_list_id`). Plan big
         fields with `POST /v1/jobs` (`kind: "plan"`, budget `MXS_JOB_BUDGET_S`, default 1 h). A motion leg that still cannot be planned is returned with status "failed",
         and the plan says `executable: false` with the `reasons`.
+
+        The schema states exactly one of `targets` and `target_list_id`, at least one target,
+        and this server's `time_limit_s` and `threshold_mm` bounds. Also a 422 naming the
+        field: duplicate target ids, targets with no centre on the sky or one 90 deg or more
+        from it, a `target_list_id` that is not stored.
         """
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
@@ -434,8 +462,9 @@ def _job_routes(app: FastAPI) -> None:
     @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
               dependencies=[Auth], responses={**ERRORS, 429: QUEUE_FULL})
     async def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
-        """Queue a stage request as a job: validated now exactly as its endpoint validates it
-        (422 naming `body.<kind>.request.<field>`; a plan job may hold up to
+        """Queue a stage request as a job: validated now exactly as its endpoint validates it,
+        by the same code (the rules in each stage's description; 422 naming
+        `body.<kind>.request.<field>`; a plan job may hold up to
         `MXS_MAX_PLAN_JOB_TARGETS` targets), refused with 429 + `Retry-After` when the queue is
         full (`MXS_MAX_QUEUED_JOBS`). A segmentation or plan request may name a stored list
         (`target_list_id`): its targets are copied into the job when it is queued."""

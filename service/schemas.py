@@ -24,8 +24,18 @@ from pydantic import (
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
+from service.schema_rules import (
+    ONE_TARGET_SOURCE,
+    SKY_NEEDS_POINTING,
+    branch_errors,
+    one_target_source,
+    unique_arms,
+    unique_arms_check,
+    unique_ids,
+)
 
 N_ARMS = 12
+UNIQUE_ARMS = unique_arms(N_ARMS)
 
 
 def _integral(v: Any) -> Any:
@@ -86,63 +96,12 @@ class Response(BaseModel):
     model_config = ConfigDict(extra="allow")
 
 
-def _unique_ids(targets: list[Any]) -> list[Any]:
-    seen: dict[str, int] = {}
-    for i, t in enumerate(targets):
-        if t.id in seen:
-            raise ValueError(f"targets[{i}].id: duplicate target id {t.id!r} (also targets[{seen[t.id]}])")
-        seen[t.id] = i
-    return targets
-
-
 TargetListId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[0-9A-Za-z_-]+$",
                                     description="Id of a stored target list "
                                     "(POST /v1/target-lists).")]
 SKY_TARGETS_DOC = ("Sky targets; or give `target_list_id` instead (exactly one of the two).")
 TARGET_LIST_DOC = ("A stored target list (POST /v1/target-lists) instead of `targets`; the "
                    "request is then held to the same limits as with the list's targets inline.")
-
-
-def _one_target_source(target_list_id: str | None, info: ValidationInfo) -> str | None:
-    """Exactly one of ``targets`` and ``target_list_id`` (nothing to say when ``targets``
-    itself failed: its own error names it)."""
-    if "targets" not in info.data:
-        return target_list_id
-    given = info.data["targets"] is not None
-    if given and target_list_id is not None:
-        raise ValueError("give either targets or target_list_id, not both")
-    if not given and target_list_id is None:
-        raise ValueError("give targets (an array) or target_list_id (a stored target list, "
-                         "POST /v1/target-lists)")
-    return target_list_id
-
-
-def _unique_arms(states: list[ArmState] | None, field: str) -> list[ArmState] | None:
-    if states is None:
-        return None
-    seen: set[int] = set()
-    for i, s in enumerate(states):
-        if s.arm in seen:
-            raise ValueError(f"{field}[{i}].arm: arm {s.arm} listed twice")
-        seen.add(s.arm)
-    return states
-
-
-def _branch_errors(exc: ValidationError, v: Any) -> ValidationError:
-    """``exc`` of the ``list[PlaneTarget] | list[SkyTarget]`` union reduced to the branch the
-    input is meant for, with the branch's name taken out of each ``loc``."""
-    first = v[0] if isinstance(v, list) and v else None
-    sky = isinstance(first, dict) and ("ra_deg" in first or "dec_deg" in first)
-    branch = "list[SkyTarget]" if sky else "list[PlaneTarget]"
-    errors = [e for e in exc.errors() if e["loc"] and e["loc"][0] == branch]
-    if not errors:
-        return exc
-    try:
-        return ValidationError.from_exception_data(exc.title, [
-            {"type": e["type"], "loc": e["loc"][1:], "input": e.get("input"),
-             **({"ctx": e["ctx"]} if "ctx" in e else {})} for e in errors])
-    except (TypeError, KeyError, ValueError):  # an error type that cannot be rebuilt
-        return exc
 
 
 # ------------------------------------------------------------------------ shared parts
@@ -189,6 +148,8 @@ class TelescopePointing(Request):
 class SkyTargetSource(Request):
     """Sky targets given inline (``targets``) or as a stored list (``target_list_id``): exactly one."""
 
+    model_config = ConfigDict(json_schema_extra=ONE_TARGET_SOURCE)
+
     targets: list[SkyTarget] | None = Field(None, min_length=1, description=SKY_TARGETS_DOC)
     target_list_id: TargetListId | None = Field(None, validate_default=True,
                                                 description=TARGET_LIST_DOC)
@@ -196,12 +157,12 @@ class SkyTargetSource(Request):
     @field_validator("targets")
     @classmethod
     def _ids_unique(cls, v: list[Any] | None) -> list[Any] | None:
-        return None if v is None else _unique_ids(v)
+        return None if v is None else unique_ids(v)
 
     @field_validator("target_list_id")
     @classmethod
     def _one_source(cls, v: str | None, info: ValidationInfo) -> str | None:
-        return _one_target_source(v, info)
+        return one_target_source(v, info)
 
 
 class SegmentationRequest(SkyTargetSource):
@@ -219,6 +180,8 @@ class SegmentationRequest(SkyTargetSource):
 
 
 class AllocationRequest(Request):
+    model_config = ConfigDict(json_schema_extra=SKY_NEEDS_POINTING)
+
     targets: (Annotated[list[PlaneTarget], Field(min_length=1)]
               | Annotated[list[SkyTarget], Field(min_length=1)]) = Field(
         description="Focal-plane targets, or sky targets (then `pointing` is required).",
@@ -233,10 +196,12 @@ class AllocationRequest(Request):
     seed: Seed | None = None
     collision_buffer_mm: BufferMm | None = None
     start: list[ArmState] | None = Field(
-        None, max_length=N_ARMS, description="Current configuration of some or all arms."
+        None, max_length=N_ARMS, json_schema_extra=UNIQUE_ARMS,
+        description="Current configuration of some or all arms, each arm at most once."
     )
     disabled_arms: list[ArmState] | None = Field(
-        None, max_length=N_ARMS, description="Arms out of service, fixed at these angles."
+        None, max_length=N_ARMS, json_schema_extra=UNIQUE_ARMS,
+        description="Arms out of service, fixed at these angles, each arm at most once."
     )
 
     @field_validator("targets", mode="wrap")
@@ -248,22 +213,22 @@ class AllocationRequest(Request):
         try:
             return handler(v)
         except ValidationError as exc:
-            raise _branch_errors(exc, v) from None
+            raise branch_errors(exc, v) from None
 
     @field_validator("targets")
     @classmethod
     def _ids_unique(cls, v: list[Any]) -> list[Any]:
-        return _unique_ids(v)
+        return unique_ids(v)
 
     @field_validator("start")
     @classmethod
     def _start_unique(cls, v: list[ArmState] | None) -> list[ArmState] | None:
-        return _unique_arms(v, "start")
+        return unique_arms_check(v, "start")
 
     @field_validator("disabled_arms")
     @classmethod
     def _disabled_unique(cls, v: list[ArmState] | None) -> list[ArmState] | None:
-        return _unique_arms(v, "disabled_arms")
+        return unique_arms_check(v, "disabled_arms")
 
     @model_validator(mode="after")
     def _pointing_for_sky(self) -> AllocationRequest:
@@ -277,8 +242,10 @@ class AllocationRequest(Request):
 
 
 class MotionPlanRequest(Request):
-    start: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
-    goal: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS)
+    start: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS, json_schema_extra=UNIQUE_ARMS,
+                                  description="Every arm once: where the motion starts.")
+    goal: list[ArmState] = Field(min_length=N_ARMS, max_length=N_ARMS, json_schema_extra=UNIQUE_ARMS,
+                                 description="Every arm once: where the motion ends.")
     dt_s: Annotated[float, Field(ge=0.1, le=600.0, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Planning time step, s (default 6; at least 0.1)."
     )
@@ -296,12 +263,12 @@ class MotionPlanRequest(Request):
     @field_validator("start")
     @classmethod
     def _start_unique(cls, v: list[ArmState]) -> list[ArmState]:
-        return _unique_arms(v, "start") or []
+        return unique_arms_check(v, "start") or []
 
     @field_validator("goal")
     @classmethod
     def _goal_unique(cls, v: list[ArmState]) -> list[ArmState]:
-        return _unique_arms(v, "goal") or []
+        return unique_arms_check(v, "goal") or []
 
 
 class PlanRequest(SkyTargetSource):
