@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from planner.delays import DelayProblem, DelayStats, Option, solve, trajectory_points
 from planner.geometry import ArmGeom
 from planner.roadmap import RoadmapParams, candidate_paths
@@ -61,7 +61,7 @@ def reduced_problem(prob: DelayProblem, removed: set[int], start_q: np.ndarray) 
 
 
 def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *, max_size: int = 3,
-                 max_sets: int = 4, deadline: float | None = None, stats: ClusterStats | None = None,
+                 max_sets: int = 4, budget: Budget | None = None, stats: ClusterStats | None = None,
                  first: list[int] | None = None, max_greedy: int = 6):
     """Yield (R, rest assignment): smallest arm sets whose removal makes the rest solvable.
 
@@ -70,7 +70,8 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
     ``first`` (e.g. the delay stage's blamed arms) orders the candidates. After the minimal
     sets (at most ``max_sets``), each is yielded again with one conflict-graph neighbour added.
     When no set of at most ``max_size`` arms works, a greedy one (up to ``max_greedy`` arms,
-    :func:`contradicted_arms` plus the most blamed) is tried.
+    :func:`contradicted_arms` plus the most blamed) is tried. Once ``budget`` (None: no
+    limit) has passed its deadline, no further set is tried.
     """
     cand = [k for k in movable if prob.neighbours[k]]
     pref = {a: i for i, a in enumerate(first or [])}
@@ -88,14 +89,14 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             combos = (c for c in combos
                       if sum(1 for x, y in itertools.combinations(c, 2) if y in prob.neighbours[x]) >= 2)
         for R in combos:
-            if deadline is not None and clock.now() > deadline:
+            if budget is not None and budget.past_deadline():
                 return
             if not all(any(a in h for a in R) for h in hoods):
                 continue
             if stats is not None:
                 stats.removal_tests += 1
             dst = DelayStats()
-            sol, _ = solve(reduced_problem(prob, set(R), start_q), dst, node_budget=500, deadline=deadline)
+            sol, _ = solve(reduced_problem(prob, set(R), start_q), dst, node_budget=500, budget=budget)
             if sol is None and dst.nodes > 500 and stats is not None:
                 stats.inconclusive += 1  # node budget, not infeasibility
             if sol is not None:
@@ -108,7 +109,7 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
                     break
         if found:
             break
-    if not minimal and (yield from _greedy_sets(prob, C, start_q, movable, max_greedy, deadline, stats, minimal)):
+    if not minimal and (yield from _greedy_sets(prob, C, start_q, movable, max_greedy, budget, stats, minimal)):
         return  # out of time
     # then each minimal set with one conflicting neighbour more (the rest stays solvable: fewer
     # constraints): a neighbour that sweeps the set's start and goal may need its own detour
@@ -119,7 +120,7 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
             if key in seen or j not in movable or len(key) > max_size:
                 continue
             seen.add(key)
-            if deadline is not None and clock.now() > deadline:
+            if budget is not None and budget.past_deadline():
                 return
             if stats is not None:
                 stats.removal_sets.append(list(R) + [j])
@@ -127,7 +128,7 @@ def removal_sets(prob: DelayProblem, start_q: np.ndarray, movable: list[int], *,
 
 
 def _greedy_sets(prob: DelayProblem, C: list[int], start_q: np.ndarray, movable: list[int], max_greedy: int,
-                 deadline: float | None, stats: ClusterStats | None, minimal: list):
+                 budget: Budget | None, stats: ClusterStats | None, minimal: list):
     """Removal sets when no small one works: several independent local conflicts (e.g. four
     arms, each with a parked neighbour on either side blocking both its theta2 directions).
 
@@ -140,7 +141,7 @@ def _greedy_sets(prob: DelayProblem, C: list[int], start_q: np.ndarray, movable:
     if B and len(B) <= max_greedy:
         if stats is not None:
             stats.removal_tests += 1
-        sol, _ = solve(reduced_problem(prob, set(B), start_q), DelayStats(), node_budget=500, deadline=deadline)
+        sol, _ = solve(reduced_problem(prob, set(B), start_q), DelayStats(), node_budget=500, budget=budget)
         if sol is not None:
             minimal.append((B, sol))
             if stats is not None:
@@ -148,12 +149,12 @@ def _greedy_sets(prob: DelayProblem, C: list[int], start_q: np.ndarray, movable:
             yield B, sol
     G = [k for k in C if k in movable]
     while G and len(G) <= max_greedy:
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return True
         if stats is not None:
             stats.removal_tests += 1
         sol, blamed = solve(reduced_problem(prob, set(G), start_q), DelayStats(), node_budget=500,
-                            deadline=deadline)
+                            budget=budget)
         if sol is not None:
             minimal.append((sorted(G), sol))
             if stats is not None:
@@ -200,14 +201,15 @@ def _sample(t: np.ndarray, q: np.ndarray, ts: np.ndarray) -> np.ndarray:
 def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, prob: DelayProblem,
                  R: list[int], rest: dict[int, tuple[int, int]], *, buffer_mm: float, params: SearchParams,
                  rparams: RoadmapParams, seed: int, reverse: bool, stats: SearchStats,
-                 deadline: float | None = None, max_orders: int = 6, lead_steps: int = 0,
+                 budget: Budget | None = None, max_orders: int = 6, lead_steps: int = 0,
                  ) -> list[tuple[np.ndarray, np.ndarray]] | None:
     """Timed way-points (t, q) of every arm: the rest on its fixed straight schedule, the arms of
     ``R`` planned by state-time search against it (in reverse time when ``reverse``).
 
     ``lead_steps`` delays the whole rest schedule by that many dt (relative delays, hence its
     collision-freeness, unchanged): the arms of ``R`` get a head start to leave their starts
-    (forward) or, in reverse, may arrive at their goals that long after the rest finished."""
+    (forward) or, in reverse, may arrive at their goals that long after the rest finished.
+    None once ``budget`` (None: no limit) has passed its deadline."""
     n = len(geoms)
     dt = params.dt_s
     m = params.m
@@ -235,7 +237,7 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
     # arms of a large set are mostly independent (separate local conflicts): few orders
     orders = list(itertools.permutations(R))[:max_orders if len(R) <= 3 else 2]
     for order in orders:
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return None
         obst = ObstacleTime(m=m, n_steps=H, buffer_mm=buffer_mm, nb=nb)
         for k, (t, q) in obs.items():
@@ -245,7 +247,7 @@ def plan_cluster(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
             obst.add(geoms[k], _sample(t, q, ts), arr)
         plans = {}
         for k in order:
-            if deadline is not None and clock.now() > deadline:
+            if budget is not None and budget.past_deadline():
                 return None
             p = plan_arm(geoms[k], paths[k], obst, params, stats)
             if p is None:

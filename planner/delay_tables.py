@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from planner.clearance import diagonals_bad, rest_clear
 from planner.geometry import ArmGeom, body_speed_bound_mm_s
 
@@ -139,8 +139,9 @@ class DelayProblem:
 def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float, dt_col_s: float,
                   horizon_s: float, buffer_mm: float, stats: DelayStats,
                   old: DelayProblem | None = None, margin_mm: float = 0.0,
-                  deadline: float | None = None) -> DelayProblem | None:
-    """Pairwise relative-delay tables of every arm pair whose options can come close.
+                  budget: Budget | None = None) -> DelayProblem | None:
+    """Pairwise relative-delay tables of every arm pair whose options can come close; None
+    once ``budget`` (None: no limit) has passed its deadline.
 
     With ``old`` (same arms, options extended by appending), tables of option pairs already
     computed are reused.
@@ -159,10 +160,10 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
         b = np.concatenate([o.box for o in options[k]])
         arm_box.append(np.array([b[:, 0].min(), b[:, 1].min(), b[:, 2].max(), b[:, 3].max()]))
     for i in range(n):
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return None  # out of time: the caller falls back
         for j in range(i + 1, n):
-            if deadline is not None and clock.now() > deadline:
+            if budget is not None and budget.past_deadline():
                 return None
             if not _boxes_overlap(arm_box[i], arm_box[j], buffer_mm + 5.0):
                 continue
@@ -174,7 +175,7 @@ def build_problem(geoms: list[ArmGeom], options: list[list[Option]], dt_s: float
             for a in range(Pi):
                 # detour options multiply the option pairs of one arm pair: honour the
                 # deadline inside a pair too, or one crowded pair overruns the whole budget
-                if a and deadline is not None and clock.now() > deadline:
+                if a and budget is not None and budget.past_deadline():
                     return None
                 for b in range(Pj):
                     if prev is not None and a < prev.shape[0] and b < prev.shape[1]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from models import clock
+from models.budget import Budget
 from planner.delay_tables import (  # noqa: F401 - the tables' types and builders, used through this module
     DelayProblem,
     DelayStats,
@@ -153,8 +154,9 @@ def arc_consistency(prob: DelayProblem, doms: list[np.ndarray], blame: np.ndarra
 
 def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
           fixed: dict[int, tuple[int, int]] | None = None,
-          deadline: float | None = None) -> tuple[dict[int, tuple[int, int]] | None, list[int]]:
-    """Assign (option, delay) to every arm minimising the makespan (branch and bound).
+          budget: Budget | None = None) -> tuple[dict[int, tuple[int, int]] | None, list[int]]:
+    """Assign (option, delay) to every arm minimising the makespan (branch and bound), until
+    ``budget`` (None: the node budget only) has passed its deadline.
 
     Returns (assignment or None, the arms most often found with an empty domain).
     """
@@ -174,7 +176,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
         doms = [b & (f <= bound) for b, f in zip(base, finish, strict=True)]
         if any(not d.any() for d in doms):
             return None
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return None
         doms = arc_consistency(prob, doms, blame)
         if doms is None:
@@ -193,7 +195,7 @@ def solve(prob: DelayProblem, stats: DelayStats, *, node_budget: int = 20000,
             for p, t in vals[order]:
                 nodes += 1
                 clock.work("csp_nodes", 1)
-                if nodes > node_budget or (deadline is not None and clock.now() > deadline):
+                if nodes > node_budget or (budget is not None and budget.past_deadline()):
                     nodes = node_budget + 1
                     return False
                 new = list(doms)
@@ -363,38 +365,43 @@ class DelaySearch:
     def _failed(self) -> DelayResult:
         return self._end(DelayResult(None, self.cur, self.blamed, self.max_rounds, straight=self.straight))
 
-    def straight_phase(self, deadline: float | None = None,
-                       first_round_deadline: float | None = None) -> DelayResult | None:
+    def straight_phase(self, deadline: float | None = None, first_round_deadline: float | None = None, *,
+                       budget: Budget | None = None, first_round: Budget | None = None) -> DelayResult | None:
         """Straight options only; None when paused (see the class docstring). Round 0's tables
-        (the straight problem later strategies start from) are built until
-        ``first_round_deadline`` (None: to the end), the rest until ``deadline``."""
+        (the straight problem later strategies start from) are built within ``first_round``
+        (None: to the end), the rest within ``budget`` (None: no limit). ``deadline`` and
+        ``first_round_deadline``: the same as :func:`models.clock.now` instants, for a caller
+        without budgets."""
+        budget = _instant_budget(budget, deadline)
+        first_round = _instant_budget(first_round, first_round_deadline)
         n = len(self.geoms)
         if any(not o for o in self.opts):
             return self._end(DelayResult(None, self.opts, [k for k in range(n) if not self.opts[k]], 0))
-        return self._rounds(deadline, pause=True, first_round_deadline=first_round_deadline)
+        return self._rounds(budget, pause=True, first_round=first_round)
 
-    def detour_phase(self, deadline: float | None = None, prefer: list[int] | None = None,
+    def detour_phase(self, budget: Budget | None = None, prefer: list[int] | None = None,
                      futile: bool = False) -> DelayResult:
-        """The detour rounds after a paused :meth:`straight_phase`; ``prefer`` the arms to extend
+        """The detour rounds after a paused :meth:`straight_phase`, within ``budget`` (None: no
+        limit); ``prefer`` the arms to extend
         first (a removal set, :mod:`planner.cluster`); ``futile`` when detours are known not to
         help (the rounds end at once)."""
         if self.result is not None:
             return self.result
         if self._resume_tail:
             self._resume_tail = False
-            step = self._tail(deadline, prefer, futile)
+            step = self._tail(budget, prefer, futile)
             if step == "break":
                 return self._failed()
             self.rnd += 1
-        out = self._rounds(deadline, pause=False, prefer=prefer, futile=futile)
+        out = self._rounds(budget, pause=False, prefer=prefer, futile=futile)
         return out if out is not None else self._failed()
 
-    def _rounds(self, deadline, pause: bool, prefer=None, futile=False,
-                first_round_deadline: float | None = None) -> DelayResult | None:
+    def _rounds(self, budget: Budget | None, pause: bool, prefer=None, futile=False,
+                first_round: Budget | None = None) -> DelayResult | None:
         while self.rnd < self.max_rounds:
             rnd = self.rnd
             nxt = build_problem(self.geoms, self.cur, self.dt_s, self.dt_col_s, self.horizon_s, self.buffer_mm,
-                                self.stats, old=self.prob, deadline=first_round_deadline if rnd == 0 else deadline)
+                                self.stats, old=self.prob, budget=first_round if rnd == 0 else budget)
             if nxt is None:
                 if pause and self.straight is not None and not self.extended:
                     # out of time while adding the other theta2 directions: pause with the
@@ -408,24 +415,24 @@ class DelaySearch:
                 p = self.prob
                 self.straight = DelayProblem([list(o) for o in p.options], p.K, p.dt_s, p.horizon_s, p.tables,
                                              p.neighbours)
-            sol = self._solve_and_repair(deadline)
+            sol = self._solve_and_repair(budget)
             if sol is not None:
                 ms = max(self.cur[k][p].duration_s + t * self.dt_s for k, (p, t) in sol.items())
                 return self._end(DelayResult(sol, self.cur, [], rnd + 1, ms, self.straight))
-            timed_out = deadline is not None and clock.now() > deadline
+            timed_out = budget is not None and budget.past_deadline()
             if pause and self.straight is not None and not self.extended and (
                     rnd >= 1 or timed_out or not any(len(self.cur[k]) < len(self.opts[k]) for k in self.mv)):
                 self._resume_tail = self.paused = True  # every straight option failed
                 return None
-            step = self._tail(deadline, prefer, futile)
+            step = self._tail(budget, prefer, futile)
             if step == "break":
                 return self._failed()
             self.rnd += 1
         return self._failed()
 
-    def _solve_and_repair(self, deadline) -> dict[int, tuple[int, int]] | None:
+    def _solve_and_repair(self, budget: Budget | None) -> dict[int, tuple[int, int]] | None:
         prob, cur = self.prob, self.cur
-        sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
+        sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, budget=budget)
         repairs = 0
         while sol is not None and self.check is not None and repairs < self.max_repairs:
             bad_pairs = self.check(sol, cur)
@@ -442,15 +449,15 @@ class DelaySearch:
                     prob.neighbours[a].append(b)
                     prob.neighbours[b].append(a)
                 prob.tables[(a, b)][pa, pb, tb - ta + prob.K] = False  # the (b, a) view shares memory
-            sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, deadline=deadline)
+            sol, self.blamed = solve(prob, self.stats, node_budget=self.node_budget, budget=budget)
         if sol is not None and (self.check is None or repairs < self.max_repairs):
             return sol
         return None
 
-    def _tail(self, deadline, prefer, futile) -> str:
+    def _tail(self, budget: Budget | None, prefer, futile) -> str:
         """The end of a failed round: extend the options; "break" when nothing is left to try."""
         rnd, blamed, cur, opts, mv = self.rnd, self.blamed, self.cur, self.opts, self.mv
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return "break"
         if rnd == 0:
             self.seen_blamed += blamed
@@ -495,10 +502,16 @@ class DelaySearch:
                                               min(self.horizon_s, max(self.lb, t_direct) + self.detour_extra_s)))
 
 
-def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, deadline: float | None = None,
+def plan_delays(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, budget: Budget | None = None,
                 **kwargs) -> DelayResult:
     """Straight moves with departure delays; on failure, one-stop detours for the blamed arms
-    (both phases of :class:`DelaySearch`, keyword arguments as there)."""
+    (both phases of :class:`DelaySearch` within ``budget``, None: no limit; keyword
+    arguments as there)."""
     search = DelaySearch(geoms, start_q, goal_q, **kwargs)
-    res = search.straight_phase(deadline, first_round_deadline=deadline)
-    return res if res is not None else search.detour_phase(deadline)
+    res = search.straight_phase(budget=budget, first_round=budget)
+    return res if res is not None else search.detour_phase(budget)
+
+
+def _instant_budget(budget: Budget | None, deadline: float | None) -> Budget | None:
+    """``budget``, else a budget ending at the instant ``deadline`` (None: no limit)."""
+    return budget if budget is not None or deadline is None else Budget.ending_at(deadline)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from planner.delays import DelayProblem, DelayStats, Option, build_problem, solve, straight_options
 from planner.geometry import ArmGeom, clearance_between, edges_in_zoa
 
@@ -225,14 +225,17 @@ def _neighbour_poses(geoms: list[ArmGeom], prob: DelayProblem, arm: int, start_q
 
 def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, *, dt_s: float,
                  dt_col_s: float, horizon_s: float, buffer_mm: float, movable: list[int],
-                 stats: DelayStats, deadline: float, max_rounds: int = 8,
+                 stats: DelayStats, deadline: float | None = None, max_rounds: int = 8,
                  waits_steps: tuple[int, ...] = (0, 2, 5), node_budget: int = 20000,
-                 initial: DelayProblem | None = None) -> EvasionResult:
+                 initial: DelayProblem | None = None, budget: Budget | None = None) -> EvasionResult:
     """Straight moves with delays, then clear detours and step-aside moves for the arm pairs
     that no delay separates, re-solving the delay CSP after each round of new options.
 
     ``initial``: the straight-move problem the "delays" strategy already solved on the same
-    leg (same steps and horizon); its options and pair tables are reused, not recomputed."""
+    leg (same steps and horizon); its options and pair tables are reused, not recomputed.
+    The rounds stop once ``budget`` has passed its deadline (without one: the
+    :func:`models.clock.now` instant ``deadline``; neither: no limit)."""
+    budget = Budget.ending_at(deadline) if budget is None else budget
     n = len(geoms)
     mv = set(movable)
     opts = _straight_options(geoms, start_q, goal_q, mv, initial)
@@ -243,19 +246,19 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
     prob = initial if initial is not None and len(initial.options) == n else None
     tried: set[tuple[str, int, int]] = set()
     for rnd in range(max_rounds + 1):
-        prob = build_problem(geoms, opts, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob, deadline=deadline)
+        prob = build_problem(geoms, opts, dt_s, dt_col_s, horizon_s, buffer_mm, stats, old=prob, budget=budget)
         if prob is None:
             break
-        sol, blamed = solve(prob, stats, node_budget=node_budget, deadline=deadline)
+        sol, blamed = solve(prob, stats, node_budget=node_budget, budget=budget)
         if sol is not None:
             return EvasionResult(sol, opts, rnd, log)
-        if clock.now() > deadline or rnd == max_rounds:
+        if budget.past_deadline() or rnd == max_rounds:
             break
         grown = False
         for a, o, b in _blocked_options(prob, opts, mv):
             grown |= _aside_of(geoms, prob, opts, a, o, b, start_q, goal_q, mv, tried, buffer_mm, limit_s,
                                waits, horizon_s, log)
-            if clock.now() > deadline:
+            if budget.past_deadline():
                 break
         bad = [] if grown else _infeasible_pairs(prob)
         if not grown and not bad and len(blamed) >= 2:  # a cycle of three or more arms: the two most blamed
@@ -263,7 +266,7 @@ def plan_evasion(geoms: list[ArmGeom], start_q: np.ndarray, goal_q: np.ndarray, 
         for i, j in bad:
             grown |= _evade_pair(geoms, prob, opts, i, j, start_q, goal_q, mv, tried, buffer_mm, limit_s,
                                  waits, horizon_s, log)
-            if clock.now() > deadline:
+            if budget.past_deadline():
                 break
         log.append({"round": rnd, "infeasible_pairs": [list(p) for p in bad], "grown": grown})
         if not grown:

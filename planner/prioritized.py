@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from models import clock
+from models.budget import Budget
 from models.collision import body_segments_mm, clearance_mm
 from models.instrument import Instrument
 from models.types import ArmTrajectory
@@ -94,15 +94,15 @@ def plan_in_order(instrument: Instrument, geoms: Sequence[ArmGeom], paths: list[
                   a_start: np.ndarray, order: list[int], disabled: list[int], buffer_mm: float,
                   params: SearchParams, stats: SearchStats,
                   rpp_params: SearchParams | None = None,
-                  deadline: float | None = None) -> tuple[dict[int, ArmPlan], int | None]:
+                  budget: Budget | None = None) -> tuple[dict[int, ArmPlan], int | None]:
     """One attempt of Algorithm 6: the arms of ``order`` one after the other, each against the
     obstacle-time set of the disabled arms (resting at ``a_start``) and the arms before it.
 
     Returns (plans per arm, the first arm without a trajectory or None). With ``rpp_params``
     (revised prioritized planning, Cap et al. 2015) an arm first tries to keep clear of the
     arms not yet planned, resting at their starts, so that they can always wait there, and
-    falls back to ignoring them. Past ``deadline`` (``clock.now()``) the next arm
-    is reported as the one without a trajectory.
+    falls back to ignoring them. Once ``budget`` (None: no limit) has passed its deadline, the
+    next arm is reported as the one without a trajectory.
     """
     m = params.m
     obst = ObstacleTime(m=m, n_steps=params.horizon_steps, buffer_mm=buffer_mm,
@@ -111,7 +111,7 @@ def plan_in_order(instrument: Instrument, geoms: Sequence[ArmGeom], paths: list[
         obst.add(geoms[k], np.repeat(a_start[k:k + 1], obst.n_samples, axis=0), 0)
     plans: dict[int, ArmPlan] = {k: ArmPlan(k, a_start[k:k + 1].copy(), -1, 1.0) for k in disabled}
     for idx, k in enumerate(order):
-        if deadline is not None and clock.now() > deadline:
+        if budget is not None and budget.past_deadline():
             return plans, k
         p = None
         rest = order[idx + 1:]

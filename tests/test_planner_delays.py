@@ -6,6 +6,8 @@ import itertools
 
 import numpy as np
 
+from models import clock
+from models.budget import Budget
 from models.collision import arm_pair_clearance_mm
 from models.instrument import default_instrument
 from planner import delays as D
@@ -61,6 +63,21 @@ def test_pair_table_matches_brute_force_sampling():
     # the case is a real conflict: departing together collides, departing 6 s apart does not
     tab0 = D.pair_table(oa[0], GEOMS[A], ob[0], GEOMS[B], M, K, 5.0, (1.2, 1.2), st)
     assert not tab0[K] and tab0[K + 1]
+
+
+def test_delay_search_stops_at_its_budget_and_a_generous_one_changes_nothing():
+    start, goal = _goal(ER_START, ER_ARMS), _goal(ER_GOAL, ER_ARMS)
+    kw = dict(max_start_stop=0, movable=list(ER_ARMS), max_rounds=1)
+    free = _delays(start, goal, stats=D.DelayStats(), **kw)
+    assert free.assignment is not None
+    past = _delays(start, goal, stats=D.DelayStats(), budget=Budget.ending_at(clock.now() - 1.0), **kw)
+    assert past.assignment is None
+    with clock.effort() as e_free:
+        a = _delays(start, goal, stats=D.DelayStats(), **kw)
+    with clock.effort() as e_long:
+        b = _delays(start, goal, stats=D.DelayStats(), budget=Budget.start(1e6), **kw)
+    assert a.assignment == b.assignment == free.assignment
+    assert e_long.reads > e_free.reads  # the budget is polled on the effort clock
 
 
 def test_csp_finds_minimum_makespan():

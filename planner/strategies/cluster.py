@@ -53,30 +53,33 @@ class Cluster:
             return Refusal()
         t_c = clock.now()
         try:
-            return self.plan_straight(leg, search.straight, list(search.blamed), budget.deadline_s)
+            return self.plan_straight(leg, search.straight, list(search.blamed), budget)
         finally:
             leg.cache.cluster_s = clock.now() - t_c
 
-    def plan_straight(self, leg: Leg, straight, blamed: list[int], deadline: float) -> Candidate | Refusal:
+    def plan_straight(self, leg: Leg, straight, blamed: list[int], budget: Budget | float) -> Candidate | Refusal:
         """The strategy on a given straight-move problem (:class:`planner.delays.DelayProblem`)
-        and the arms the delay CSP blamed; removal sets stored in ``leg.cache``."""
+        and the arms the delay CSP blamed, within ``budget`` (or until a
+        :func:`models.clock.now` instant); removal sets stored in ``leg.cache``."""
+        if not isinstance(budget, Budget):
+            budget = Budget.ending_at(budget)
         t_c = clock.now()
         params, rparams = search_params(leg)
         params, rparams = self.params or params, self.rparams or rparams
         cst, st = ClusterStats(), SearchStats()
         out_c = None
         sets = list(removal_sets(straight, leg.start_q, list(leg.enabled), max_size=3, max_sets=3, first=blamed,
-                                 deadline=deadline, stats=cst))
+                                 budget=budget, stats=cst))
         leg.cache.removal_sets = [R for R, _ in sets]
         # the search was neither cut short nor left undecided by the node budget
-        leg.cache.removal_complete = clock.now() <= deadline and cst.inconclusive == 0
+        leg.cache.removal_complete = not budget.past_deadline() and cst.inconclusive == 0
         for lead, rev, R, rest in [(lead, rev, R, rest) for lead, rev in TRIES for R, rest in sets]:
-            if clock.now() > deadline:
+            if budget.past_deadline():
                 break
             cst.attempts += 1
             out = plan_cluster(list(leg.geoms), leg.start_q, leg.goal_q, straight, R, rest, buffer_mm=leg.buffer_mm,
                                params=params, rparams=rparams, seed=leg.options.seed, reverse=rev, stats=st,
-                               deadline=deadline, lead_steps=lead)
+                               budget=budget, lead_steps=lead)
             cst.log.append({"arms": list(R), "reverse": rev, "lead_steps": lead, "planned": out is not None})
             if out is None:
                 continue

@@ -18,6 +18,8 @@ verifies the result.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from models import clock
 from models.budget import Budget
 from models.types import ArmTrajectory
@@ -88,7 +90,7 @@ class Delays:
         search.finished = False
         leg.cache.delay_search = search
         leg.cache.delay_deadline = budget.deadline_s
-        res = search.straight_phase(budget.deadline_s, first_round_deadline=budget.hard_deadline_s)
+        res = search.straight_phase(budget=budget, first_round=replace(budget, deadline_s=budget.hard_deadline_s))
         if res is None:  # paused: every straight option failed, the detour rounds may go on
             stats: dict = {}
             _report(search, stats)
@@ -113,4 +115,4 @@ class Detours:
             # unsolvable, so detours for them cannot help either (a removed arm is the loosest
             # detour; beyond pairs this is a heuristic): leave the time to later strategies
             futile = not sets and leg.cache.removal_complete
-        return finish(leg, search, search.detour_phase(budget.deadline_s, prefer=prefer, futile=futile))
+        return finish(leg, search, search.detour_phase(budget, prefer=prefer, futile=futile))

@@ -34,7 +34,7 @@ class Evasion:
         initial = getattr(search, "straight", None) if search is not None else None
         res = plan_evasion(list(leg.geoms), leg.start_q, leg.goal_q, dt_s=o.dt_s, dt_col_s=o.dt_col_s,
                            horizon_s=o.horizon_s, buffer_mm=leg.buffer_mm, movable=list(leg.enabled),
-                           stats=dst, deadline=budget.deadline_s, initial=initial)
+                           stats=dst, budget=budget, initial=initial)
         stats = {"collision_checks": dst.pair_samples, "states_explored": dst.nodes,
                  "evasion": {"rounds": res.rounds, "log": res.log, "compute_s": clock.now() - t0}}
         if res.assignment is None:

@@ -106,7 +106,7 @@ class Prioritized:
             a_start = leg.start_q if direction == "forward" else leg.goal_q
             st = SearchStats()
             plans, failed = plan_in_order(leg.instrument, leg.geoms, roadmap_paths(leg, direction), a_start, order,
-                                          leg.disabled, leg.buffer_mm, params, st, rpp_params, budget.deadline_s)
+                                          leg.disabled, leg.buffer_mm, params, st, rpp_params, budget)
             stats["attempts"] = attempt + 1
             stats["collision_checks"] += st.collision_checks
             stats["states_explored"] += st.states_explored
