@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from planner.programme import SEGMENTED, plan_progress
-from service.errors import json_safe
+from service.errors import clip_message, json_safe
 
 if TYPE_CHECKING:
     from service.runners import PointingRunner
@@ -300,7 +300,9 @@ class JobStore:
                      (json.dumps(json_safe(result)),))
 
     def set_failed(self, job_id: str, error: str) -> None:
-        self._update(job_id, "status='failed', error=?, owner=NULL, lease_until=NULL", (error,))
+        """Fail an open job with ``error``, quoting at most ~100 characters of any input."""
+        self._update(job_id, "status='failed', error=?, owner=NULL, lease_until=NULL",
+                     (clip_message(error),))
 
     # ------------------------------------------------------- per-pointing plan jobs
 

@@ -126,3 +126,16 @@ def test_a_bad_table_cell_is_quoted_clipped(client: TestClient, tmp_path: Path) 
     assert r.status_code in (413, 422), r.text[:300]
     assert longest_echo(json.dumps(r.json()), "1") <= ECHO_CHARS
     assert len(r.content) < 4_000
+
+
+def test_a_failed_job_quotes_its_input_clipped(tmp_path: Path) -> None:
+    from service.jobs import JobStore
+
+    store = JobStore(tmp_path / "j.db")
+    store.init()
+    job_id = store.create("segmentation", {"targets": []})
+    store.set_failed(job_id, f"invalid input: no target {SOLID!r}")
+    job = store.get(job_id)
+    assert job is not None and job["status"] == "failed"
+    assert job["error"].startswith("invalid input: no target 'xxx")
+    assert longest_echo(job["error"], SOLID) <= ECHO_CHARS + SLACK
