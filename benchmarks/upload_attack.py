@@ -6,14 +6,15 @@ decompressing to 2.5 x the server's decompressed-bytes limit), starts a real ser
 (``python -m service.cli serve``, default settings) and, for each file alone and then for
 pairs of files at once:
 
-* uploads it (``POST /v1/target-lists?include_targets=false``) and records the status, the
-  seconds to the answer, the answer's size and whether it names the problem;
+* uploads it (``POST /v1/target-lists``) and records the status, the seconds to the answer,
+  the answer's size and whether it names the problem;
 * probes ``/v1/health`` every 20 ms meanwhile: latency p99 and max, failures;
 * samples the RSS of the server's process tree (psutil, children included: the fork server
   and the upload readers) every 20 ms: the peak.
 
 The goals: each answer a 4xx naming the problem within 10 s, health within 100 ms, the tree
-within 2 GB. Prints JSON. Timings depend on the machine's load: run it alone.
+within 2 GB. A valid 100,000-row list (``valid_100k_rows``, answered with all its targets)
+runs alone and two at once the same way. Prints JSON. Timings depend on the machine's load: run it alone.
 
     python benchmarks/load.py --attack                # the full sizes
     python benchmarks/load.py --attack --attack-mb 4  # a smoke size
@@ -39,7 +40,8 @@ from hostile_corpus import Attack, build  # noqa: E402
 
 GOAL_S, GOAL_HEALTH_MS, GOAL_RSS_MB = 10.0, 100.0, 2048.0
 PAIRS = (("fits_many_rows", "gzip_bomb"), ("many_columns", "many_columns"),
-         ("duplicate_columns_to_limit", "long_cell_to_limit"), ("bzip2_bomb", "votable_many_rows"))
+         ("duplicate_columns_to_limit", "long_cell_to_limit"), ("bzip2_bomb", "votable_many_rows"),
+         ("valid_100k_rows", "valid_100k_rows"))
 _PROBE_S = 0.02
 
 
@@ -75,15 +77,27 @@ class TreeRss:
         return round(self.peak_mb, 1)
 
 
+def valid_survey(directory: Path, n: int = 100_000) -> Attack:
+    """Not an attack: a valid list at the default target limit (its answer, with every target,
+    is about 11 MB), read and answered while health is probed."""
+    rng = np.random.default_rng(1)
+    ra, dec = 150 + rng.uniform(-1, 1, n), 2 + rng.uniform(-1, 1, n)
+    path = directory / "survey.csv"
+    path.write_text("id,ra_deg,dec_deg,priority\n" + "".join(
+        f"s{i},{r!r},{d!r},{1 + i % 9}\n" for i, (r, d) in enumerate(zip(ra.tolist(), dec.tolist(),
+                                                                        strict=True))))
+    return Attack("valid_100k_rows", "survey.csv", path, (200,), f'"n_targets":{n}')
+
+
 def _upload(url: str, att: Attack, out: dict[str, Any]) -> None:
     t0 = time.monotonic()
     try:
         with open(att.path, "rb") as f:
-            r = httpx.post(url + "/v1/target-lists", params={"include_targets": "false"},
+            r = httpx.post(url + "/v1/target-lists", params={"include_targets": "true"},
                            files={"file": (att.filename, f)}, timeout=120)
         body = r.text
         out.update(status=r.status_code, answer_bytes=len(r.content),
-                   message=body[:200], names_problem=att.says in body,
+                   message=body[:200], names_problem=att.says in body[:1000],
                    retry_after=r.headers.get("retry-after"))
     except httpx.HTTPError as exc:
         out.update(status=None, message=f"{type(exc).__name__}: {exc}"[:200], names_problem=False)
@@ -142,7 +156,7 @@ def scenario_attack(a: argparse.Namespace, start_server: Any, end: Any, workdir:
     decompressed_limit = 100_000_000 if a.attack_mb >= 50 else int(a.attack_mb * 1e6)
     with workdir() as d:
         t0 = time.monotonic()
-        corpus = build(d / "corpus", size, int(decompressed_limit * 2.5))
+        corpus = build(d / "corpus", size, int(decompressed_limit * 2.5)) + [valid_survey(d)]
         built_s = round(time.monotonic() - t0, 1)
         srv = start_server(d / "jobs.sqlite3", max_upload_decompressed_bytes=decompressed_limit)
         try:

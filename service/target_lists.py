@@ -30,7 +30,7 @@ from typing import Annotated, Any
 
 from fastapi import FastAPI, File, Query, Request, UploadFile
 from fastapi.params import Depends
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
@@ -39,7 +39,7 @@ from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_
 from service.schemas import ErrorResponse, SkyTarget
 from service.settings import Settings, env_name
 from service.tables import COMPRESSED, table_suffix
-from service.upload_child import ParsedList, ParseLimits
+from service.upload_child import ParsedList, ParseLimits, json_text, listed_targets
 from service.uploads import parse_upload
 
 #: A longer file name is cut to this many characters, keeping its suffix (``.fits.gz``).
@@ -110,14 +110,8 @@ class StoredList:
     def n_targets(self) -> int:
         return len(self.ids)
 
-    def request_targets(self) -> list[dict[str, Any]]:
-        return [{"id": i, "ra_deg": r, "dec_deg": d, "priority": p}
-                for i, r, d, p in zip(self.ids, self.ra_deg, self.dec_deg, self.priority,
-                                      strict=True)]
-
     def listed(self) -> list[dict[str, Any]]:
-        return [{**t, "row": k + 1, "line": ln}
-                for k, (t, ln) in enumerate(zip(self.request_targets(), self.line, strict=True))]
+        return listed_targets(self.ids, self.ra_deg, self.dec_deg, self.priority, self.line)
 
 
 def _connect(db_path: Path) -> sqlite3.Connection:
@@ -145,23 +139,19 @@ class TargetListStore:
         finally:
             con.close()
 
-    def put(self, table: ParsedList) -> StoredList:
-        """Store a read table (then apply the retention); return it as stored."""
+    def put(self, parsed: ParsedList) -> tuple[str, float]:
+        """Store a read table (then apply the retention); return its id and creation time."""
         now = time.time()
-        stored = StoredList(
-            uuid.uuid4().hex, table.source, now, dict(table.columns), list(table.notices),
-            table.ids, table.ra_deg, table.dec_deg, table.priority, table.line)
-        blob = json.dumps({"id": stored.ids, "ra_deg": stored.ra_deg, "dec_deg": stored.dec_deg,
-                           "priority": stored.priority, "line": stored.line})
+        list_id = uuid.uuid4().hex
         con = _connect(self.db_path)
         try:
             con.execute("INSERT INTO target_lists VALUES (?, ?, ?, ?, ?, ?, ?)",
-                        (stored.list_id, stored.filename, stored.n_targets,
-                         json.dumps(stored.columns), json.dumps(stored.notices), blob, now))
+                        (list_id, parsed.source, parsed.n_targets, json.dumps(parsed.columns),
+                         json.dumps(parsed.notices), parsed.blob, now))
             self._expire(con, now)
         finally:
             con.close()
-        return stored
+        return list_id, now
 
     def get(self, list_id: str) -> StoredList | None:
         """The list, or None when there is none (never stored, or deleted by the retention)."""
@@ -223,6 +213,19 @@ def parse_limits(settings: Settings) -> ParseLimits:
         settings.upload_parse_memory_bytes, env_name("upload_parse_memory_bytes"))
 
 
+def created_out(store: TargetListStore, parsed: ParsedList, list_id: str, created_at: float,
+                include_targets: bool) -> Response:
+    """The answer of ``POST /v1/target-lists``, as :func:`list_out` writes a stored list, from
+    the text the reader's process encoded (no large encoding in the server)."""
+    head = {"target_list_id": list_id, "filename": parsed.source,
+            "n_targets": parsed.n_targets, "created_at": created_at,
+            "expires_at": created_at + store.retention_s}
+    tail = {"columns": parsed.columns, "notices": parsed.notices}
+    body = (json_text(head)[:-1] + ',"targets":' + (parsed.listed if include_targets else "[]")
+            + "," + json_text(tail)[1:])
+    return Response(body.encode(), media_type="application/json")
+
+
 def list_out(store: TargetListStore, stored: StoredList, include_targets: bool) -> JSONResponse:
     body = {"target_list_id": stored.list_id, "filename": stored.filename,
             "n_targets": stored.n_targets, "created_at": stored.created_at,
@@ -275,7 +278,7 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
         file: Annotated[UploadFile, File(description="Target table: CSV, ECSV, VOTable or FITS "
                                          "(by the file name's suffix; CSV otherwise).")],
         include_targets: IncludeTargets = True,
-    ) -> JSONResponse:
+    ) -> Response:
         """Read a target table the way `mxs-planner plan` does and store it: VO UCDs and common
         column names (VizieR `_RAJ2000`/`_DEJ2000`, Gaia `source_id`/`ra`/`dec`, ...),
         sexagesimal or decimal values cell by cell, column units, row ids and priority 1 when
@@ -287,9 +290,10 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
         name = short_name(file.filename)
         limits = parse_limits(settings)
 
-        def work(ticket: Ticket) -> JSONResponse:
+        def work(ticket: Ticket) -> Response:
             parsed = parse_upload(file.file, name, limits, ticket.cancel)
-            return list_out(store, store.put(parsed), include_targets)
+            list_id, created_at = store.put(parsed)
+            return created_out(store, parsed, list_id, created_at, include_targets)
 
         heavy = heavy_of(request)
         ticket = heavy.submit(work)

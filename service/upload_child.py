@@ -1,13 +1,14 @@
 """The process that reads one uploaded target table (the server side is :mod:`service.uploads`).
 
-:func:`child_main` runs in a process of its own, forked for one upload: it lowers its own
-address-space limit (``RLIMIT_AS``) and CPU-time limit (``RLIMIT_CPU``, a backstop behind the
+:func:`child_main` runs in a process of its own, forked for one upload: it limits its own
+address space (``RLIMIT_AS``: what it starts with plus ``ParseLimits.memory_bytes``) and CPU time
+(``RLIMIT_CPU`` (``RLIMIT_CPU``, a backstop behind the
 server's wall-clock limit), dies with its parent, stream-decompresses a compressed file under
 a bound on the decompressed bytes, reads the table with :func:`service.tables.read_target_table`
 (whose checks refuse a bad shape before the table reader sees it, and apply the row limit
 while reading) and sends one outcome back through a pipe:
 
-* ``("ok", ParsedList)``: the table's columns;
+* ``("ok", ParsedList)``: the table, encoded as the server stores and answers it;
 * ``("invalid", message)``: a :class:`~service.tables.TargetFileError` (422);
 * ``("memory", "")``: a ``MemoryError`` (the address-space limit was reached; 413);
 * ``("failed", reason)``: any other error of the reader (422).
@@ -21,16 +22,23 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import errno
+import json
 import math
 import os
 import signal
 import sys
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from service.table_checks import RowLimit, decompress
 from service.tables import TargetFileError, TargetTable, read_target_table, table_suffix
+
+# A child imports its parent's main module (multiprocessing does) by running it under another
+# name; the fork server has it loaded already, which runpy notes with this warning in every child.
+warnings.filterwarnings("ignore", message=r"'[\w.]+' found in sys.modules after import of package",
+                        category=RuntimeWarning, module="runpy")
 
 #: Exit code of a child that could not even report its ``MemoryError``.
 MEMORY_EXIT = 3
@@ -60,25 +68,45 @@ class ParseJob:
     limits: ParseLimits
 
 
+def listed_targets(ids: list[str], ra_deg: list[float], dec_deg: list[float],
+                   priority: list[int], line: list[int | None]) -> list[dict[str, Any]]:
+    """The ``targets`` array of a stored list's answer: each target with its ``row`` (1 = first
+    data row) and ``line`` (of a CSV; None when unknown)."""
+    return [{"id": i, "ra_deg": r, "dec_deg": d, "priority": p, "row": k + 1, "line": ln}
+            for k, (i, r, d, p, ln) in enumerate(zip(ids, ra_deg, dec_deg, priority, line,
+                                                     strict=True))]
+
+
+def json_text(value: Any) -> str:
+    """``value`` as the server's JSON answers write it (compact, UTF-8, no NaN)."""
+    return json.dumps(value, ensure_ascii=False, allow_nan=False, separators=(",", ":"))
+
+
 @dataclass(frozen=True)
 class ParsedList:
-    """A read table as columns (``line`` None when unknown), cheap to send between processes."""
+    """A read table as the server stores and answers it, encoded in the reader's process so
+    that the server only copies text: ``blob`` the stored columns (JSON, the format of
+    :class:`service.target_lists.TargetListStore`), ``listed`` the answer's ``targets`` array
+    (JSON, :func:`listed_targets`)."""
 
     source: str
     columns: dict[str, str | None]
     notices: list[str]
-    ids: list[str]
-    ra_deg: list[float]
-    dec_deg: list[float]
-    priority: list[int]
-    line: list[int | None]
+    n_targets: int
+    blob: str
+    listed: str
 
     @classmethod
     def of(cls, table: TargetTable) -> ParsedList:
         t = table.targets
-        return cls(table.source, dict(table.columns), list(table.notices), [r.id for r in t],
-                   [r.ra_deg for r in t], [r.dec_deg for r in t], [r.priority for r in t],
-                   [r.line for r in t])
+        cols: dict[str, list[Any]] = {
+            "id": [r.id for r in t], "ra_deg": [r.ra_deg for r in t],
+            "dec_deg": [r.dec_deg for r in t], "priority": [r.priority for r in t],
+            "line": [r.line for r in t]}
+        listed = listed_targets(cols["id"], cols["ra_deg"], cols["dec_deg"], cols["priority"],
+                                cols["line"])
+        return cls(table.source, dict(table.columns), list(table.notices), len(t),
+                   json.dumps(cols), json_text(listed))
 
 
 def row_limit(limits: ParseLimits) -> RowLimit:
@@ -109,12 +137,21 @@ def _die_with_parent() -> None:
             pass
 
 
+def _address_space_bytes() -> int:
+    """This process's address space now (what it inherited from the fork server)."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[0])
+    except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
+        return 0
+    return pages * os.sysconf("SC_PAGE_SIZE")
+
+
 def _limit_resources(limits: ParseLimits) -> None:
     try:
         import resource
     except ImportError:  # pragma: no cover - not Unix: the wall-clock limit alone
         return
-    mem = limits.memory_bytes
+    mem = _address_space_bytes() + limits.memory_bytes
     resource.setrlimit(resource.RLIMIT_AS, (mem, mem))
     cpu_s = math.ceil(limits.time_limit_s) + 2
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 1))

@@ -1,11 +1,11 @@
 """Reading an uploaded target table where it cannot hurt the server.
 
 :func:`parse_upload` reads one upload in a child process (:mod:`service.upload_child`),
-forked from a fork server that has the table reader (astropy) imported, so a child starts in
-about 10 ms. The child runs under an address-space limit (``MXS_UPLOAD_PARSE_MEMORY_BYTES``,
-``RLIMIT_AS``) and the server kills it past the wall-clock limit
-(``MXS_UPLOAD_PARSE_TIME_S``) or as soon as its request is cancelled (client gone, server
-stopping). The server's own threads only wait on a pipe, so the event loop and every other
+forked from a fork server that has the table reader (astropy) and the server's main module
+imported, so a child starts in about 10 ms. The child runs under an address-space limit
+(``RLIMIT_AS``: what it starts with plus ``MXS_UPLOAD_PARSE_MEMORY_BYTES``) and the server
+kills it past the wall-clock limit (``MXS_UPLOAD_PARSE_TIME_S``) or as soon as its request is
+cancelled (client gone, server stopping). The server's own threads only wait on a pipe, so the event loop and every other
 request go on whatever the file holds.
 
 The caller runs :func:`parse_upload` in a heavy-request slot
@@ -14,7 +14,8 @@ stage requests (503 with ``Retry-After`` when every slot is taken).
 
 Outcomes: the read table (:class:`~service.upload_child.ParsedList`); a bad file, or one
 that took longer than the time limit to read, a 422 naming ``body.file``; a file whose
-reading reached the memory limit, a 413; each message names the limit and its setting.
+reading reached the memory limit, a 413; each message names the limit and its setting. A
+reader that ends without an answer for another reason is a server fault: logged, 503.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import multiprocessing
 import multiprocessing.forkserver
 import shutil
 import signal
+import sys
 import tempfile
 import threading
 import time
@@ -43,6 +45,9 @@ log = logging.getLogger("service.uploads")
 PRELOAD = ["service.upload_child", "astropy.table", "astropy.io.ascii", "astropy.io.fits",
            "astropy.io.votable", "astropy.coordinates", "astropy.units"]
 _POLL_S = 0.05
+#: Exit codes of a reader that ran out of memory before it could answer: its own report, or
+#: a signal (the kernel's OOM killer, or C code that failed an allocation).
+_MEMORY_EXITS = (MEMORY_EXIT, -signal.SIGKILL, -signal.SIGSEGV, -signal.SIGABRT, -signal.SIGBUS)
 _lock = threading.Lock()
 _context: Any = None
 
@@ -62,11 +67,23 @@ def context() -> Any:
         if _context is None:
             if "forkserver" in multiprocessing.get_all_start_methods():
                 ctx = multiprocessing.get_context("forkserver")
-                ctx.set_forkserver_preload(PRELOAD)
+                ctx.set_forkserver_preload(PRELOAD + _main_module())
             else:  # pragma: no cover - Windows
                 ctx = multiprocessing.get_context("spawn")
             _context = ctx
         return _context
+
+
+def _main_module() -> list[str]:
+    """The server's main module, for the fork server to import once: a child process imports
+    its parent's main module before it runs (multiprocessing does), which is then a lookup of
+    modules already loaded instead of seconds of imports in every child. ``__main__`` for a
+    script (``mxs-planner``), the module's name for ``python -m service.cli``."""
+    main = sys.modules.get("__main__")
+    name = getattr(getattr(main, "__spec__", None), "name", None)
+    if name:  # a package's __main__ (python -m pytest) is not imported by children either
+        return [] if name.endswith("__main__") else [name]
+    return ["__main__"] if getattr(main, "__file__", None) else []
 
 
 def start_fork_server() -> None:
@@ -158,7 +175,11 @@ def _answer(outcome: tuple[str, Any] | None, filename: str, limits: ParseLimits,
         raise FieldError(loc, f"{filename}: reading the table took longer than the limit of "
                          f"{limits.time_limit_s:g} s ({limits.time_setting}="
                          f"{limits.time_limit_s:g}); the reader was stopped", "time_limit")
-    died = "" if outcome is not None or exitcode == MEMORY_EXIT else f"; exit code {exitcode}"
-    raise UploadTooLarge(f"{filename}: reading the table needs more memory than the limit of "
-                         f"{limits.memory_bytes} bytes ({limits.memory_setting}="
-                         f"{limits.memory_bytes}){died}; the reader was stopped")
+    if outcome is None and exitcode not in _MEMORY_EXITS:  # not the file's doing: a fault
+        log.error("upload %r: the reader process ended with exit code %s and no answer",
+                  filename[:100], exitcode)
+        raise ServiceError(f"the upload reader failed (exit code {exitcode}); it has been "
+                           "logged", status_code=503, code="internal_error")
+    raise UploadTooLarge(f"{filename}: reading the table needs more than {limits.memory_bytes} "
+                         f"bytes of memory ({limits.memory_setting}={limits.memory_bytes}); "
+                         "the reader was stopped")
