@@ -174,15 +174,14 @@ def _shorter(leg: Leg, cand: Candidate, budget: Budget, stats: dict) -> MotionPl
                   leg.lower_bound_s, dataclasses.replace(leg.cache))
     for searcher, ratio in _shorter_searches(leg, cand.strategy):
         long = best_s > ratio * leg.lower_bound_s or best_s > sh.MAKESPAN_GOAL_S
-        if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHORTER_SEARCH_MIN_LEFT_S and long):
+        if not (leg.lower_bound_s > 0 and budget.left_s() > sh.SHARES.shorter_search_min_left_s and long):
             continue
         if searcher.name == "sequenced" and at_positive_turn_bound(leg, best_s):
             stats["shorter_search_skipped"] = "sequenced: at the positive-turn bound"
             continue
         t_a = clock.now()
-        frac, cap_s = sh.SHORTER_SEARCH_SHARE
         on = fine_step_leg(leg) if searcher.name == "delays" else alt_leg
-        out = searcher.plan(on, budget.share(frac, min(cap_s, budget.left_s())))
+        out = searcher.plan(on, sh.SHARES.share(budget, sh.SHARES.shorter_search, budget.left_s()))
         alt_stats = merge_stats({}, out.stats)
         ok = isinstance(out, Candidate) and _verify(on, out, alt_stats).ok
         stats["first_makespan_s"] = cand.makespan_s

@@ -2,8 +2,8 @@
 
 :class:`MotionOptions` holds every option of :func:`planner.driver.plan_motion` except the
 time budget; it is validated once, when built, and shared read-only by the driver and
-the strategies. The budget shares below are the only place where the strategies' parts of
-a leg's time budget are set.
+the strategies. :class:`LegShares` (:data:`SHARES`) is the only place where the strategies'
+parts of a leg's time budget are set.
 """
 
 from __future__ import annotations
@@ -13,25 +13,62 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from models.budget import Budget
 from models.errors import InputError
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 
-# Budget shares, as (fraction of the leg's time budget, cap in s).
-# the departure-delay CSP's straight moves and detour rounds together
-DELAY_SHARE = (0.15, 1.5)
-# the cluster strategy, its own share, counted from when it starts
-CLUSTER_SHARE = (0.25, 2.5)
-# the detour rounds after a cluster strategy that found nothing: they rarely succeed where it
-# failed, so they get at most this much more; the rest goes to the prioritized strategy
-DETOURS_AFTER_CLUSTER_SHARE = (0.1, 1.0)
-# the evasion strategy (clear detours and step-aside moves in the delay CSP)
-EVASION_SHARE = (0.15, 1.5)
-# the sequenced strategy (arm-by-arm straight moves and detours on a time grid)
-SEQUENCED_SHARE = (0.8, 8.0)
-# kept for the two-leg "via" fallback: the prioritized strategy stops its attempts before it
-VIA_RESERVE_SHARE = (0.15, 1.5)
-# each leg of the "via" fallback gets at least this budget
-VIA_MIN_BUDGET_S = 0.5
+#: A leg is never given less than this (a leg of a sequence, and each leg of the "via"
+#: fallback): a short budget still has every leg tried rather than failed unplanned.
+MIN_LEG_S = 0.5
+
+
+@dataclass(frozen=True)
+class LegShares:
+    """The motion driver's one table of time shares: the part of a leg's budget each stage of
+    :func:`planner.driver.plan_leg` gets (:func:`planner.strategy.stage_budget`).
+
+    Each share is a fraction of the leg's budget, capped at the same fraction of
+    ``cap_leg_s``: a leg given more than that (a leg of a sequence with time to spare) does
+    not spend the excess on one strategy's search, which rarely succeeds later where it
+    failed early; it goes to the strategies after it and to the sequence's repair loop."""
+
+    #: The leg budget at which every share reaches its cap.
+    cap_leg_s: float = 10.0
+    #: The departure-delay CSP's straight moves and detour rounds together: the first and
+    #: cheapest strategy, which plans most legs; the share keeps the hard legs' strategies
+    #: their time.
+    delays: float = 0.15
+    #: The cluster strategy, counted from when it starts.
+    cluster: float = 0.25
+    #: The detour rounds after a cluster strategy that found nothing: they rarely succeed
+    #: where it failed, so the rest goes to the prioritized strategy.
+    detours_after_cluster: float = 0.1
+    #: The evasion strategy (clear detours and step-aside moves in the delay CSP).
+    evasion: float = 0.15
+    #: The sequenced strategy (arm-by-arm moves on a time grid): the strategy of the deep,
+    #: crowded legs, so the largest share.
+    sequenced: float = 0.8
+    #: Kept back for the two-leg "via" fallback: the prioritized strategy stops its attempts
+    #: before it, so that a leg it cannot plan can still go through park.
+    via_reserve: float = 0.15
+    #: Each search for a shorter plan after a long verified one: a plan is kept, so this
+    #: only buys a shorter configuration time.
+    shorter_search: float = 0.3
+    #: A shorter plan is searched for only while this much of the leg's budget is left: a
+    #: search on less rarely finds one, and the sequence's later legs need the time.
+    shorter_search_min_left_s: float = 1.0
+
+    def cap_s(self, fraction: float) -> float:
+        """The cap of a share of ``fraction``."""
+        return fraction * self.cap_leg_s
+
+    def share(self, budget: Budget, fraction: float, cap_s: float = math.inf) -> Budget:
+        """``fraction`` of ``budget`` from now, at most its cap and ``cap_s``."""
+        return budget.share(fraction, min(self.cap_s(fraction), cap_s))
+
+
+SHARES = LegShares()
+
 # a plan longer than CLUSTER_MAKESPAN_RATIO x the lower bound from one of these strategies lets
 # the driver run the prioritized strategy (at most SHORTER_SEARCH_ATTEMPTS attempts, this share
 # of the budget, if at least SHORTER_SEARCH_MIN_LEFT_S is left) and keep the shorter verified plan
@@ -47,9 +84,7 @@ CLUSTER_MAKESPAN_RATIO = 1.25
 # with departures on this finer step (the CSP's delays are multiples of dt_s, 6 s by default:
 # one step on an arm near the goal takes the plan over it)
 FINE_DELAY_STEP_S = 2.0
-SHORTER_SEARCH_SHARE = (0.3, 3.0)  # of the leg budget, at most 3 s per search
-SHORTER_SEARCH_ATTEMPTS = 2
-SHORTER_SEARCH_MIN_LEFT_S = 1.0
+SHORTER_SEARCH_ATTEMPTS = 2  # prioritized attempts of a shorter-plan search
 # a plan from park at most this longer than its positive-turn bound (the longest move turning theta2 the
 # positive way) is not searched for a shorter one (planner.driver.at_positive_turn_bound)
 POSITIVE_BOUND_TOL_S = 1.0

@@ -41,6 +41,7 @@ from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
 from planner.commands import arm_trajectory
 from planner.driver import plan_motion, verified_plan
+from planner.options import MIN_LEG_S
 from planner.reassign import (
     Placed,
     new_configuration,
@@ -133,7 +134,6 @@ class SequenceOptions:
             raise InputError("park_move_limit_s", "must be a positive finite number of seconds or None")
 
 
-MIN_LEG_S = 0.5  # a leg is never given less than this, even when the sequence's time is short
 
 
 def end_of(plan: MotionPlan) -> np.ndarray:

@@ -194,27 +194,21 @@ def ends_unplannable(instrument: Instrument, geoms: Sequence[ArmGeom], start_q: 
 
 
 def stage_budget(name: str, leg: Leg, budget: Budget) -> Budget:
-    """The part of ``budget`` a strategy gets (the shares of :mod:`planner.options`)."""
-    from planner import options as sh
+    """The part of ``budget`` a strategy gets (:data:`planner.options.SHARES`)."""
+    from planner.options import SHARES as sh
 
     o = leg.options
-    if name == "delays":
-        return budget.share(*sh.DELAY_SHARE)
-    if name == "cluster":
-        return budget.share(*sh.CLUSTER_SHARE)
-    if name == "evasion":
-        return budget.share(*sh.EVASION_SHARE)
-    if name == "sequenced":
-        return budget.share(*sh.SEQUENCED_SHARE)
+    if name in ("delays", "cluster", "evasion", "sequenced"):
+        return sh.share(budget, getattr(sh, name))
     if name == "detours":
         d = leg.cache.delay_deadline if leg.cache.delay_deadline is not None else budget.deadline_s
         if leg.cache.cluster_s is not None:  # the cluster's time is its own, not the delay stage's
-            f, cap = sh.DETOURS_AFTER_CLUSTER_SHARE
-            d = min(d + leg.cache.cluster_s, clock.now() + min(f * budget.total_s, cap))
+            f = sh.detours_after_cluster
+            d = min(d + leg.cache.cluster_s, clock.now() + min(f * budget.total_s, sh.cap_s(f)))
         return replace(budget, deadline_s=d)
     if name == "prioritized" and o.via is not None and o.max_start_stop >= 1:
-        f, cap = sh.VIA_RESERVE_SHARE
-        return budget.keep(min(f * budget.total_s, cap))
+        f = sh.via_reserve
+        return budget.keep(min(f * budget.total_s, sh.cap_s(f)))
     return budget
 
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from models.budget import Budget
 from planner.commands import arm_trajectory
-from planner.options import VIA_MIN_BUDGET_S, MotionOptions
+from planner.options import MIN_LEG_S, MotionOptions
 from planner.strategies.delays import Delays, Detours
 from planner.strategy import (
     Candidate,
@@ -73,7 +73,7 @@ class Via:
             return Refusal()
         if budget.expired():
             return Refusal()
-        each_s = max(VIA_MIN_BUDGET_S, budget.left_s())
+        each_s = max(MIN_LEG_S, budget.left_s())
         sub = MotionOptions(dt_s=o.dt_s, dt_col_s=o.dt_col_s, max_start_stop=0, collision_buffer_mm=leg.buffer_mm,
                             seed=o.seed, horizon_s=o.horizon_s, grid=o.grid, strategies=("delays",), via=None)
         parts: list[Candidate] = []
