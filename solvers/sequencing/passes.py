@@ -68,7 +68,7 @@ class RescuePass:
         q_last = s.steps[-1].problem.assignments.q[s.steps[-1].chosen] if s.steps else s.q
         s.extra = rescue_conflicts(s.instrument, s.targets, s.priority, np.flatnonzero(s.pending),
                                    ~s.pending & ~s.unreachable, q_last, ctx.solve_one, ctx.fixed, ctx.buffer_mm,
-                                   s.speeds, len(s.steps), ctx.budget.deadline_s,
+                                   s.speeds, len(s.steps), ctx.budget,
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
                                    None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one,
                                    park_move_limit_s=ctx.options.sequence.park_move_limit_s)

@@ -9,6 +9,7 @@ import numpy as np
 
 import solvers.effort  # noqa: F401  (prices the work of the incompatibility structure)
 from models import clock
+from models.budget import Budget
 from models.incompatibility import incompatibility_for_targets
 from models.types import Configuration
 from solvers.problem import ConfigProblem, ConfigSolution
@@ -28,7 +29,7 @@ def default_exact_one() -> Callable[[ConfigProblem], ConfigSolution]:
 
 
 def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
-                      first_index, deadline, config_time_limit_s, threads, seed, max_configs,
+                      first_index, budget: Budget, config_time_limit_s, threads, seed, max_configs,
                       n_fill: int = BUDGET.rescue_fill_targets,
                       blank_per_arm: int = BUDGET.rescue_blank_per_arm,
                       exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
@@ -44,7 +45,9 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     configuration like the main loop (same back-end, verified); stops when a configuration
     takes no leftover target.  When a joint configuration takes none, each leftover target
     is tried alone with ``exact_one`` (the chosen engine's exact solve; default CP-SAT).
-    ``park_move_limit_s`` limits the rest locations as it does the main structure's.
+    ``park_move_limit_s`` limits the rest locations as it does the main structure's. Each
+    solve gets at most ``config_time_limit_s`` of what is left of ``budget``; none starts
+    with ``BUDGET.min_solve_s`` or less left.
     """
     if exact_one is None:
         exact_one = default_exact_one()
@@ -67,7 +70,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     sub_targets = targets.subset(sub)
     out: list[Configuration] = []
     while pend[:nl].any() and (max_configs is None or len(out) < max_configs):
-        remaining = deadline - clock.now()
+        remaining = budget.left_s()
         if remaining <= BUDGET.min_solve_s:
             break
         avail = pend.copy()
@@ -86,7 +89,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
             # nothing jointly: one leftover target at a time, by an exact ILP engine (a
             # node-limited branch-and-bound wanders in the zero-weight rest placements and
             # may miss it)
-            one = _one_target_at_a_time(instrument, prob, pend, nl, deadline, config_time_limit_s, exact_one)
+            one = _one_target_at_a_time(instrument, prob, pend, nl, budget, config_time_limit_s, exact_one)
             if one is None:
                 break
             prob, sol, real = one
@@ -99,18 +102,18 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     return out
 
 
-def _one_target_at_a_time(instrument, prob: ConfigProblem, pend: np.ndarray, nl: int, deadline: float,
+def _one_target_at_a_time(instrument, prob: ConfigProblem, pend: np.ndarray, nl: int, budget: Budget,
                           config_time_limit_s: float, exact_one: Callable[[ConfigProblem], ConfigSolution]):
     """The first leftover target (of the ``nl`` leading ones still ``pend``-ing) that an exact
     solve can place alone: (problem, solution, leftover targets observed), or None."""
     for i in np.flatnonzero(pend[:nl]):
-        if deadline - clock.now() <= BUDGET.min_solve_s:
+        if budget.left_s() <= BUDGET.min_solve_s:
             break
         av1 = np.zeros(len(pend), bool)
         av1[i] = True
         av1[nl:] = True
         p1 = dataclasses.replace(prob, available=av1, time_limit_s=min(config_time_limit_s,
-                                                                      deadline - clock.now()))
+                                                                      budget.left_s()))
         s1 = exact_one(p1)  # exact, small
         if s1.status in ("optimal", "feasible") and (s1.chosen >= 0).all() and \
                 i in p1.assignments.target[s1.chosen]:
