@@ -318,6 +318,8 @@ def pointing_summary(records: Sequence[PointingRecord]) -> dict:
     for r in records:
         kinds.update(r.changes_by_kind)
     n_exec = sum(r.executable for r in records)
+    # a pointing that reached its wall-clock share reports no meaningful effort (models.clock)
+    effort_s = [r.effort_s for r in records if not r.overran]
     return {
         "fields": len(records),
         "fields_executable": n_exec,
@@ -331,8 +333,8 @@ def pointing_summary(records: Sequence[PointingRecord]) -> dict:
         "targets_dropped": sum(r.targets_dropped for r in records),
         "wall_s_median": _pct([r.wall_s for r in records], 50),
         "wall_s_max": _max([r.wall_s for r in records]),
-        "effort_s_median": _pct([r.effort_s for r in records], 50),
-        "effort_s_max": _max([r.effort_s for r in records]),
+        "effort_s_median": _pct(effort_s, 50),
+        "effort_s_max": _max(effort_s),
         "overran": sum(r.overran for r in records),
         "fields_not_executable": [{"field": r.field, "failed_legs": r.failed_legs,
                                    "unplanned_reason": r.unplanned_reason}
@@ -418,7 +420,8 @@ def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
         legs.extend(field_legs)
         log(f"[{method}] field {i} ({shape}): {len(results[-1].configurations) if results else 0} "
             f"configurations, allocation {record.allocation_s:.1f} s; plan_pointing "
-            f"executable={record.executable} in {record.wall_s:.1f} s ({record.effort_s:.1f} effort-s); "
+            f"executable={record.executable} in {record.wall_s:.1f} s "
+            f"({'overran its share' if record.overran else f'{record.effort_s:.1f} effort-s'}); "
             f"{len(field_legs)} legs planned alone, {sum(not r.ok for r in field_legs)} failed")
     return {
         "allocation": {**allocation_summary(results, [r.allocation_s for r in pointings]),

@@ -224,7 +224,7 @@ def test_smoke_output_has_the_reported_keys(tmp_path, capsys):
                 "wall_s_median", "wall_s_max", "effort_s_median", "effort_s_max", "overran",
                 "fields_not_executable"):
         assert key in pointing
-    assert pointing["fields"] == 1 and 0.0 < pointing["effort_s_max"] <= pointing["share_s"]
+    assert pointing["fields"] == 1 and pointing["overran"] in (0, 1)
     assert 0.0 < out["methods"]["ilp"]["allocation"]["allocation_s_max"] <= pointing["wall_s_max"]
     n_failed = sum(len(s["failed_legs"]) for s in legs.values())
     saved = np.load(legs_file)
@@ -258,7 +258,7 @@ def test_plan_pointing_section_counts_changes(monkeypatch):
     assert seq["changes_by_kind"] == {"moved_target": 2, "via_park": 2}
     assert seq["targets_moved"] == 4 and seq["legs_through_park"] == 2
     assert seq["configurations_added"] == 2 and seq["legs_failed"] == 1
-    assert seq["effort_s_max"] > 0.0 and seq["wall_s_max"] > 0.0
+    assert seq["effort_s_max"] > 0.0 and seq["wall_s_max"] > 0.0 and seq["overran"] == 0
     # the pointing's sequence gets every configuration of its allocation, with its seed and limit
     for (configurations, options), call in zip(rec.sequence.calls, rec.pointing.calls, strict=True):
         assert configurations == tuple(call["result"].configurations)
@@ -281,6 +281,16 @@ def test_a_pointing_whose_legs_were_not_planned_is_not_executable():
     assert motion.pointing_record(planned, field=3, wall_s=2.0, allocation_s=0.5).executable
     not_attempted = programme.PointingPlan(targets, None, SequencePlan((), (ok,)))
     assert not motion.pointing_record(not_attempted, field=3, wall_s=0.1, allocation_s=0.1).executable
+
+
+def test_effort_figures_leave_out_pointings_that_reached_their_wall_clock_share():
+    """Past its wall-clock share a pointing's effort clock jumps (models.clock.PAST_WALL_S):
+    such a pointing is counted as overran, its effort left out of the effort figures."""
+    def rec(field, effort_s, overran):
+        return motion.PointingRecord(field, True, 5.0, 1.0, effort_s, overran, 3, 0, {}, 0, 0, 0, None)
+    out = motion.pointing_summary([rec(0, 4.0, False), rec(1, 1e9 + 3.0, True), rec(2, 6.0, False)])
+    assert out["overran"] == 1 and out["effort_s_max"] == 6.0 and out["effort_s_median"] == 5.0
+    assert out["fields_executable"] == 3 and out["wall_s_max"] == 5.0
 
 
 def _record(start_q, goal_q, makespan_s, leg=0):
