@@ -418,9 +418,9 @@ def thesis_method(instrument: Instrument, params: Params, method: str) -> dict:
         field_legs = plan_field_legs(instrument, configurations_q, method=method, field=i,
                                      seed=params.seed, leg_budget_s=params.leg_budget_s)
         legs.extend(field_legs)
-        log(f"[{method}] field {i} ({shape}): {len(results[-1].configurations) if results else 0} "
-            f"configurations, allocation {record.allocation_s:.1f} s; plan_pointing "
-            f"executable={record.executable} in {record.wall_s:.1f} s "
+        n_conf = 0 if pointing.allocation is None else len(pointing.allocation.configurations)
+        log(f"[{method}] field {i} ({shape}): {n_conf} configurations, allocation "
+            f"{record.allocation_s:.1f} s; plan_pointing executable={record.executable} in {record.wall_s:.1f} s "
             f"({'overran its share' if record.overran else f'{record.effort_s:.1f} effort-s'}); "
             f"{len(field_legs)} legs planned alone, {sum(not r.ok for r in field_legs)} failed")
     return {
