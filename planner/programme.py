@@ -286,6 +286,11 @@ class PointingPlan:
     effort_s: float = 0.0
     overran: bool = False
 
+    @property
+    def executable(self) -> bool:
+        """Whether every leg was planned and verified (never when ``unplanned_reason`` is set)."""
+        return self.unplanned_reason is None and self.sequence.executable
+
 
 def allocation_options(park_move_limit_s: float | None) -> AllocationOptions:
     """The allocation options of a plan: every location within its park move limit."""

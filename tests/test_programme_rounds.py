@@ -201,3 +201,16 @@ def test_a_synchronous_plan_reports_later_rounds_below_one(monkeypatch) -> None:
     assert stats["rounds"] == 2 and len(answers) == 6
     assert heard == sorted(heard) and heard[-1] < 1.0
     assert sum(p > pp.FIRST_ROUND_DONE for p in heard) == 2  # round 2: its half-way and its end
+
+
+def test_a_pointing_whose_legs_were_not_planned_is_not_executable() -> None:
+    import numpy as np
+
+    from models.types import PlaneTargets
+    from planner.sequence import SequencePlan
+
+    targets = PlaneTargets(("a",), np.array([1.0]), np.array([0.0]), np.array([1]))
+    unplanned = pp.PointingPlan(targets, None, SequencePlan((), ()), "planner error: boom")
+    assert SequencePlan((), ()).executable  # no legs: nothing failed ...
+    assert not unplanned.executable  # ... but the pointing's legs were never planned
+    assert pp.PointingPlan(targets, None, SequencePlan((), ())).executable
