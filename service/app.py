@@ -84,6 +84,11 @@ ERRORS: dict[int | str, dict[str, Any]] = {
           "description": "Overloaded (every heavy-request slot is taken), "
           "shutting down, or a temporary failure: retry after `Retry-After` seconds."},
 }
+#: a request naming a stored target list that does not exist (never uploaded, or deleted)
+LIST_NOT_FOUND: dict[str, Any] = {
+    "model": ErrorResponse,
+    "description": "`target_list_id` names no stored target list (never uploaded, or deleted by "
+                   "the retention); `detail` names the field and the id."}
 QUEUE_FULL: dict[str, Any] = {"model": ErrorResponse, "headers": RETRY_AFTER,
                               "description": "The job queue is full (`MXS_MAX_QUEUED_JOBS`): retry after "
                                              "`Retry-After` seconds."}
@@ -385,7 +390,7 @@ def _service_routes(app: FastAPI) -> None:
 
 def _stage_routes(app: FastAPI) -> None:
     @app.post("/v1/segmentations", operation_id="create_segmentation", response_model=SegmentationResponse, tags=["stages"],
-              dependencies=[Auth], responses=ERRORS)
+              dependencies=[Auth], responses={**ERRORS, 404: LIST_NOT_FOUND})
     async def segmentations(req: SegmentationRequest, st: StateDep, request: Request) -> JSONResponse:
         """Pointings covering the targets (thesis ch. 4): the cheap stage, up to
         `MXS_MAX_SEGMENTATION_TARGETS` targets (default 100,000), inline or as a stored
@@ -394,8 +399,8 @@ def _stage_routes(app: FastAPI) -> None:
         The schema states exactly one of `targets` and `target_list_id`, at least one target,
         and this server's `threshold_mm` bound (the FOV diameter). Also a 422 naming the field:
         duplicate target ids; targets with no centre on the sky (spread over the whole sphere)
-        or one 90 deg or more from the centre (or from `tangent_point`); a `target_list_id`
-        that is not stored."""
+        or one 90 deg or more from the centre (or from `tangent_point`). A `target_list_id`
+        that names no stored list is a 404."""
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
         return await _from_list(list_id, _heavy(
@@ -432,7 +437,7 @@ def _stage_routes(app: FastAPI) -> None:
             req, st.instrument, progress, time_limit_s=left(limit)))
 
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
-              dependencies=[Auth], responses=ERRORS)
+              dependencies=[Auth], responses={**ERRORS, 404: LIST_NOT_FOUND})
     async def plans(req: PlanRequest, st: StateDep, request: Request) -> JSONResponse:
         """The whole pipeline: segmentation, then per pointing allocation (all
         configurations) and the motion sequence park -> c1 -> ... -> park, whose planner may
@@ -449,7 +454,7 @@ def _stage_routes(app: FastAPI) -> None:
         The schema states exactly one of `targets` and `target_list_id`, at least one target,
         and this server's `time_limit_s` and `threshold_mm` bounds. Also a 422 naming the
         field: duplicate target ids, targets with no centre on the sky or one 90 deg or more
-        from it, a `target_list_id` that is not stored.
+        from it. A `target_list_id` that names no stored list is a 404.
         """
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
@@ -460,14 +465,15 @@ def _stage_routes(app: FastAPI) -> None:
 
 def _job_routes(app: FastAPI) -> None:
     @app.post("/v1/jobs", operation_id="create_job", response_model=JobCreated, status_code=202, tags=["jobs"],
-              dependencies=[Auth], responses={**ERRORS, 429: QUEUE_FULL})
+              dependencies=[Auth], responses={**ERRORS, 404: LIST_NOT_FOUND, 429: QUEUE_FULL})
     async def create_job(job: JobRequest, st: StateDep) -> JSONResponse:
         """Queue a stage request as a job: validated now exactly as its endpoint validates it,
         by the same code (the rules in each stage's description; 422 naming
         `body.<kind>.request.<field>`; a plan job may hold up to
         `MXS_MAX_PLAN_JOB_TARGETS` targets), refused with 429 + `Retry-After` when the queue is
         full (`MXS_MAX_QUEUED_JOBS`). A segmentation or plan request may name a stored list
-        (`target_list_id`): its targets are copied into the job when it is queued."""
+        (`target_list_id`): its targets are copied into the job when it is queued; an id that
+        names no stored list is a 404 naming `body.<kind>.request.target_list_id`."""
         req, limit = await _admit(job.request, st, ("body", job.kind, "request"), job=True)
 
         def submit() -> str:  # off the event loop: a big request is dumped and stored here

@@ -34,7 +34,7 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
-from service.errors import FieldError, NotFound
+from service.errors import NotFound, clip
 from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
 from service.schemas import ErrorResponse, SkyTarget
 from service.settings import Settings, env_name
@@ -240,16 +240,17 @@ def list_out(store: TargetListStore, stored: StoredList, include_targets: bool) 
 
 def resolve(req: Any, store: TargetListStore, prefix: tuple[str | int, ...] = ("body",)) -> Any:
     """``req`` with its ``target_list_id`` replaced by the stored list's ``targets`` (``req``
-    itself when it has none); an unknown id is a 422 naming ``target_list_id``. Call off the
-    event loop: a survey-size list takes a fraction of a second to load."""
+    itself when it has none); an id that names no stored list is a missing resource, a 404
+    ``not_found`` naming ``target_list_id`` (under ``prefix``) and the id. Call off the event
+    loop: a survey-size list takes a fraction of a second to load."""
     list_id = getattr(req, "target_list_id", None)
     if list_id is None:
         return req
     stored = store.get(list_id)
     if stored is None:
-        raise FieldError((*prefix, "target_list_id"), f"no stored target list {list_id!r} "
-                         f"(never uploaded, or deleted: {store.kept()}); upload the table with "
-                         "POST /v1/target-lists", "not_found")
+        where = ".".join(str(p) for p in (*prefix, "target_list_id"))
+        raise NotFound(f"{where}: no stored target list {clip(list_id)!r} (never uploaded, or "
+                       f"deleted: {store.kept()}); upload the table with POST /v1/target-lists")
     # a stored list was validated cell by cell when it was read (service.tables checks what
     # SkyTarget checks: ids, ranges, priorities), so its targets are built without re-validation
     targets = [SkyTarget.model_construct(id=i, ra_deg=r, dec_deg=d, priority=p)
@@ -284,8 +285,12 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
         sexagesimal or decimal values cell by cell, column units, row ids and priority 1 when
         the file has none (said in `notices`). A bad cell is a 422 naming the file's row (and
         CSV line) and column; more than `MXS_MAX_TARGET_LIST_TARGETS` targets a 422, a body
-        over `MXS_MAX_UPLOAD_BYTES` a 413. Pass `target_list_id` to a segmentation, plan or
-        job request instead of `targets`."""
+        over `MXS_MAX_UPLOAD_BYTES` a 413. Also a 422 naming the file, for what the file's
+        content decides: a file that is not a table, a table with no rows or no RA or Dec
+        column, duplicate ids, empty or duplicate column names, more than the bounds on
+        columns, line or cell length and decompressed bytes, a read past
+        `MXS_UPLOAD_PARSE_TIME_S`. Pass `target_list_id` to a segmentation, plan or job request
+        instead of `targets`."""
         store = store_of(request)
         name = short_name(file.filename)
         limits = parse_limits(settings)

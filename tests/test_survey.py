@@ -189,16 +189,21 @@ def test_targets_and_target_list_id_exactly_one(client: TestClient) -> None:
             assert err["loc"] == loc and why in err["msg"], (path, err)
 
 
-def test_unknown_target_list_id(client: TestClient) -> None:
-    for path, body, loc in (
-            ("/v1/segmentations", {"target_list_id": "nosuchlist"}, ["body", "target_list_id"]),
-            ("/v1/plans", {"target_list_id": "nosuchlist"}, ["body", "target_list_id"]),
+def test_unknown_target_list_id_is_not_found(client: TestClient) -> None:
+    """A `target_list_id` naming no stored list is a missing resource: 404 `not_found`
+    naming the field and the id, from every route that resolves one and as a job."""
+    for path, body, where in (
+            ("/v1/segmentations", {"target_list_id": "nosuchlist"}, "body.target_list_id"),
+            ("/v1/plans", {"target_list_id": "nosuchlist"}, "body.target_list_id"),
             ("/v1/jobs", {"kind": "segmentation", "request": {"target_list_id": "nosuchlist"}},
-             ["body", "segmentation", "request", "target_list_id"])):
+             "body.segmentation.request.target_list_id"),
+            ("/v1/jobs", {"kind": "plan", "request": {"target_list_id": "nosuchlist"}},
+             "body.plan.request.target_list_id")):
         r = client.post(path, json=body)
-        assert r.status_code == 422, (path, r.text)
-        (err,) = r.json()["detail"]
-        assert err["loc"] == loc and "no stored target list 'nosuchlist'" in err["msg"]
+        assert r.status_code == 404, (path, r.text)
+        out = r.json()
+        assert out["error"] == "not_found", (path, out)
+        assert out["detail"].startswith(f"{where}: no stored target list 'nosuchlist'"), out
     r = client.get("/v1/target-lists/nosuchlist")
     assert r.status_code == 404 and "nosuchlist" in r.json()["detail"]
 
@@ -224,7 +229,7 @@ def test_retention_deletes_the_oldest_lists(tmp_path: Path) -> None:
         assert c.get(f"/v1/target-lists/{ids[0]}").status_code == 404
         assert [c.get(f"/v1/target-lists/{i}").status_code for i in ids[1:]] == [200, 200]
         r = c.post("/v1/segmentations", json={"target_list_id": ids[0]})
-        assert r.status_code == 422 and "at most the newest 2" in message(r)
+        assert r.status_code == 404 and "at most the newest 2" in r.json()["detail"]
 
 
 def test_a_job_by_list_id_carries_the_targets(tmp_path: Path) -> None:
