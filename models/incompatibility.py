@@ -511,7 +511,7 @@ def compute_incompatibility(
     re-tested. Memory is the result (17 bytes per pair) plus one block.
 
     ``budget`` (or, without one, the ``clock.now()`` instant ``deadline_s``; ``time_limit_s``
-    is only quoted in the error) is checked between blocks: past its deadline,
+    is only quoted in the error, by default the budget's limit) is checked between blocks: past its deadline,
     :class:`~models.errors.TimeLimitExceeded`.
     More than ``max_pairs`` pairs raise :class:`~models.errors.StructureTooLarge` (field
     ``targets``) before the memory is spent.
@@ -519,7 +519,8 @@ def compute_incompatibility(
     t0 = clock.now()
     buffer_mm = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
     asg = reachability.assignments
-    check = _budget_check(_call_budget(budget, deadline_s), time_limit_s)
+    call = _call_budget(budget, deadline_s)
+    check = _budget_check(call, time_limit_s if time_limit_s is not None or call is None else call.limit_s)
     check()
     clock.work("incompatibility_assignment", len(asg))  # the reach and the bodies
     bodies = _bodies(instrument, asg, buffer_mm, check)

@@ -173,7 +173,7 @@ def allocate(
             inc = incompatibility_for_targets(
                 instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
                 blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
-                deadline_s=call.deadline_s, time_limit_s=call.limit_s,
+                budget=call,
                 park_move_limit_s=sequencing.sequence.park_move_limit_s)
         except TimeLimitExceeded:
             return timed_out_result(instrument, tgts, fixed, call.elapsed_s(),
