@@ -1,12 +1,12 @@
 """The process that reads one uploaded target table (the server side is :mod:`service.uploads`).
 
 :func:`child_main` runs in a process of its own, forked for one upload: it limits its own
-address space (``RLIMIT_AS``: what it starts with plus ``ParseLimits.memory_bytes``) and CPU time
-(``RLIMIT_CPU`` (``RLIMIT_CPU``, a backstop behind the
-server's wall-clock limit), dies with its parent, stream-decompresses a compressed file under
-a bound on the decompressed bytes, reads the table with :func:`service.tables.read_target_table`
-(whose checks refuse a bad shape before the table reader sees it, and apply the row limit
-while reading) and sends one outcome back through a pipe:
+address space (``RLIMIT_AS``: what it starts with plus ``ParseLimits.memory_bytes``) and CPU
+time (``RLIMIT_CPU``, a backstop behind the server's wall-clock limit), dies with its parent,
+stream-decompresses a compressed file under a bound on the decompressed bytes, reads the
+table with :func:`service.tables.read_target_table` (whose checks refuse a bad shape before
+the table reader sees it, and apply the row limit while reading) and sends one outcome back
+through a pipe:
 
 * ``("ok", ParsedList)``: the table, encoded as the server stores and answers it;
 * ``("invalid", message)``: a :class:`~service.tables.TargetFileError` (422);
@@ -14,7 +14,7 @@ while reading) and sends one outcome back through a pipe:
 * ``("failed", reason)``: any other error of the reader (422).
 
 This module imports only the table reader and the standard library, so that a forked child
-starts in milliseconds from a server that preloaded it.
+starts in milliseconds from a fork server that preloaded it.
 """
 
 from __future__ import annotations

@@ -2,11 +2,11 @@
 
 :func:`parse_upload` reads one upload in a child process (:mod:`service.upload_child`),
 forked from a fork server that has the table reader (astropy) and the server's main module
-imported, so a child starts in about 10 ms. The child runs under an address-space limit
-(``RLIMIT_AS``: what it starts with plus ``MXS_UPLOAD_PARSE_MEMORY_BYTES``) and the server
-kills it past the wall-clock limit (``MXS_UPLOAD_PARSE_TIME_S``) or as soon as its request is
-cancelled (client gone, server stopping). The server's own threads only wait on a pipe, so the event loop and every other
-request go on whatever the file holds.
+imported, so a child starts in tens of milliseconds. The child runs under an address-space
+limit (``RLIMIT_AS``: what it starts with plus ``MXS_UPLOAD_PARSE_MEMORY_BYTES``) and the
+server kills it past the wall-clock limit (``MXS_UPLOAD_PARSE_TIME_S``) or as soon as its
+request is cancelled (client gone, server stopping). The server's own threads only wait on a
+pipe, so the event loop and every other request go on whatever the file holds.
 
 The caller runs :func:`parse_upload` in a heavy-request slot
 (:class:`service.executor.HeavyExecutor`): uploads share the admission control of the
