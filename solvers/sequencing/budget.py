@@ -20,50 +20,85 @@ __all__ = ["BUDGET", "SequenceBudget"]
 
 @dataclass(frozen=True)
 class SequenceBudget:
-    """The driver's constants.  Seconds end in ``_s``; fractions are of the call's limit
-    unless named otherwise."""
+    """The driver's constants, each with what it protects.  Seconds end in ``_s``; fractions
+    are of the call's limit unless named otherwise."""
 
     # --- the greedy loop
-    min_solve_s: float = 0.01  # less than this left: stop (no_time)
-    min_share_s: float = 0.05  # the least one configuration's solve is given
-    share_slack: float = 2.0  # a solve gets up to this many times its share (the hard ones are few)
-    # --- post-passes: a keep-back for model building and verification (0.5 s let a 10 s
-    # call on 384 targets overrun by 0.8 s)
+    #: Less than this left: the loop stops (pending targets ``no_time``) instead of starting
+    #: a solve that cannot finish.
+    min_solve_s: float = 0.01
+    #: The least one configuration's solve is given, so that a long sequence's last
+    #: configurations still get a real solve.
+    min_share_s: float = 0.05
+    #: A solve gets up to this many times its share of what is left: the hard configurations
+    #: are few, and the easy ones leave them their time.
+    share_slack: float = 2.0
+    # --- the post-passes
+    #: Kept back at the end of the call (at most ``keep_back_max_s``) for building models and
+    #: verifying results, which no solver's own limit covers: it keeps the call within its
+    #: limit (0.5 s let a 10 s call on 384 targets overrun by 0.8 s).
     keep_back_fraction: float = 0.1
     keep_back_max_s: float = 1.0
-    # --- repair (ejection chains)
-    repair_left_fraction: float = 0.5  # at most this fraction of what is left
-    # --- repacking
-    repack_window_attempts: float = 4.0  # the repacking budget: attempt limit x this x window ...
-    repack_call_fraction: float = 0.5  # ... or this fraction of the call, whichever is more
-    bulk_fraction: float = 0.4  # of the repacking budget, for the bulk tail repacking ...
-    bulk_attempts: float = 3.0  # ... at most this many attempt limits
-    fewest_fraction: float = 0.5  # of the repacking budget, for the bottom-up repacking
-    fewest_attempt_factor: float = 2.5  # a bottom-up attempt: this many attempt limits
-    min_attempt_s: float = 0.5  # less than this left: no further packing attempt
-    bottom_pool: int = 200  # the bottom-up repacking packs suffixes of at most this many targets
-    prefix_max_pool: int = 400  # the one-fewer repacking, at most this many
+    #: The repair pass (ejection chains) gets at most this fraction of what is left, so the
+    #: repacking passes after it keep theirs.
+    repair_left_fraction: float = 0.5
+    #: The repacking budget: this many attempt limits per window configuration, or
+    #: ``repack_call_fraction`` of the call, whichever is more; it bounds the passes that
+    #: only save configurations, so the loop's allocation is never starved for them.
+    repack_window_attempts: float = 4.0
+    repack_call_fraction: float = 0.5
+    #: Of the repacking budget, the bulk tail repacking's part (at most ``bulk_attempts``
+    #: attempt limits): the rest goes to the bottom-up and one-fewer repackings.
+    bulk_fraction: float = 0.4
+    bulk_attempts: float = 3.0
+    #: Of the repacking budget, the bottom-up repacking's part, each of its attempts at most
+    #: ``fewest_attempt_factor`` attempt limits: the one-fewer repacking keeps the rest.
+    fewest_fraction: float = 0.5
+    fewest_attempt_factor: float = 2.5
+    #: A packing attempt or the LP bound is started only with at least this left: less
+    #: rarely improves a packing and still pays for building its model.
+    min_search_s: float = 0.5
+    #: A bound or completion pass ends this long before the repacking budget, which leaves
+    #: the passes after it and the keep-back their time.
+    pass_margin_s: float = 1.0
+    #: The bottom-up repacking packs suffixes of at most this many targets, and the
+    #: one-fewer repacking at most ``prefix_max_pool``: bigger packing models cost more than
+    #: the attempts have.
+    bottom_pool: int = 200
+    prefix_max_pool: int = 400
     # --- lower bounds and the packing at the bound
-    bounds_max_targets: int = 400  # beyond that the disc models cost too much
+    #: The bounds are computed for at most this many reachable targets (beyond, the disc
+    #: models cost too much) and a repacking budget above ``bounds_min_budget_s``.
+    bounds_max_targets: int = 400
     bounds_min_budget_s: float = 2.0
+    #: The crowding bound: this fraction of the repacking budget, at most ``crowding_max_s``
+    #: (a cheap bound; it must not eat the LP's time).
     crowding_max_s: float = 0.5
-    crowding_fraction: float = 1 / 20  # of the repacking budget
-    tabu_fraction: float = 0.15  # of the repacking budget, the whole-field tabu search ...
-    tabu_max_s: float = 5.0  # ... at most this
-    # the whole-field CP-SAT packing at the floor pays up to this pool size: on weak 192 it
-    # found the perfect packings; on weak 384 (32.1 with the tabu search alone, 32.3 with it)
-    # it took the budget the prefix repacking needed to go from 33 to 32
+    crowding_fraction: float = 1 / 20
+    #: The whole-field tabu search for a packing at the floor: this fraction of the
+    #: repacking budget, at most ``tabu_max_s`` (also its part of a CP-SAT packing call), so
+    #: a packing at the floor is tried without taking the LP bound's and the repackings' time.
+    tabu_fraction: float = 0.15
+    tabu_max_s: float = 5.0
+    #: The whole-field CP-SAT packing at the floor pays up to this pool size: on weak 192 it
+    #: found the perfect packings; on weak 384 it took the budget the prefix repacking needed
+    #: to go from 33 to 32 configurations.
     max_cover_pool: int = 250
-    cover_margin_s: float = 2.0  # one above the floor: all but this (the LP bound's) ...
-    cover_fraction: float = 0.7  # ... else this fraction of what is left
-    cover_proof_fraction: float = 0.25  # of a packing call, CP-SAT's exact-cover proof
+    #: One above the floor, the packing gets all but ``cover_margin_s`` (the LP bound's
+    #: time); else ``cover_fraction`` of what is left, so the other passes keep the rest.
+    cover_margin_s: float = 2.0
+    cover_fraction: float = 0.7
+    #: Of a packing call, CP-SAT's exact-cover proof: the rest finds the packing itself.
+    cover_proof_fraction: float = 0.25
+    #: Completing a partial packing gets at most this: a partial packing rarely completes.
     complete_partial_max_s: float = 5.0
-    complete_partial_margin_s: float = 1.0
-    lp_fraction: float = 0.3  # of the repacking budget, the configuration LP bound ...
-    lp_margin_s: float = 1.0  # ... leaving this ...
-    lp_min_s: float = 0.5  # ... and only when it gets at least this
+    #: The configuration LP bound: this fraction of the repacking budget; it proves the
+    #: floor, so it gets a real share but not the packings' time.
+    lp_fraction: float = 0.3
     # --- the conflict rescue
-    rescue_fill_targets: int = 200  # observed targets offered as rests
+    #: Observed targets offered as rests, and blank locations per arm, in the rescue's
+    #: models: enough to free an arm, small enough for a fast exact solve.
+    rescue_fill_targets: int = 200
     rescue_blank_per_arm: int = 16
     # --- seed offsets of the packing attempts (a distinct seed per attempt)
     bulk_seed_offset: int = 20_000

@@ -140,8 +140,8 @@ class BoundsPass:
         if n1 > floor:
             floor = self._pack_at_floor(s, obs, floor, n1, budget, tc)
         lp_s = min(ctx.options.packing.lp_bound_time_limit_s, BUDGET.lp_fraction * budget,
-                   budget - BUDGET.lp_margin_s - (clock.now() - tc))
-        if s.n_configurations > floor and lp_s > BUDGET.lp_min_s:
+                   budget - BUDGET.pass_margin_s - (clock.now() - tc))
+        if s.n_configurations > floor and lp_s > BUDGET.min_search_s:
             # the LP bound finds crowded clusters anywhere (not only about the centre); it
             # stops once it proves the current count, and then nothing is left to repack
             mask = np.zeros(len(s.priority), bool)
@@ -182,7 +182,7 @@ class BoundsPass:
             if packed is None and partial and n1 > floor + 1:
                 packed = complete_partial(s.inc, pool, partial, n1 - 1, time_limit_s=min(
                     BUDGET.complete_partial_max_s,
-                    budget - (clock.now() - tc) - BUDGET.complete_partial_margin_s),
+                    budget - (clock.now() - tc) - BUDGET.pass_margin_s),
                     seed=s.seed, threads=s.threads)
             if st["infeasible"] and (not s.rescued or len(pool) >= s.n_active * floor):
                 s.floor_proof = floor = floor + 1

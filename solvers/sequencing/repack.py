@@ -53,10 +53,10 @@ def repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie
     c = need
     while c < window:
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_attempt_s:
+        if left <= BUDGET.min_search_s:
             break
         ts = clock.now()
-        packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), BUDGET.min_attempt_s)),
+        packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), BUDGET.min_search_s)),
                               seed=seed + BUDGET.bulk_seed_offset + c, threads=threads, hint=[ch for _, ch, _, _ in tail])
         if packed is not None:
             return replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
@@ -107,7 +107,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     lo, hi = max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n - 1
     while lo <= hi:
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_attempt_s:
+        if left <= BUDGET.min_search_s:
             break
         count = (lo + hi) // 2
         ts = clock.now()
@@ -131,7 +131,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     h_hi = int(fits.max()) if len(fits) else h_lo
     while h_lo < h_hi:  # keep as many maximum-priority configurations as the count allows
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_attempt_s:
+        if left <= BUDGET.min_search_s:
             break
         mid = (h_lo + h_hi + 1) // 2
         ts = clock.now()
@@ -205,7 +205,7 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
         found = False
         for h in range(int(fits.max()), -1, -1):
             left = budget_s - (clock.now() - t0)
-            if left <= BUDGET.min_attempt_s or suffix[h] > max_pool:
+            if left <= BUDGET.min_search_s or suffix[h] > max_pool:
                 return configs, proven, not (extra or kept)
             pool = np.concatenate(per[h:])
             st: dict = {}
