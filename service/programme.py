@@ -20,6 +20,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from models.instrument import Instrument
@@ -90,21 +91,16 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
         todo = [pipeline.pointing_task(req, seg, t) for t in tasks if recorded(t) is None]
         computed[0] += len(todo)
-        round_ = tasks[0].round
-        first = committed[0] if round_ == 1 else len(tasks) - len(todo)  # done before the run
-        n_tasks = n if round_ == 1 else len(tasks)
-        settled = [0]  # the tasks of a later round the runner has handed over
+        first = tasks[0].round == 1  # the first round counts every pointing, resumed ones too
+        count = _RoundProgress(progress, tasks[0].round, n if first else len(tasks),
+                               committed[0] if first else len(tasks) - len(todo))
 
         def done(index: int, answer: dict[str, Any]) -> bool:
             ok = on_done(index, answer)
-            settled[0] += ok and round_ > 1
+            count.done += ok
             return ok
 
-        def part(f: float) -> None:  # f: the part done of the pointing being computed
-            done_tasks = committed[0] if round_ == 1 else first + settled[0]
-            progress(plan_progress(round_, done_tasks + f, n_tasks))
-
-        if not runner.run(todo, inst, done, keep_going, part):
+        if not runner.run(todo, inst, done, keep_going, count.part):
             raise _Stopped()
         missing = [t.index for t in tasks if recorded(t) is None]
         if missing:  # pragma: no cover - the runner handed every task over
@@ -119,6 +115,20 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
         "pointings_resumed": resumed, "pointings_computed": computed[0]})
+
+
+@dataclass
+class _RoundProgress:
+    """A plan job's progress while a round runs (:func:`planner.programme.plan_progress`):
+    ``done`` of the round's ``total`` tasks, plus the part done of the one being computed."""
+
+    progress: pipeline.Progress
+    round_: int
+    total: int
+    done: int
+
+    def part(self, fraction: float) -> None:
+        self.progress(plan_progress(self.round_, self.done + fraction, self.total))
 
 
 class _Stopped(Exception):
