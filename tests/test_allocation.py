@@ -152,10 +152,10 @@ def test_exact_engines_hold_back_a_quarter_for_the_post_passes() -> None:
 def test_the_reserve_shrinks_each_share() -> None:
     """A configuration's adaptive limit is twice its share of what is left after the reserve."""
     from models.budget import Budget
-    from solvers.sequencing.budget import BUDGET
+    from solvers.sequencing.shares import SHARES
 
     c = Budget(start_s=0.0, deadline_s=20.0, total_s=20.0)
     for reserve, want in ((0.1, 2 * (20.0 - 2.0) / 10), (0.25, 2 * (20.0 - 5.0) / 10)):
-        got = BUDGET.config_limit_s(20.0, c, 120, 12, 5.0, True, reserve)
+        got = SHARES.config_limit_s(20.0, c, 120, 12, 5.0, True, reserve)
         assert got == pytest.approx(want)
-    assert BUDGET.config_limit_s(20.0, c, 120, 12, 5.0, False, 0.25) == 5.0
+    assert SHARES.config_limit_s(20.0, c, 120, 12, 5.0, False, 0.25) == 5.0

@@ -16,7 +16,7 @@ pending ones until every target is observed.  Here:
   yield away (:func:`solvers.model.safe_weights`); then the named post-passes of
   :mod:`solvers.sequencing.passes` (rescue, repair, packing, bounds, repacking) over one
   :class:`~solvers.sequencing.state.SequenceState`, within the budget of
-  :mod:`solvers.sequencing.budget`.  Lower bounds (:mod:`solvers.sequencing.bounds`:
+  :mod:`solvers.sequencing.shares`.  Lower bounds (:mod:`solvers.sequencing.bounds`:
   max-flow, crowding, the configuration LP bound, CP-SAT infeasibility) are reported, so a
   count can be shown optimal, and repacking never tries a count below them.
 """
@@ -37,7 +37,7 @@ from models.instrument import Instrument
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import matching_lower_bound
-from solvers.sequencing.budget import BUDGET
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.passes import POST_PASSES, PassContext
 from solvers.sequencing.state import (
@@ -85,10 +85,10 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
             s.stop_reason = "max_configurations"
             break
         remaining = ctx.budget.left_s()
-        if remaining <= BUDGET.min_solve_s:
+        if remaining <= SHARES.min_solve_s:
             s.stop_reason = "no_time"
             break
-        limit_i = BUDGET.config_limit_s(remaining, ctx.budget, int(s.pending.sum()), s.n_active,
+        limit_i = SHARES.config_limit_s(remaining, ctx.budget, int(s.pending.sum()), s.n_active,
                                         opt.config_time_limit_s, opt.adaptive_limits, opt.reserve_fraction)
         if opt.tie_break and opt.tie_break != "reach":
             s.tie = hard_to_place(s.inc, s.n_arms, s.xy, s.pending)

@@ -14,7 +14,7 @@ one :class:`~solvers.sequencing.state.SequenceState`; :data:`POST_PASSES` is the
 5. :class:`PrefixPackingPass` — bottom-up, then one configuration fewer at a time, never
    below the bounds.
 
-The time each gets is computed by :class:`solvers.sequencing.budget.SequenceBudget`.
+The time each gets is computed by :class:`solvers.sequencing.shares.SequenceShares`.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from models import clock
 from models.budget import Budget
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import INNER_DISCS_MM, configuration_lp_bound, crowding_lower_bound
-from solvers.sequencing.budget import BUDGET
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.packing import complete_partial, pack_targets
 from solvers.sequencing.repack import repack_bulk, repack_prefix
@@ -89,7 +89,7 @@ class RepairPass:
         n0 = s.n_configurations
         rescued_t = [observed(c) for c in s.extra]
         new, absorbed_g = absorb_configurations(s.inc, [st.chosen for st in s.steps], s.priority,
-                                                budget_s=BUDGET.repair_s(ctx.budget, ctx.options.repair.time_limit_s),
+                                                budget_s=SHARES.repair_s(ctx.budget, ctx.options.repair.time_limit_s),
                                                 loose=rescued_t, min_keep=s.lower_bound)
         s.steps = rebuild(s.instrument, s.inc, s.priority, s.steps, new, s.speeds, s.xy, s.tie, s.q_start)
         s.extra = [c for c, g in zip(s.extra, absorbed_g, strict=True) if not g]
@@ -106,11 +106,11 @@ class BulkPackingPass:
     def run(self, s: SequenceState, ctx: PassContext) -> None:
         tr = clock.now()
         pk = ctx.options.packing
-        budget = BUDGET.repack_s(ctx.budget, pk.attempt_time_limit_s, pk.max_window)
+        budget = SHARES.repack_s(ctx.budget, pk.attempt_time_limit_s, pk.max_window)
         n0 = len(s.steps)
         if not s.extra:
             s.steps = repack_bulk(s.instrument, s.inc, s.priority, s.steps, s.lower_bound, s.speeds, s.xy, s.tie,
-                                  min(BUDGET.bulk_fraction * budget, BUDGET.bulk_attempts * pk.attempt_time_limit_s),
+                                  min(SHARES.bulk_fraction * budget, SHARES.bulk_attempts * pk.attempt_time_limit_s),
                                   s.seed, s.threads)
         s.timers["repack_bulk_s"] = clock.now() - tr
         s.timers["repack_bulk_saved"] = n0 - len(s.steps)
@@ -123,25 +123,25 @@ class BoundsPass:
     name = "bounds"
 
     def applies(self, s: SequenceState, ctx: PassContext) -> bool:
-        return (s.repack_t0 is not None and s.n_reachable <= BUDGET.bounds_max_targets
-                and s.repack_budget_s > BUDGET.bounds_min_budget_s)
+        return (s.repack_t0 is not None and s.n_reachable <= SHARES.bounds_max_targets
+                and s.repack_budget_s > SHARES.bounds_min_budget_s)
 
     def run(self, s: SequenceState, ctx: PassContext) -> None:
         budget = s.repack_budget_s
         n1 = s.repack_n1
         tc = clock.now()
         s.crowd_bound, _ = crowding_lower_bound(s.inc, s.xy, ~s.unreachable,
-                                                time_limit_s=min(BUDGET.crowding_max_s,
-                                                                 budget * BUDGET.crowding_fraction),
+                                                time_limit_s=min(SHARES.crowding_max_s,
+                                                                 budget * SHARES.crowding_fraction),
                                                 radii_mm=INNER_DISCS_MM)
         s.timers["crowding_bound_s"] = clock.now() - tc
         floor = max(s.lower_bound, s.flow_bound, s.crowd_bound)
         obs = [observed_chosen(s.inc, st.chosen) for st in s.steps]
         if n1 > floor:
             floor = self._pack_at_floor(s, obs, floor, n1, budget, tc)
-        lp_s = min(ctx.options.packing.lp_bound_time_limit_s, BUDGET.lp_fraction * budget,
-                   budget - BUDGET.pass_margin_s - (clock.now() - tc))
-        if s.n_configurations > floor and lp_s > BUDGET.min_search_s:
+        lp_s = min(ctx.options.packing.lp_bound_time_limit_s, SHARES.lp_fraction * budget,
+                   budget - SHARES.pass_margin_s - (clock.now() - tc))
+        if s.n_configurations > floor and lp_s > SHARES.min_search_s:
             # the LP bound finds crowded clusters anywhere (not only about the centre); it
             # stops once it proves the current count, and then nothing is left to repack
             mask = np.zeros(len(s.priority), bool)
@@ -162,8 +162,8 @@ class BoundsPass:
         ts = clock.now()
         pool = np.concatenate(obs + s.rescued)
         hint = [st.chosen for st in s.steps]
-        tabu_s = min(BUDGET.tabu_fraction * budget, BUDGET.tabu_max_s)
-        if floor == math.ceil(len(pool) / max(s.n_active, 1)) and len(pool) <= BUDGET.max_cover_pool:
+        tabu_s = min(SHARES.tabu_fraction * budget, SHARES.tabu_max_s)
+        if floor == math.ceil(len(pool) / max(s.n_active, 1)) and len(pool) <= SHARES.max_cover_pool:
             # the floor is the count bound alone (no crowding): CP-SAT's max-cover model finds
             # packings there that the tabu search misses (weak-192 fields into 16: 6-41 s),
             # and its exact-cover model proves the others infeasible in seconds — worth most
@@ -175,14 +175,14 @@ class BoundsPass:
             left = budget - (clock.now() - tc)
             st: dict = {}
             partial: list = []
-            limit = max(left - BUDGET.cover_margin_s if n1 == floor + 1 else BUDGET.cover_fraction * left, tabu_s)
+            limit = max(left - SHARES.cover_margin_s if n1 == floor + 1 else SHARES.cover_fraction * left, tabu_s)
             packed = pack_targets(s.inc, pool, floor, time_limit_s=limit, seed=s.seed, threads=s.threads,
                                   hint=hint, status_out=st, tabu_fraction=tabu_s / limit,
-                                  proof_fraction=BUDGET.cover_proof_fraction, partial_out=partial)
+                                  proof_fraction=SHARES.cover_proof_fraction, partial_out=partial)
             if packed is None and partial and n1 > floor + 1:
                 packed = complete_partial(s.inc, pool, partial, n1 - 1, time_limit_s=min(
-                    BUDGET.complete_partial_max_s,
-                    budget - (clock.now() - tc) - BUDGET.pass_margin_s),
+                    SHARES.complete_partial_max_s,
+                    budget - (clock.now() - tc) - SHARES.pass_margin_s),
                     seed=s.seed, threads=s.threads)
             if st["infeasible"] and (not s.rescued or len(pool) >= s.n_active * floor):
                 s.floor_proof = floor = floor + 1

@@ -6,7 +6,7 @@ into the b-matching bound (:func:`repack_bulk`); bottom-up the longest suffix of
 ``bottom_pool`` targets into as few configurations as bisection finds, keeping the longest
 prefix of maximum-priority configurations (:func:`pack_fewest`); then one configuration
 fewer at a time (:func:`repack_prefix`).  Their constants are those of
-:class:`solvers.sequencing.budget.SequenceBudget`.
+:class:`solvers.sequencing.shares.SequenceShares`.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from models import clock
 from solvers.sequencing.bounds import matching_lower_bound
-from solvers.sequencing.budget import BUDGET
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.packing import pack_targets
 from solvers.sequencing.state import active_arms, observed_chosen, replace_tail
 
@@ -53,11 +53,11 @@ def repack_bulk(instrument, inc, priority, configs, lower_bound, speeds, xy, tie
     c = need
     while c < window:
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_search_s:
+        if left <= SHARES.min_search_s:
             break
         ts = clock.now()
-        packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), BUDGET.min_search_s)),
-                              seed=seed + BUDGET.bulk_seed_offset + c, threads=threads, hint=[ch for _, ch, _, _ in tail])
+        packed = pack_targets(inc, pool, c, time_limit_s=min(left, max(left / max(window - c, 1), SHARES.min_search_s)),
+                              seed=seed + SHARES.bulk_seed_offset + c, threads=threads, hint=[ch for _, ch, _, _ in tail])
         if packed is not None:
             return replace_tail(instrument, inc, priority, configs, window, packed, speeds, xy, tie,
                                  clock.now() - ts)
@@ -96,7 +96,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
         # a seed per attempt: the same pool, count and hint with the same seed would repeat
         # the earlier tabu search step for step
         n_attempts[0] += 1
-        packed = pack_targets(inc, pool, count - h, time_limit_s=limit, seed=seed + BUDGET.attempt_seed_stride * n_attempts[0],
+        packed = pack_targets(inc, pool, count - h, time_limit_s=limit, seed=seed + SHARES.attempt_seed_stride * n_attempts[0],
                               threads=threads,
                               hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
         return packed, pool, st["infeasible"]
@@ -107,7 +107,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     lo, hi = max(lower_bound, h0 + math.ceil(suffix[h0] / n_arms)), n - 1
     while lo <= hi:
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_search_s:
+        if left <= SHARES.min_search_s:
             break
         count = (lo + hi) // 2
         ts = clock.now()
@@ -131,7 +131,7 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
     h_hi = int(fits.max()) if len(fits) else h_lo
     while h_lo < h_hi:  # keep as many maximum-priority configurations as the count allows
         left = budget_s - (clock.now() - t0)
-        if left <= BUDGET.min_search_s:
+        if left <= SHARES.min_search_s:
             break
         mid = (h_lo + h_hi + 1) // 2
         ts = clock.now()
@@ -146,8 +146,8 @@ def pack_fewest(instrument, inc, priority, configs, extra, lower_bound, speeds, 
 
 
 def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, tie, attempt_s, budget_s,
-                   seed, threads, max_pool: int = BUDGET.prefix_max_pool, q0=None,
-                  bottom_pool: int = BUDGET.bottom_pool,
+                   seed, threads, max_pool: int = SHARES.prefix_max_pool, q0=None,
+                  bottom_pool: int = SHARES.bottom_pool,
                    rescued: list[np.ndarray] | None = None) -> tuple[list, int, bool]:
     """One configuration fewer at a time, keeping the longest possible prefix of
     one-at-a-time (maximum-priority, thesis 5.5) configurations.
@@ -176,10 +176,10 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
     # bottom-up first: the fewest configurations the suffix that fits the model can reach
     for use_extra in ((True, False) if extra else (False,)):
         # at most half the budget: when the big model times out, small windows still help
-        left = BUDGET.fewest_fraction * budget_s - (clock.now() - t0)
+        left = SHARES.fewest_fraction * budget_s - (clock.now() - t0)
         res = pack_fewest(instrument, inc, priority, configs, extra if use_extra else [],
                            max(lower_bound, proven) - (0 if use_extra else len(extra)), speeds, xy, tie,
-                           BUDGET.fewest_attempt_factor * attempt_s, attempt_s, left, seed, threads, bottom_pool, q0)
+                           SHARES.fewest_attempt_factor * attempt_s, attempt_s, left, seed, threads, bottom_pool, q0)
         if res is None:
             continue
         configs, proven_here, packed = res
@@ -205,14 +205,14 @@ def repack_prefix(instrument, inc, priority, configs, lower_bound, speeds, xy, t
         found = False
         for h in range(int(fits.max()), -1, -1):
             left = budget_s - (clock.now() - t0)
-            if left <= BUDGET.min_search_s or suffix[h] > max_pool:
+            if left <= SHARES.min_search_s or suffix[h] > max_pool:
                 return configs, proven, not (extra or kept)
             pool = np.concatenate(per[h:])
             st: dict = {}
             ts = clock.now()
             n_attempts += 1  # a seed per attempt, as in pack_fewest
             packed = pack_targets(inc, pool, n - 1 - h, time_limit_s=min(left, attempt_s),
-                                  seed=seed + BUDGET.prefix_seed_offset + BUDGET.attempt_seed_stride * n_attempts, threads=threads,
+                                  seed=seed + SHARES.prefix_seed_offset + SHARES.attempt_seed_stride * n_attempts, threads=threads,
                                   hint=[ch for _, ch, _, _ in configs[h:]], status_out=st)
             if packed is not None:
                 configs = replace_tail(instrument, inc, priority, configs, n_main - h, packed, speeds, xy, tie,

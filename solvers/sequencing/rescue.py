@@ -13,7 +13,7 @@ from models.budget import Budget
 from models.incompatibility import incompatibility_for_targets
 from models.types import Configuration
 from solvers.problem import ConfigProblem, ConfigSolution
-from solvers.sequencing.budget import BUDGET
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.state import make_configuration, verify
 
 __all__ = ["default_exact_one", "rescue_conflicts"]
@@ -30,8 +30,8 @@ def default_exact_one() -> Callable[[ConfigProblem], ConfigSolution]:
 
 def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fixed, buffer_mm, speeds,
                       first_index, budget: Budget, config_time_limit_s, threads, seed, max_configs,
-                      n_fill: int = BUDGET.rescue_fill_targets,
-                      blank_per_arm: int = BUDGET.rescue_blank_per_arm,
+                      n_fill: int = SHARES.rescue_fill_targets,
+                      blank_per_arm: int = SHARES.rescue_blank_per_arm,
                       exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
                       park_move_limit_s: float | None = None) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
@@ -47,7 +47,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     is tried alone with ``exact_one`` (the chosen engine's exact solve; default CP-SAT).
     ``park_move_limit_s`` limits the rest locations as it does the main structure's. Each
     solve gets at most ``config_time_limit_s`` of what is left of ``budget``; none starts
-    with ``BUDGET.min_solve_s`` or less left.
+    with ``SHARES.min_solve_s`` or less left.
     """
     if exact_one is None:
         exact_one = default_exact_one()
@@ -71,7 +71,7 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     out: list[Configuration] = []
     while pend[:nl].any() and (max_configs is None or len(out) < max_configs):
         remaining = budget.left_s()
-        if remaining <= BUDGET.min_solve_s:
+        if remaining <= SHARES.min_solve_s:
             break
         avail = pend.copy()
         avail[nl:] = True
@@ -107,7 +107,7 @@ def _one_target_at_a_time(instrument, prob: ConfigProblem, pend: np.ndarray, nl:
     """The first leftover target (of the ``nl`` leading ones still ``pend``-ing) that an exact
     solve can place alone: (problem, solution, leftover targets observed), or None."""
     for i in np.flatnonzero(pend[:nl]):
-        if budget.left_s() <= BUDGET.min_solve_s:
+        if budget.left_s() <= SHARES.min_solve_s:
             break
         av1 = np.zeros(len(pend), bool)
         av1[i] = True

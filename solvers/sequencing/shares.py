@@ -1,6 +1,6 @@
-"""The time budget of a sequence: every constant of the driver and its post-passes, named once.
+"""The time shares of a sequence: every constant of the driver and its post-passes, named once.
 
-:class:`SequenceBudget` holds the constants (fractions of the call's limit, caps and margins
+:class:`SequenceShares` holds the constants (fractions of the call's limit, caps and margins
 in seconds, model sizes, seed offsets) and computes each stage's allowance from the call's
 :class:`models.budget.Budget` (started with the call's limit, so its ``total_s`` is that
 limit).  The greedy loop shares what is left between the configurations still needed; the
@@ -15,11 +15,11 @@ from dataclasses import dataclass
 
 from models.budget import Budget
 
-__all__ = ["BUDGET", "SequenceBudget"]
+__all__ = ["SHARES", "SequenceShares"]
 
 
 @dataclass(frozen=True)
-class SequenceBudget:
+class SequenceShares:
     """The driver's constants, each with what it protects.  Seconds end in ``_s``; fractions
     are of the call's limit unless named otherwise."""
 
@@ -134,4 +134,4 @@ class SequenceBudget:
                    max(attempt_s * self.repack_window_attempts * max_window, self.repack_call_fraction * budget.total_s))
 
 
-BUDGET = SequenceBudget()
+SHARES = SequenceShares()
