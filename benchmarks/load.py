@@ -247,7 +247,10 @@ def _heavy_outcome(c: httpx.Client, req: dict[str, Any], limit_s: float) -> str:
     return f"status_{r.status_code}"
 
 
-def _probe_while(url: str, threads: list[threading.Thread]) -> dict[str, Any]:
+def probe_health(url: str, threads: list[threading.Thread], every_s: float = 0.05
+                 ) -> tuple[list[float], int]:
+    """Start ``threads`` and ask ``/v1/health`` every ``every_s`` until they end: the
+    latencies of its answers (s), and how many probes failed."""
     for t in threads:
         t.start()
     lat: list[float] = []
@@ -263,9 +266,14 @@ def _probe_while(url: str, threads: list[threading.Thread]) -> dict[str, Any]:
                 lat.append(time.monotonic() - t0)
             else:
                 fails += 1
-            time.sleep(0.05)
+            time.sleep(every_s)
     for t in threads:
         t.join()
+    return lat, fails
+
+
+def _probe_while(url: str, threads: list[threading.Thread]) -> dict[str, Any]:
+    lat, fails = probe_health(url, threads)
     return {"probes": len(lat) + fails, "failures": fails, "p50_ms": pct(lat, 50),
             "p99_ms": pct(lat, 99), "max_ms": pct(lat, 100)}
 

@@ -35,8 +35,11 @@ import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
 
 from hostile_corpus import Attack, build  # noqa: E402
+
+from benchmarks.load import probe_health  # noqa: E402
 
 GOAL_S, GOAL_HEALTH_MS, GOAL_RSS_MB = 10.0, 100.0, 2048.0
 PAIRS = (("fits_many_rows", "gzip_bomb"), ("many_columns", "many_columns"),
@@ -115,24 +118,7 @@ def run_attacks(url: str, pid: int, attacks: list[Attack]) -> dict[str, Any]:
                                   for a in attacks]
     threads = [threading.Thread(target=_upload, args=(url, a, o)) for a, o in zip(attacks, outs, strict=True)]
     rss = TreeRss(pid)
-    lat: list[float] = []
-    fails = 0
-    for t in threads:
-        t.start()
-    with httpx.Client(base_url=url, timeout=10) as c:
-        while any(t.is_alive() for t in threads):
-            t0 = time.monotonic()
-            try:
-                ok = c.get("/v1/health").status_code == 200
-            except httpx.HTTPError:
-                ok = False
-            if ok:
-                lat.append(time.monotonic() - t0)
-            else:
-                fails += 1
-            time.sleep(_PROBE_S)
-    for t in threads:
-        t.join()
+    lat, fails = probe_health(url, threads, _PROBE_S)
     peak = rss.stop()
     health = {"probes": len(lat) + fails, "failures": fails, "p99_ms": _ms(lat, 99),
               "max_ms": _ms(lat, 100)}

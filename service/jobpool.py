@@ -19,13 +19,10 @@ couple of seconds and hands this server's running jobs back to the queue.
 from __future__ import annotations
 
 import contextlib
-import ctypes
-import ctypes.util
 import logging
 import multiprocessing
 import os
 import signal
-import sys
 import threading
 import time
 import uuid
@@ -37,10 +34,10 @@ from typing import Any
 
 from service.executor import Overloaded, QueueLimit
 from service.jobs import CANCELLED, JobStore, QueueFull, run_job
+from service.parent_death import kill_with_parent
 
 log = logging.getLogger("service.jobs")
 
-_PR_SET_PDEATHSIG = 1
 
 
 @dataclass(frozen=True)
@@ -71,12 +68,7 @@ class PoolOptions:
 def die_with_parent(parent_pid: int) -> None:
     """Make this process exit when ``parent_pid`` does (SIGKILL from the kernel on Linux,
     and a watchdog thread polling the parent pid everywhere)."""
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # pragma: no cover - no usable libc
-            pass
+    kill_with_parent()
     if os.getppid() != parent_pid:  # the parent died before prctl took effect
         os._exit(0)
 

@@ -19,19 +19,16 @@ starts in milliseconds from a fork server that preloaded it.
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 import errno
 import json
 import math
 import os
-import signal
-import sys
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from service.parent_death import kill_with_parent
 from service.table_checks import RowLimit, decompress
 from service.tables import TargetFileError, TargetTable, read_target_table, table_suffix
 
@@ -42,7 +39,6 @@ warnings.filterwarnings("ignore", message=r"'[\w.]+' found in sys.modules after 
 
 #: Exit code of a child that could not even report its ``MemoryError``.
 MEMORY_EXIT = 3
-_PR_SET_PDEATHSIG = 1
 
 
 @dataclass(frozen=True)
@@ -128,15 +124,6 @@ def parse(job: ParseJob) -> ParsedList:
     return ParsedList.of(table)
 
 
-def _die_with_parent() -> None:
-    if sys.platform.startswith("linux"):
-        try:
-            libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # pragma: no cover - no usable libc
-            pass
-
-
 def _address_space_bytes() -> int:
     """This process's address space now (what it inherited from the fork server)."""
     try:
@@ -163,7 +150,7 @@ def _reason(exc: BaseException) -> str:
 
 def child_main(conn: Any, job: ParseJob) -> None:
     """The child process: read ``job`` under its limits and send the outcome on ``conn``."""
-    _die_with_parent()
+    kill_with_parent()
     outcome: tuple[str, Any]
     try:
         _limit_resources(job.limits)
