@@ -37,9 +37,9 @@ from models.instrument import Instrument
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import matching_lower_bound
-from solvers.sequencing.shares import SHARES
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.passes import POST_PASSES, PassContext
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.state import (
     SequenceState,
     Step,

@@ -29,12 +29,12 @@ from models import clock
 from models.budget import Budget
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import INNER_DISCS_MM, configuration_lp_bound, crowding_lower_bound
-from solvers.sequencing.shares import SHARES
 from solvers.sequencing.options import SequencingOptions
 from solvers.sequencing.packing import complete_partial, pack_targets
 from solvers.sequencing.repack import repack_bulk, repack_prefix
 from solvers.sequencing.repair import absorb_configurations
 from solvers.sequencing.rescue import rescue_conflicts
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.state import SequenceState, observed, observed_chosen, rebuild, replace_tail
 from solvers.sequencing.tabu import tabu_pack
 

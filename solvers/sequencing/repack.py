@@ -17,8 +17,8 @@ import numpy as np
 
 from models import clock
 from solvers.sequencing.bounds import matching_lower_bound
-from solvers.sequencing.shares import SHARES
 from solvers.sequencing.packing import pack_targets
+from solvers.sequencing.shares import SHARES
 from solvers.sequencing.state import active_arms, observed_chosen, replace_tail
 
 __all__ = ["pack_fewest", "repack_bulk", "repack_prefix"]
