@@ -212,8 +212,9 @@ def next_round(needs: Sequence[float], limit_s: float | None,
                table: ProgrammeShares = SHARES) -> list[RoundTask]:
     """The tasks of the round after ``history`` (the outcomes of each earlier round): the
     pointings whose best plan so far has a failed leg, each with a share of what the earlier
-    rounds left in proportion to its need (at least ``min_pointing_s``; its search runs on
-    another seed, :func:`pointing_seed`). Empty when no round is due: every pointing is
+    rounds left in proportion to its need (:func:`_by_need`: at least ``min_pointing_s``, the
+    least needy left out when there is not enough for all; its search runs on another seed,
+    :func:`pointing_seed`). Empty when no round is due: every pointing is
     executable, ``rounds`` are done, or less than ``min_pointing_s`` is left."""
     r = len(history) + 1
     if r > table.rounds or not history:
@@ -228,17 +229,26 @@ def next_round(needs: Sequence[float], limit_s: float | None,
             spent += o.spent_s(table)
             if o.index not in best or better(o, best[o.index]):
                 best[o.index] = o
-    failed = sorted(i for i, o in best.items() if not o.executable)
+    failed = [i for i, o in best.items() if not o.executable]
     left = usable - spent
     if not failed or left < table.min_pointing_s:
         return []
-    total = sum(needs[i] for i in failed) or 1.0
-    tasks = []
-    for i in failed:
-        share = left * needs[i] / total
-        if share >= table.min_pointing_s:
-            tasks.append(RoundTask(i, r, share))
-    return tasks
+    return [RoundTask(i, r, share) for i, share in sorted(_by_need(left, failed, needs, table).items())]
+
+
+def _by_need(left_s: float, indices: Sequence[int], needs: Sequence[float],
+             table: ProgrammeShares) -> dict[int, float]:
+    """``left_s`` split by need over the neediest of ``indices`` that each get at least
+    ``min_pointing_s`` (the least needy are left out, one at a time, until every share
+    reaches it): a round spends all that is left on as many pointings as it can."""
+    chosen = sorted(indices, key=lambda i: (-needs[i], i))
+    while chosen:
+        total = sum(needs[i] for i in chosen) or 1.0
+        shares = {i: left_s * needs[i] / total for i in chosen}
+        if min(shares.values()) >= table.min_pointing_s:
+            return shares
+        chosen.pop()
+    return {}
 
 
 def run_rounds(needs: Sequence[float], limit_s: float | None,

@@ -85,9 +85,15 @@ def brute_next_round(needs, limit_s, history):
     left = usable - spent
     if not failed or left < SHARES.min_pointing_s:
         return []
-    total = sum(needs[i] for i in failed)
-    return [(i, left * needs[i] / total) for i in failed
-            if left * needs[i] / total >= SHARES.min_pointing_s]
+    # the neediest k pointings (ties: lower index first), for the largest k whose shares by
+    # need all reach the least share; all of what is left is given
+    ranked = sorted(failed, key=lambda i: (-needs[i], i))
+    for k in range(len(ranked), 0, -1):
+        part = ranked[:k]
+        total = sum(needs[i] for i in part)
+        if all(left * needs[i] / total >= SHARES.min_pointing_s for i in part):
+            return [(i, left * needs[i] / total) for i in sorted(part)]
+    return []
 
 
 @settings(max_examples=200, deadline=None)
@@ -104,8 +110,10 @@ def test_next_round_matches_a_brute_restatement(rows, limit_s) -> None:
     want = brute_next_round(needs, limit_s, history)
     assert [i for i, _ in got] == [i for i, _ in want]
     assert [s for _, s in got] == pytest.approx([s for _, s in want])
-    # what a round gives never exceeds what the limit has left
-    assert sum(s for _, s in got) <= pp.usable_s(limit_s) - sum(o.spent_s() for o in history[0]) + 1e-9
+    # what a round gives is all that the limit has left, never more
+    left = pp.usable_s(limit_s) - sum(o.spent_s() for o in history[0])
+    assert sum(s for _, s in got) <= left + 1e-9
+    assert not got or sum(s for _, s in got) == pytest.approx(left)
 
 
 @given(st.lists(st.floats(1.0, 500.0), min_size=1, max_size=20), st.floats(0.1, 3600.0))
