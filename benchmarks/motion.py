@@ -287,8 +287,7 @@ def pointing_record(pointing: PointingPlan, *, field: int, wall_s: float,
     kinds = Counter(c.kind for c in seq.changes)
     moved = sum(len(c.target_ids) for c in seq.changes if c.kind == "moved_target")
     # a pointing not attempted, or whose legs were not planned, has no executable plan
-    executable = (pointing.allocation is not None and pointing.unplanned_reason is None
-                  and bool(seq.executable))
+    executable = pointing.allocation is not None and pointing.executable
     return PointingRecord(field, executable, wall_s, allocation_s, float(pointing.effort_s),
                           bool(pointing.overran), len(seq.legs), len(seq.failed_legs),
                           dict(sorted(kinds.items())), moved,

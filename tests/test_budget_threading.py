@@ -13,12 +13,11 @@ from models import clock
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import default_instrument
-from models.kinematics import tip_fov
-from models.types import ArmAssignment, Configuration, PlaneTargets
+from models.types import Configuration, PlaneTargets
 from planner import plan_motion
-from planner.reassign import park_assignment
 from planner.sequence import MIN_LEG_S, SequenceOptions, plan_sequence
 from solvers.allocation import allocate
+from tests.test_sequence import _configuration
 
 INST = default_instrument()
 PARK = INST.park_configuration
@@ -30,18 +29,6 @@ def _field(n: int, seed: int) -> PlaneTargets:
     a = 2 * np.pi * rng.random(n)
     return PlaneTargets(tuple(f"t{i}" for i in range(n)), r * np.cos(a), r * np.sin(a),
                         rng.choice([1, 10, 100, 500], size=n, p=[0.1, 0.4, 0.4, 0.1]))
-
-
-def _configuration(index: int, q: np.ndarray, arms: set[int]) -> Configuration:
-    asg = []
-    for k in range(INST.n_arms):
-        if k in arms:
-            x, y = tip_fov(INST, k, q[k, 0], q[k, 1])
-            asg.append(ArmAssignment(k, "target", float(q[k, 0]), float(q[k, 1]), float(x), float(y),
-                                     index * 100 + k, f"c{index}a{k}"))
-        else:
-            asg.append(park_assignment(INST, k))
-    return Configuration(index, tuple(asg), len(arms), len(arms), "optimal")
 
 
 def _configs() -> list[Configuration]:

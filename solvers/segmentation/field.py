@@ -29,7 +29,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial import cKDTree
 
-from models import clock
+from models.budget import Budget
 from models.errors import InputError, TimeLimitExceeded
 from models.sky import (
     focal_mm_to_sky,
@@ -323,13 +323,13 @@ def segment_field(
     clustering rounds) :class:`~models.errors.TimeLimitExceeded` is raised, since a partial
     partition would leave targets in no pointing.
     """
-    t0 = clock.now()
     if time_limit_s is not None and not (isinstance(time_limit_s, int | float) and math.isfinite(time_limit_s)
                                          and time_limit_s > 0):
         raise InputError("time_limit_s", "must be a positive finite number of seconds")
+    budget = Budget.start(time_limit_s)
 
     def check() -> None:
-        if time_limit_s is not None and clock.now() - t0 > time_limit_s:
+        if budget.expired():
             raise TimeLimitExceeded("segmentation", time_limit_s)
 
     R, scale = float(fov_radius_mm), float(plate_scale_arcsec_per_mm)
@@ -380,6 +380,6 @@ def segment_field(
         "threshold_mm": t, "fov_radius_mm": R, "max_radius_mm": float(radius.max()),
         "members_min": int(sizes.min()), "members_max": int(sizes.max()),
         "members_mean": float(sizes.mean()), "members_std": float(sizes.std()),
-        "time_s": clock.now() - t0,
+        "time_s": budget.elapsed_s(),
     }
     return Segmentation(tangent[0], tangent[1], pointings, stats)
