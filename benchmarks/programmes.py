@@ -14,6 +14,12 @@ Each programme is a target list (RA, Dec, integer priority in the thesis mix: 10
 - ``clumps``: 3-6 small Plummer clumps (core 0.2-0.6 arcmin) spread over 10-16 arcmin;
 - ``scattered``: stars uniform over a 8-15 arcmin square.
 
+``programme_targets`` also draws, for ``benchmarks/programme_time.py``, a ``two-clump`` shape
+(two Plummer clumps, core 0.2-0.8 arcmin, 30-70 % of the stars in the first, the pair spanning
+5-15 arcmin) and, on request, other sizes (``n_range``) and extents (``extent_arcmin``: the
+square's side, the cluster's or halo's diameter, the clumps' spread); the default run and the
+four shapes above at their defaults are unchanged for a seed.
+
 It is planned by ``service.pipeline.plan`` with only ``targets`` and ``seed`` set, under the
 server's default budget (``MXS_PLAN_BUDGET_S``, 120 s), as ``POST /v1/plans`` plans it. Per
 programme: the number of pointings, whether the plan is executable, the legs planned, the
@@ -41,51 +47,83 @@ sys.path.insert(0, str(ROOT))
 PRIORITY_VALUES = (500, 100, 10, 1)
 PRIORITY_SHARES = (0.1, 0.4, 0.4, 0.1)
 SHAPES = ("cluster", "cluster-halo", "clumps", "scattered")
+#: Every shape ``programme_targets`` draws: ``SHAPES`` (this script's default run), then the
+#: shapes added for other benchmarks (appended, so that each shape keeps its random stream).
+ALL_SHAPES = SHAPES + ("two-clump",)
+#: The stars of a programme and its extent when the caller names none.
+N_RANGE = (40, 200)
+TWO_CLUMP_EXTENT_ARCMIN = (5.0, 15.0)
 
 
 def _plummer_arcmin(rng: np.random.Generator, n: int, core_arcmin: float,
-                    r_max_arcmin: float) -> np.ndarray:
+                    r_max_arcmin: float, truncate: bool = False) -> np.ndarray:
     """``n`` projected positions (arcmin) of a Plummer sphere of core radius ``core_arcmin``,
-    none beyond ``r_max_arcmin``."""
-    u = rng.uniform(0.0, 1.0, n)
+    none beyond ``r_max_arcmin``: drawn from the profile truncated there (``truncate``), or
+    drawn from the whole profile with the stars beyond it put on it (the original shapes)."""
     # projected Plummer profile: the fraction within R is R^2 / (R^2 + a^2)
+    r2, a2 = r_max_arcmin ** 2, core_arcmin ** 2
+    u = rng.uniform(0.0, r2 / (r2 + a2) if truncate else 1.0, n)
     r = np.minimum(core_arcmin * np.sqrt(u / (1.0 - u)), r_max_arcmin)
     phi = rng.uniform(0.0, 2.0 * np.pi, n)
     return np.column_stack([r * np.cos(phi), r * np.sin(phi)])
 
 
-def programme_targets(shape: str, seed: int) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    """The target list of programme ``(shape, seed)`` and the parameters drawn for it."""
-    rng = np.random.default_rng([seed, SHAPES.index(shape)])
-    n = int(rng.integers(40, 201))
+def programme_targets(shape: str, seed: int, *, n_range: tuple[int, int] = N_RANGE,
+                      extent_arcmin: tuple[float, float] | None = None,
+                      ) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    """The target list of programme ``(shape, seed)`` and the parameters drawn for it: between
+    ``n_range`` stars (inclusive); ``extent_arcmin``: the range of the programme's extent (the
+    scattered square's side, the cluster's or the halo's diameter, the clumps' spread or the
+    two clumps' span) instead of each shape's own. At the defaults, the four ``SHAPES`` draw
+    what they always drew for a seed."""
+    if shape not in ALL_SHAPES:
+        raise ValueError(shape)
+    rng = np.random.default_rng([seed, ALL_SHAPES.index(shape)])
+    n = int(rng.integers(n_range[0], n_range[1] + 1))
     params: dict[str, Any] = {"shape": shape, "seed": seed, "n": n}
+
+    def extent(lo: float, hi: float) -> float:
+        return float(rng.uniform(*(extent_arcmin or (lo, hi))))
+
     if shape == "cluster":
         core = float(rng.uniform(0.3, 1.5))
-        xy = _plummer_arcmin(rng, n, core, 8.0)
+        r_max = 8.0 if extent_arcmin is None else float(rng.uniform(*extent_arcmin)) / 2
+        xy = _plummer_arcmin(rng, n, core, r_max, truncate=extent_arcmin is not None)
         params["core_arcmin"] = round(core, 2)
+        if extent_arcmin is not None:
+            params["radius_arcmin"] = round(r_max, 2)
     elif shape == "cluster-halo":
-        core, halo_frac, halo_r = (float(rng.uniform(0.3, 1.5)), float(rng.uniform(0.25, 0.45)),
-                                   float(rng.uniform(5.0, 9.0)))
+        core, halo_frac = float(rng.uniform(0.3, 1.5)), float(rng.uniform(0.25, 0.45))
+        halo_r = extent(10.0, 18.0) / 2
         n_halo = int(round(halo_frac * n))
         r = halo_r * np.sqrt(rng.uniform(0.0, 1.0, n_halo))
         phi = rng.uniform(0.0, 2.0 * np.pi, n_halo)
-        xy = np.vstack([_plummer_arcmin(rng, n - n_halo, core, 4.0),
+        xy = np.vstack([_plummer_arcmin(rng, n - n_halo, core, min(4.0, halo_r),
+                                        truncate=extent_arcmin is not None),
                         np.column_stack([r * np.cos(phi), r * np.sin(phi)])])
         params.update(core_arcmin=round(core, 2), halo_fraction=round(halo_frac, 2),
                       halo_radius_arcmin=round(halo_r, 2))
     elif shape == "clumps":
-        k, spread = int(rng.integers(3, 7)), float(rng.uniform(10.0, 16.0))
+        k, spread = int(rng.integers(3, 7)), extent(10.0, 16.0)
         centres = rng.uniform(-spread / 2, spread / 2, (k, 2))
         sizes = rng.multinomial(n, np.full(k, 1.0 / k))
         xy = np.vstack([c + _plummer_arcmin(rng, int(m), float(rng.uniform(0.2, 0.6)), 3.0)
                         for c, m in zip(centres, sizes, strict=True)])
         params.update(clumps=k, spread_arcmin=round(spread, 2))
     elif shape == "scattered":
-        side = float(rng.uniform(8.0, 15.0))
+        side = extent(8.0, 15.0)
         xy = rng.uniform(-side / 2, side / 2, (n, 2))
         params["side_arcmin"] = round(side, 2)
-    else:
-        raise ValueError(shape)
+    else:  # two-clump
+        span = extent(*TWO_CLUMP_EXTENT_ARCMIN)
+        frac, angle = float(rng.uniform(0.3, 0.7)), float(rng.uniform(0.0, np.pi))
+        r_max = min(2.0, span / 4)  # each clump within a quarter of the span of the pair
+        half = (span / 2 - r_max) * np.array([np.cos(angle), np.sin(angle)])
+        n1 = int(round(frac * n))
+        xy = np.vstack([c + _plummer_arcmin(rng, m, float(rng.uniform(0.2, 0.8)), r_max,
+                                            truncate=True)
+                        for c, m in ((half, n1), (-half, n - n1))])
+        params.update(span_arcmin=round(span, 2), first_clump_fraction=round(frac, 2))
     ra0, dec0 = float(rng.uniform(0.0, 360.0)), float(rng.uniform(-30.0, 60.0))
     dec = dec0 + xy[:, 1] / 60.0
     ra = (ra0 + xy[:, 0] / 60.0 / np.cos(np.radians(dec))) % 360.0
@@ -175,7 +213,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=30, help="programmes (shapes in turn)")
     ap.add_argument("--seed0", type=int, default=100, help="the first programme's seed")
-    ap.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=SHAPES)
+    ap.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=ALL_SHAPES)
     ap.add_argument("--smoke", action="store_true", help="two small programmes (CI)")
     args = ap.parse_args(argv)
     if args.smoke:
