@@ -16,9 +16,13 @@ MAX_PRIORITY = 2**32 - 1  # priorities are 32-bit unsigned integers (thesis 5.1)
 
 AssignmentKind = Literal["target", "park", "blank", "fixed"]
 # why a target is in no configuration: no arm reaches it; it conflicts with the chosen
-# assignments whatever the sequence; the time ran out; or the request asked for fewer
-# configurations ("one", ``max_configurations``) than observing it needs
-UnallocatedReason = Literal["unreachable", "conflict", "no_time", "not_scheduled", "beyond_park_move_limit"]
+# assignments whatever the sequence; the time ran out; the request asked for fewer
+# configurations ("one", ``max_configurations``) than observing it needs; in a plan, its arm
+# reaches it only by a move from park beyond the limit, the programme's ``max_exposures`` left
+# no exposure for it, or the exposure that would observe it is below the request's
+# ``min_priority_per_exposure`` / ``min_targets_per_exposure``
+UnallocatedReason = Literal["unreachable", "conflict", "no_time", "not_scheduled", "beyond_park_move_limit",
+                            "beyond_max_exposures", "below_exposure_threshold"]
 
 
 @dataclass(frozen=True)

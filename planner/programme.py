@@ -25,24 +25,35 @@ may be slower than the effort clock's calibration before the wall-clock guard st
 
 from __future__ import annotations
 
+import heapq
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 from models import clock
 from models.budget import Budget
+from models.errors import InputError
 from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument
-from models.types import AllocationResult, PlaneTargets
+from models.types import (
+    AllocationResult,
+    Configuration,
+    PlaneTargets,
+    Unallocated,
+    UnallocatedReason,
+)
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
+from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
 from solvers.allocation.options import AllocationOptions
 from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 __all__ = [
-    "DEFAULT_LIMIT_S", "SHARES", "PointingOptions", "PointingOutcome", "PointingPlan", "ProgrammeShares", "RoundTask",
-    "better", "next_round", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares",
-    "plan_progress", "rank", "reserve_s", "run_rounds", "usable_s",
+    "DEFAULT_LIMIT_S", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
+    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "exposure_caps", "next_round",
+    "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "run_rounds", "usable_s",
 ]
 
 Progress = Callable[[float], None]
@@ -120,8 +131,12 @@ def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
     return max(limit_s - reserve_s(limit_s, table), 0.0)
 
 
-def pointing_need(n_targets: int, table: ProgrammeShares = SHARES) -> float:
-    """A pointing's need: its targets plus the fixed part every pointing has."""
+def pointing_need(n_targets: int, table: ProgrammeShares = SHARES, *,
+                  max_configurations: int | None = None) -> float:
+    """A pointing's need: its targets plus the fixed part every pointing has; none for a
+    pointing given no exposure (``max_configurations`` 0: it is not attempted)."""
+    if max_configurations == 0:
+        return 0.0
     return float(n_targets + table.fixed_need_targets)
 
 
@@ -159,6 +174,63 @@ def pointing_seed(seed: int, index: int, round_: int = 1) -> int:
     round searches with another seed (its share may be smaller than the first round's, and
     the same search on less time could not do better)."""
     return (int(seed) + 2_654_435_761 * int(index) + 40_503 * (int(round_) - 1)) % 2**31
+
+
+# ------------------------------------------------------------------- exposure caps
+
+#: Targets one exposure observes at most (the arms of MIRADAS): a pointing's exposures are
+#: estimated as ceil(members / this) when the segmentation gives no estimate of its own.
+TARGETS_PER_EXPOSURE = 12
+
+
+def estimated_exposures(pointing: Any) -> int:
+    """A pointing's estimated exposures (``solvers.segmentation.Pointing``): its own
+    ``exposures`` when the segmentation gives one, else ceil(members / 12), the fewest that
+    can observe them all."""
+    e = getattr(pointing, "exposures", None)
+    if e is not None:
+        return int(e)
+    return math.ceil(len(pointing.target_indices) / TARGETS_PER_EXPOSURE)
+
+
+def exposure_caps(max_exposures: int, estimates: Sequence[int]) -> list[int]:
+    """A programme's ``max_exposures`` split over its pointings in proportion to their
+    ``estimates`` of exposures, deterministically: caps summing to ``max_exposures``.
+
+    With ``M = max_exposures``, ``n`` pointings and shares ``q_i = M e_i / sum(e)`` (equal
+    shares when every estimate is 0):
+
+    - ``M >= n``: every pointing gets at least 1, and the caps are the integers closest to
+      the shares in least squares, ``min sum (c_i - q_i)^2`` subject to ``c_i >= 1`` and
+      ``sum c_i = M``. The objective is separable and convex, so giving the ``M - n``
+      exposures beyond the first one at a time to the pointing furthest below its share
+      (:math:`q_i - c_i` largest; ties: the larger estimate, then the lower index) is optimal.
+    - ``M < n``: the ``M`` pointings with the largest estimates (ties: the lower index) get 1,
+      the others 0 (not attempted: their targets ``beyond_max_exposures``); the first
+      exposure of a pointing observes the most, so this spreads them where they observe most.
+    """
+    if isinstance(max_exposures, bool) or not isinstance(max_exposures, int) or max_exposures < 0:
+        raise InputError("max_exposures", f"must be an integer >= 0, got {max_exposures!r}")
+    for i, e in enumerate(estimates):
+        if isinstance(e, bool) or not isinstance(e, int) or e < 0:
+            raise InputError(f"estimates[{i}]", f"must be an integer >= 0, got {e!r}")
+    n, m = len(estimates), int(max_exposures)
+    if n == 0:
+        return []
+    w = [int(e) for e in estimates] if any(estimates) else [1] * n
+    if m < n:
+        first = set(sorted(range(n), key=lambda i: (-w[i], i))[:m])
+        return [1 if i in first else 0 for i in range(n)]
+    total = sum(w)
+    caps = [1] * n
+    # q_i - c_i in units of 1 / total, exactly: m * w_i - c_i * total
+    heap = [(-(m * w[i] - total), -w[i], i) for i in range(n)]
+    heapq.heapify(heap)
+    for _ in range(m - n):
+        _, neg_w, i = heapq.heappop(heap)
+        caps[i] += 1
+        heapq.heappush(heap, (-(m * w[i] - caps[i] * total), neg_w, i))
+    return caps
 
 
 # ------------------------------------------------------------------------ rounds
@@ -273,20 +345,37 @@ def run_rounds(needs: Sequence[float], limit_s: float | None,
 @dataclass(frozen=True)
 class PointingOptions:
     """A pointing's plan options: the allocation's method and solver, its seed
-    (:func:`pointing_seed`) and the allocation's park move limit (None: none)."""
+    (:func:`pointing_seed`), the allocation's park move limit (None: none), the most
+    exposures (configurations) it may take (None: as many as completeness needs; 0: the
+    pointing is not attempted, its targets ``beyond_max_exposures``; the programme's
+    ``max_exposures`` split by :func:`exposure_caps`) and the request's
+    :class:`~planner.telescope_time.ObservingRules` (its exposure thresholds and the times its
+    telescope time is counted with)."""
 
     method: str = "ilp"
     solver: str = "bnb"
     seed: int = 0
     park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
+    max_configurations: int | None = None
+    rules: ObservingRules = field(default_factory=ObservingRules)
+
+    def __post_init__(self) -> None:
+        cap = self.max_configurations
+        if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 0):
+            raise InputError("max_configurations", f"must be an integer >= 0 or None, got {cap!r}")
+        if not isinstance(self.rules, ObservingRules):
+            raise InputError("rules", "must be an ObservingRules")
 
 
 @dataclass(frozen=True)
 class PointingPlan:
     """One pointing's plan on domain types. ``allocation`` is None when the pointing was not
-    attempted (its share below ``min_pointing_s``: its targets ``no_time``);
-    ``unplanned_reason`` says why its legs were not planned (a planner failure, or no time
-    left): every leg is then reported failed."""
+    attempted for lack of time (its share below ``min_pointing_s``: its targets ``no_time``);
+    its ``unallocated`` include the targets the exposure rules left out
+    (``beyond_max_exposures``, ``below_exposure_threshold``). ``unplanned_reason`` says why
+    its legs were not planned (a planner failure, or no time left): every leg is then
+    reported failed. ``telescope_time``: what the plan as returned costs
+    (:func:`planner.telescope_time.pointing_time`; set by :func:`plan_pointing`)."""
 
     targets: PlaneTargets
     allocation: AllocationResult | None
@@ -295,6 +384,7 @@ class PointingPlan:
     stats: dict = field(default_factory=dict)
     effort_s: float = 0.0
     overran: bool = False
+    telescope_time: TelescopeTime | None = None
 
     @property
     def executable(self) -> bool:
@@ -302,17 +392,34 @@ class PointingPlan:
         return self.unplanned_reason is None and self.sequence.executable
 
 
-def allocation_options(park_move_limit_s: float | None) -> AllocationOptions:
-    """The allocation options of a plan: every location within its park move limit."""
-    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=park_move_limit_s))
+def allocation_options(park_move_limit_s: float | None,
+                       max_configurations: int | None = None) -> AllocationOptions:
+    """The allocation options of a plan: every location within its park move limit, at most
+    ``max_configurations`` configurations (None: to completeness)."""
+    return AllocationOptions(sequence=AllocationSequenceOptions(park_move_limit_s=park_move_limit_s,
+                                                                max_configurations=max_configurations))
+
+
+def pointing_telescope_time(plan: PointingPlan, rules: ObservingRules) -> TelescopeTime:
+    """The telescope time of ``plan`` as returned: its configurations, and the makespans of
+    its legs park -> c1 -> ... -> park (a leg not planned counts in ``unplanned_legs``)."""
+    seq = plan.sequence
+    n = len(seq.configurations)
+    if plan.unplanned_reason is None and len(seq.legs) == n + 1:
+        makespans = [leg.makespan_s if leg.status == "ok" else None for leg in seq.legs]
+    else:
+        makespans = [None] * (n + 1)
+    return pointing_time(n, makespans, rules.exposure_time_s, rules.acquisition_s)
 
 
 def plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
                   share_s: float, progress: Progress = _noop,
                   table: ProgrammeShares | None = None, *,
                   wall_limit_s: float | None = None) -> PointingPlan:
-    """Allocation (all configurations) then the executable motion sequence of one pointing,
-    within ``share_s`` wall-clock seconds (thesis ch. 5 and 6).
+    """Allocation (all configurations, at most ``options.max_configurations``; the exposure
+    thresholds of ``options.rules`` applied) then the executable motion sequence of one
+    pointing, within ``share_s`` wall-clock seconds (thesis ch. 5 and 6), with its telescope
+    time.
 
     Every budget inside runs on the effort clock (:func:`models.clock.effort`) and the
     searches get ``effort_share`` of the share in effort seconds: the plan then depends only
@@ -328,22 +435,20 @@ def plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpti
         plan = _plan_pointing(inst, targets, options, share_s if wall_s >= table.min_pointing_s
                               else 0.0, progress, table)
     return PointingPlan(plan.targets, plan.allocation, plan.sequence, plan.unplanned_reason,
-                        plan.stats, effort.t_s, effort.overran)
+                        plan.stats, effort.t_s, effort.overran, pointing_telescope_time(plan, options.rules))
 
 
 def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
                    share_s: float, progress: Progress, table: ProgrammeShares) -> PointingPlan:
-    if share_s < table.min_pointing_s:
-        seq = plan_sequence(inst, (), SequenceOptions(seed=options.seed))
-        return PointingPlan(targets, None, seq, stats={
-            "allocation": {"skipped": "request time limit exhausted"},
-            "motion": {"legs": len(seq.legs), "budget_s": 0.0}})
+    if options.max_configurations == 0 or share_s < table.min_pointing_s:
+        return _not_attempted(inst, targets, options)
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
     result = allocate(inst, targets, method=options.method, solver=options.solver,
                       configurations="all", seed=options.seed,
                       budget=budget.share(table.allocation_share),
                       progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
-                      options=allocation_options(options.park_move_limit_s))
+                      options=allocation_options(options.park_move_limit_s, options.max_configurations))
+    result, below = _exposure_rules(result, targets, options)
     progress(0.5)
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
@@ -352,25 +457,124 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
             f"no time left for motion planning ({max(motion_s, 0.0):.2f} s of the pointing's "
             "share for its legs)")
     else:
-        seq, err = _sequence(inst, result, targets, options, budget,
-                             lambda f: progress(0.5 + 0.5 * f))
+        motion_progress = lambda f: progress(0.5 + 0.5 * f)  # noqa: E731
+        seq, err = _sequence(inst, result.configurations, targets, options, budget, motion_progress)
+        if err is None:
+            seq, err, weak = _thresholds_after_motion(inst, seq, targets, options, budget, motion_progress)
+            if weak:  # exposures the motion planner's changes left below a threshold
+                result = replace(result, unallocated=result.unallocated + weak)
+                below["dropped_after_motion"] = len(weak)
     stats = {"allocation": result.stats,
-             "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s}}
+             "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s},
+             "exposure_rules": below}
     return PointingPlan(targets, result, seq, err, stats)
 
 
-def _sequence(inst: Instrument, allocation: AllocationResult, targets: PlaneTargets,
+def _not_attempted(inst: Instrument, targets: PlaneTargets, options: PointingOptions) -> PointingPlan:
+    """A pointing not attempted: no exposure left for it (``max_configurations`` 0: its targets
+    ``beyond_max_exposures``) or no time (allocation None: its targets ``no_time``)."""
+    seq = plan_sequence(inst, (), SequenceOptions(seed=options.seed))
+    motion = {"legs": len(seq.legs), "budget_s": 0.0}
+    if options.max_configurations == 0:
+        unallocated = tuple(Unallocated(i, t, "beyond_max_exposures") for i, t in enumerate(targets.ids))
+        skipped = "max_exposures leaves no exposure for this pointing"
+        return PointingPlan(targets, AllocationResult((), unallocated, {"skipped": skipped}), seq, stats={
+            "allocation": {"skipped": skipped}, "motion": motion,
+            "exposure_rules": {"max_configurations": 0}})
+    return PointingPlan(targets, None, seq, stats={
+        "allocation": {"skipped": "request time limit exhausted"}, "motion": motion})
+
+
+def _observed(config: Configuration, priority_of: dict[str, int]) -> tuple[str, ...]:
+    return tuple(a.target_id for a in config.assignments if a.kind == "target" and a.target_id is not None
+                 and a.target_id in priority_of)
+
+
+def _split(configs: Sequence[Configuration], targets: PlaneTargets, rules: ObservingRules,
+           reason: UnallocatedReason = "below_exposure_threshold",
+           ) -> tuple[tuple[Configuration, ...], tuple[Unallocated, ...]]:
+    """The configurations that meet ``rules``' thresholds (renumbered from 0, in order) and
+    the targets of the others, each ``reason``. An exposure's targets and summed priority are
+    counted from its own assignments."""
+    priority_of = {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
+    index_of = {t: i for i, t in enumerate(targets.ids)}
+    kept: list[Configuration] = []
+    out: list[Unallocated] = []
+    for c in configs:
+        ids = _observed(c, priority_of)
+        if rules.keeps(len(ids), sum(priority_of[t] for t in ids)):
+            kept.append(replace(c, index=len(kept)) if c.index != len(kept) else c)
+        else:
+            out.extend(Unallocated(index_of[t], t, reason) for t in ids)
+    return tuple(kept), tuple(out)
+
+
+def _exposure_rules(result: AllocationResult, targets: PlaneTargets,
+                    options: PointingOptions) -> tuple[AllocationResult, dict]:
+    """The allocation under the request's rules: the targets the cap left out are
+    ``beyond_max_exposures`` (the allocator's ``not_scheduled``), and the exposures below a
+    threshold are not opened (the greedy sequence puts the weakest last), their targets
+    ``below_exposure_threshold``. Returns the allocation and what was dropped."""
+    capped = options.max_configurations is not None
+    unallocated = tuple(replace(u, reason="beyond_max_exposures") if capped and u.reason == "not_scheduled"
+                        else u for u in result.unallocated)
+    kept, below = _split(result.configurations, targets, options.rules)
+    stats = {"max_configurations": options.max_configurations,
+             "dropped_configurations": len(result.configurations) - len(kept),
+             "below_exposure_threshold": len(below),
+             "beyond_max_exposures": sum(u.reason == "beyond_max_exposures" for u in unallocated)}
+    if not below and unallocated == result.unallocated:
+        return result, stats  # the rules changed nothing: the allocator's own result
+    return AllocationResult(kept, unallocated + below, result.stats), stats
+
+
+def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: PlaneTargets,
+                             options: PointingOptions, budget: Budget, progress: Progress,
+                             ) -> tuple[SequencePlan, str | None, tuple[Unallocated, ...]]:
+    """The motion planner's changes (a target moved out of an exposure, one added for it) can
+    leave an exposure below a threshold: drop those and plan the legs of the others again,
+    adding none (so every pass has fewer exposures, and this ends). A target the new plan
+    can place only in an added exposure is ``below_exposure_threshold`` too (or
+    ``beyond_max_exposures`` when the pointing's cap is what forbids it). Returns the plan,
+    the reason its legs were not planned (None: planned) and the targets dropped."""
+    weak_all: list[Unallocated] = []
+    cap = options.max_configurations
+    while True:
+        kept, weak = _split(seq.configurations, targets, options.rules)
+        if not weak:
+            return seq, None, tuple(weak_all)
+        weak_all.extend(weak)
+        if not kept:
+            empty = plan_sequence(inst, (), SequenceOptions(seed=options.seed))
+            return replace(empty, dropped=seq.dropped), None, tuple(weak_all)
+        if budget.left_s() < MIN_LEG_S:
+            return SequencePlan(kept, (), dropped=seq.dropped), (
+                f"no time left to plan the legs again without the exposures below the threshold "
+                f"({max(budget.left_s(), 0.0):.2f} s of the pointing's share left)"), tuple(weak_all)
+        again, err = _sequence(inst, kept, targets, replace(options, max_configurations=len(kept)),
+                               budget, progress)
+        cap_binds = cap is not None and len(kept) >= cap
+        dropped = tuple(u if cap_binds or u.reason != "beyond_max_exposures"
+                        else replace(u, reason="below_exposure_threshold") for u in again.dropped)
+        seq = replace(again, dropped=seq.dropped + dropped)
+        if err is not None:
+            return seq, err, tuple(weak_all)
+
+
+def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: PlaneTargets,
               options: PointingOptions, budget: Budget,
               progress: Progress) -> tuple[SequencePlan, str | None]:
     """``planner.sequence.plan_sequence`` on one pointing's configurations within what
-    ``budget`` (the pointing's) has left; never raises: a planner failure comes back as the
-    unchanged configurations with its reason."""
-    configs = tuple(allocation.configurations)
+    ``budget`` (the pointing's) has left, adding none beyond ``options.max_configurations``;
+    never raises: a planner failure comes back as the unchanged configurations with its
+    reason."""
+    configs = tuple(configs)
     # a leg may use all the motion time left (the sequence shares it over the legs still
     # to plan); an unlimited pointing gives each leg the library's minute
     leg_s = budget.limit_s if math.isfinite(budget.limit_s) else 60.0
     seq_options = SequenceOptions(seed=options.seed, leg_time_limit_s=float(leg_s),
-                                  park_move_limit_s=options.park_move_limit_s)
+                                  park_move_limit_s=options.park_move_limit_s,
+                                  max_configurations=options.max_configurations)
     try:
         return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress,
                              budget=budget), None

@@ -13,7 +13,8 @@ new assignment plan computed):
    target through another IK branch, if one fits;
 3. otherwise it stays at park in that configuration and its target moves to a later
    configuration that can take it on an idle arm (another arm first), or to a new
-   configuration at the end of the sequence; a configuration left empty is removed;
+   configuration at the end of the sequence (while ``SequenceOptions.max_configurations``
+   allows one more); a configuration left empty is removed;
 4. the changed legs are re-planned (through park if need be) and verified.
 
 A leg back to park that cannot be planned is the reversal of park -> c_n; if that fails too,
@@ -119,6 +120,9 @@ class SequenceOptions:
     # a target moved or put on another IK branch stays within this of park (the allocation's
     # park move limit, solvers.sequencing.options.SequenceOptions; None: no limit)
     park_move_limit_s: float | None = None
+    # no configuration is added beyond this many (None: no limit); a moved target that fits in
+    # no later configuration but would in a new one is then dropped as "beyond_max_exposures"
+    max_configurations: int | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
@@ -132,6 +136,9 @@ class SequenceOptions:
         lim = self.park_move_limit_s
         if lim is not None and not (isinstance(lim, int | float) and math.isfinite(lim) and lim > 0):
             raise InputError("park_move_limit_s", "must be a positive finite number of seconds or None")
+        cap = self.max_configurations
+        if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 0):
+            raise InputError("max_configurations", "must be an integer >= 0 or None")
 
 
 
@@ -199,6 +206,7 @@ class _Sequencer:
         self.from_park: dict[bytes, MotionPlan] = {}  # the configuration's joint angles -> park -> it
         self.edits = 0
         self.plans = 0
+        self.capped = False  # the target being placed fits only in a configuration the cap forbids
         self.buffer_mm = instrument.collision_buffer_mm
 
     # ---------------------------------------------------------------- planning primitives
@@ -356,9 +364,11 @@ class _Sequencer:
         another arm than the one that could not reach it if any can, else on the same arm."""
         while self.pending:
             p = self.pending.pop(0)
+            self.capped = False
             if not any(self._place(p, after, exclude) for exclude in ((p.from_arm,), ())):
                 self.dropped.append(Unallocated(p.target_index if p.target_index is not None else -1,
-                                                p.target_id, "conflict"))
+                                                p.target_id, "beyond_max_exposures" if self.capped
+                                                else "conflict"))
 
     def _place(self, p: Placed, after: int, exclude: tuple[int, ...]) -> bool:
         for j in range(after + 1, len(self.configs)):
@@ -370,6 +380,10 @@ class _Sequencer:
         c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm,
                       exclude_arms=exclude, park_move_limit_s=self.opt.park_move_limit_s)
         if c is None:
+            return False
+        cap = self.opt.max_configurations
+        if cap is not None and len(self.configs) >= cap:  # a new configuration would take it
+            self.capped = True
             return False
         self.configs.append(c)
         self.changes.append(PlanChange("new_configuration", len(self.configs), len(self.configs) - 1,

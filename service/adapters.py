@@ -26,6 +26,7 @@ from models.types import (
     Unallocated,
 )
 from planner.sequence import SequencePlan
+from planner.telescope_time import TelescopeTime
 from service.errors import FieldError
 from service.schemas import ArmState, PlaneTarget
 from solvers.segmentation import Pointing, Segmentation
@@ -204,6 +205,14 @@ def failed_motion_out(inst: Instrument, reason: str) -> dict[str, Any]:
     """A MotionPlanResponse dict for a leg the planner could not attempt."""
     return {"status": "failed", "makespan_s": None, "trajectories": [],
             "failed_arms": list(range(inst.n_arms)), "stats": {"error": reason}}
+
+
+def telescope_time_in(d: Mapping[str, Any]) -> TelescopeTime:
+    """A pointing's ``stats.telescope_time`` dict (as :func:`plain` wrote it) back as the
+    domain's :class:`TelescopeTime` (``total_s`` is recomputed from its parts)."""
+    return TelescopeTime(int(d["exposures"]), int(d["acquisitions"]), float(d["exposure_s"]),
+                         float(d["acquisition_s"]), float(d["reconfiguration_s"]),
+                         int(d["unplanned_legs"]))
 
 
 CHANGE_COUNTS = ("targets_moved", "legs_via_park", "configurations_added", "targets_dropped")

@@ -12,6 +12,7 @@ from typing import Any
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 from planner.programme import DEFAULT_LIMIT_S
+from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service.tables import TargetFileError, read_target_table, read_targets
 
 __all__ = ["TargetFileError", "main", "read_targets"]
@@ -61,7 +62,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm,
-                          park_move_limit_s=None if args.no_park_move_limit else args.park_move_limit)
+                          park_move_limit_s=None if args.no_park_move_limit else args.park_move_limit,
+                          exposure_time_s=args.exposure_time, acquisition_s=args.acquisition,
+                          max_exposures=args.max_exposures,
+                          min_priority_per_exposure=args.min_priority_per_exposure,
+                          min_targets_per_exposure=args.min_targets_per_exposure)
     except TargetFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
@@ -91,6 +96,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"{s['targets']} targets, {s['pointings']} pointings, {s['configurations']} "
           f"configurations, {s['allocated_targets']} targets allocated; wrote {out / 'plan.json'}"
           f" and {len(pictures)} pictures")
+    print(time_summary(s["telescope_time"]))
     summary = changes_summary(s)
     if summary:
         print(f"changes so that every leg can be executed: {summary}")
@@ -112,6 +118,24 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print("error: the plan is not executable; do not execute the failed legs (see 'reasons' "
           "in plan.json)", file=sys.stderr)
     return EXIT_NOT_EXECUTABLE
+
+
+def hours_minutes(t_s: float) -> str:
+    """``t_s`` seconds as h:mm (rounded to the minute)."""
+    h, m = divmod(round(t_s / 60.0), 60)
+    return f"{h}:{m:02d}"
+
+
+def time_summary(t: dict[str, Any]) -> str:
+    """One line: a plan's exposures and telescope time (h:mm) with its breakdown
+    (``stats.telescope_time`` of the plan)."""
+    n, a = int(t["exposures"]), int(t["acquisitions"])
+    line = (f"{n} exposure{'' if n == 1 else 's'}, telescope time {hours_minutes(t['total_s'])} (h:mm) = "
+            f"exposures {hours_minutes(t['exposure_s'])} + {a} acquisition{'' if a == 1 else 's'} "
+            f"{hours_minutes(t['acquisition_s'])} + reconfiguration {hours_minutes(t['reconfiguration_s'])}")
+    if t["unplanned_legs"]:
+        line += f" ({t['unplanned_legs']} motion legs not planned, not counted)"
+    return line
 
 
 def changes_summary(stats: dict[str, Any]) -> str:
@@ -190,6 +214,20 @@ def build_parser() -> argparse.ArgumentParser:
                        "'beyond_park_move_limit' (default: 120, the thesis' T_p)")
     reach.add_argument("--no-park-move-limit", action="store_true",
                        help="no park move limit: every reachable target, some moves from park up to 200 s")
+    p.add_argument("--exposure-time", type=float, default=DEFAULT_EXPOSURE_TIME_S, metavar="S",
+                   help="exposure time of one configuration, s (default %(default)s); counted in the "
+                   "plan's telescope time")
+    p.add_argument("--acquisition", type=float, default=DEFAULT_ACQUISITION_S, metavar="S",
+                   help="acquisition overhead of one pointing, s (default %(default)s)")
+    p.add_argument("--max-exposures", type=int, default=None, metavar="N",
+                   help="stop rule: at most N exposures over the whole plan, spent on the highest "
+                   "priorities; targets left out: 'beyond_max_exposures' (default: no limit)")
+    p.add_argument("--min-priority-per-exposure", type=int, default=None, metavar="P",
+                   help="stop rule: no exposure observing less summed priority than P; their targets: "
+                   "'below_exposure_threshold' (default: none)")
+    p.add_argument("--min-targets-per-exposure", type=int, default=None, metavar="N",
+                   help="stop rule: no exposure observing fewer than N targets; their targets: "
+                   "'below_exposure_threshold' (default: none)")
     p.add_argument("--instrument", default=None,
                    help="instrument TOML file (default: $MXS_INSTRUMENT_FILE or the packaged one)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")

@@ -35,6 +35,8 @@ from planner.programme import (
     PointingPlan,
     RoundTask,
     better,
+    estimated_exposures,
+    exposure_caps,
     plan_progress,
     pointing_need,
     pointing_seed,
@@ -42,6 +44,8 @@ from planner.programme import (
     reserve_s,
     run_rounds,
 )
+from planner.telescope_time import ObservingRules
+from planner.telescope_time import total as total_time
 from service import adapters
 from service.errors import FieldError
 from service.schemas import (
@@ -244,9 +248,29 @@ def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
     return segment(plan_segmentation(req), inst)
 
 
-def pointing_needs(seg: Segmentation) -> list[float]:
-    """The need of each pointing of ``seg`` (:func:`planner.programme.pointing_need`)."""
-    return [pointing_need(len(p.target_indices)) for p in seg.pointings]
+def observing_rules(req: PlanRequest) -> ObservingRules:
+    """The request's times and stop rules as the domain's :class:`ObservingRules`."""
+    return ObservingRules(exposure_time_s=req.exposure_time_s, acquisition_s=req.acquisition_s,
+                          max_exposures=req.max_exposures,
+                          min_priority_per_exposure=req.min_priority_per_exposure,
+                          min_targets_per_exposure=req.min_targets_per_exposure)
+
+
+def pointing_caps(req: PlanRequest, seg: Segmentation) -> list[int | None]:
+    """Each pointing's most exposures: the request's ``max_exposures`` split by
+    :func:`planner.programme.exposure_caps` over the pointings' estimates
+    (:func:`planner.programme.estimated_exposures`); None each without it."""
+    if req.max_exposures is None:
+        return [None] * len(seg.pointings)
+    return list(exposure_caps(int(req.max_exposures), [estimated_exposures(p) for p in seg.pointings]))
+
+
+def pointing_needs(seg: Segmentation, req: PlanRequest | None = None) -> list[float]:
+    """The need of each pointing of ``seg`` (:func:`planner.programme.pointing_need`, with
+    its cap of the request's ``max_exposures``)."""
+    caps = [None] * len(seg.pointings) if req is None else pointing_caps(req, seg)
+    return [pointing_need(len(p.target_indices), max_configurations=cap)
+            for p, cap in zip(seg.pointings, caps, strict=True)]
 
 
 def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> PointingTask:
@@ -254,7 +278,8 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
     p = seg.pointings[task.index]
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
-                              req.park_move_limit_s)
+                              req.park_move_limit_s, pointing_caps(req, seg)[task.index],
+                              observing_rules(req))
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         req.position_angle_deg, options, float(task.share_s), task.round)
 
@@ -346,7 +371,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
             progress(plan_progress(task.round, done + 1, len(tasks)))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
-    history = run_rounds(pointing_needs(seg), limit, compute)
+    history = run_rounds(pointing_needs(seg, req), limit, compute)
     return seg, [answers[i] for i in range(len(seg.pointings))], {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": budget.elapsed_s()}
@@ -379,6 +404,8 @@ def pointing_plan_out(pointing: Pointing, pp: PointingPlan, ids: Sequence[str] |
     stats["motion"].update({"failed_legs": sum(m["status"] != "ok" for m in motions),
                             **{k: seq["stats"][k] for k in adapters.CHANGE_COUNTS}})
     stats["sequence"] = seq["stats"]["sequence"]
+    if pp.telescope_time is not None:
+        stats["telescope_time"] = adapters.plain(pp.telescope_time)
     if pp.allocation is None:
         unallocated = [{"target_id": t, "reason": "no_time"} for t in pp.targets.ids]
     return {**adapters.pointing_out(pointing, ids), "ra_deg": pointing.ra_deg % 360.0,
@@ -424,6 +451,8 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
+            "telescope_time": total_time(adapters.telescope_time_in(p["stats"]["telescope_time"])
+                                         for p in out),
             **stats,
             "segmentation": seg.stats,
         }),

@@ -32,7 +32,9 @@ from service.schemas import PlanRequest
 
 
 def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
-    return answer.get("id") == expected["id"] and answer.get("target_ids") == expected["target_ids"]
+    """A committed answer is the pointing's: the same id and targets, and a telescope time."""
+    return (answer.get("id") == expected["id"] and answer.get("target_ids") == expected["target_ids"]
+            and "telescope_time" in answer.get("stats", {}))
 
 
 def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instrument,
@@ -108,7 +110,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return [recorded(t) for t in tasks]  # type: ignore[misc]
 
     try:
-        history = run_rounds(pipeline.pointing_needs(seg), limit, compute)
+        history = run_rounds(pipeline.pointing_needs(seg, req), limit, compute)
     except _Stopped:
         return None
     return pipeline.plan_out(seg, [answers[i] for i in range(n)], req.targets, {

@@ -24,6 +24,7 @@ from pydantic import (
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
+from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
     SKY_NEEDS_POINTING,
@@ -36,6 +37,7 @@ from service.schema_rules import (
 
 N_ARMS = 12
 UNIQUE_ARMS = unique_arms(N_ARMS)
+MAX_EXPOSURES = 10_000  # a plan's max_exposures at most
 
 
 def _integral(v: Any) -> Any:
@@ -297,6 +299,32 @@ class PlanRequest(SkyTargetSource):
         "is reported with reason 'beyond_park_move_limit'. null: no limit (every reachable target, "
         "some moves from park then take up to 200 s)."
     )
+    exposure_time_s: Annotated[float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False)] = Field(
+        DEFAULT_EXPOSURE_TIME_S, description="Exposure time of one configuration, s: the plan's telescope "
+        "time counts it once per exposure (`stats.telescope_time`)."
+    )
+    acquisition_s: Annotated[float, Field(ge=0.0, le=86400.0, strict=True, allow_inf_nan=False)] = Field(
+        DEFAULT_ACQUISITION_S, description="Acquisition overhead of one pointing (slew, acquisition, fine "
+        "positioning of the arms), s: the plan's telescope time counts it once per pointing that has an "
+        "exposure."
+    )
+    max_exposures: Integer(ge=1, le=MAX_EXPOSURES) | None = Field(
+        None, description="Stop rule: at most this many exposures (configurations) over the whole plan, "
+        "spent on the highest priorities. It is split over the pointings in proportion to their estimated "
+        "exposures, each pointing at least one while there are enough; a pointing given none is not "
+        "attempted. Targets left out for it are reported with reason 'beyond_max_exposures'. null (the "
+        "default): no limit, every target that can be observed is."
+    )
+    min_priority_per_exposure: Integer(ge=1, le=N_ARMS * PRIORITY_MAX) | None = Field(
+        None, description="Stop rule: no exposure observes targets of less summed priority than this; "
+        "the targets of the exposures not opened are reported with reason 'below_exposure_threshold'. "
+        "null (the default): none."
+    )
+    min_targets_per_exposure: Integer(ge=1, le=N_ARMS) | None = Field(
+        None, description="Stop rule: no exposure observes fewer targets than this; the targets of the "
+        "exposures not opened are reported with reason 'below_exposure_threshold'. null (the default): "
+        "none."
+    )
 
 
 # ------------------------------------------------------------------------ responses
@@ -436,9 +464,12 @@ class Unallocated(Response):
     reason: str = Field(description="Why: 'unreachable', 'conflict', 'no_time', 'not_scheduled' "
                         "(left for configurations the request did not ask for, e.g. with "
                         "configurations 'one'), 'beyond_park_move_limit' (in a plan: reached "
-                        "only by a move from park longer than park_move_limit_s), ...; in a plan "
-                        "also the reason a target was dropped so that every motion leg can be "
-                        "executed.")
+                        "only by a move from park longer than park_move_limit_s), "
+                        "'beyond_max_exposures' (in a plan: the request's max_exposures left no "
+                        "exposure for it), 'below_exposure_threshold' (in a plan: the exposure "
+                        "that would observe it is below min_priority_per_exposure or "
+                        "min_targets_per_exposure), ...; in a plan also the reason a target was "
+                        "dropped so that every motion leg can be executed.")
 
 
 COMPLETENESS = (
@@ -503,6 +534,14 @@ class PlanChangeOut(Response):
     reason: str = Field(description="Why the change was made.")
 
 
+TELESCOPE_TIME = (
+    "exposures, acquisitions (pointings with an exposure), exposure_s (exposures x "
+    "exposure_time_s), acquisition_s (acquisitions x the request's acquisition_s), "
+    "reconfiguration_s (the summed makespans of the planned motion legs park -> c1 -> ... -> "
+    "park), total_s (the three summed) and unplanned_legs (legs without a makespan, not "
+    "counted: total_s is then a lower bound)")
+
+
 class PlanPointing(PointingOut):
     configurations: list[ConfigurationOut] = Field(
         description="Configurations c1 ... cn, as changed by the motion planner (`changes`)."
@@ -532,7 +571,10 @@ class PlanPointing(PointingOut):
                          "budget, stopped them: only then can the same request give another "
                          "plan); `rounds` holds the outcome of every round that planned the "
                          "pointing (round, share_s, effort_s, executable, failed_legs, observed, "
-                         "overran); the plan returned is the best of them.")
+                         "overran); the plan returned is the best of them; `exposure_rules` holds "
+                         "its exposure cap (max_configurations, its share of max_exposures) and "
+                         "the exposures and targets the stop rules left out; `telescope_time` is "
+                         "what the pointing costs: " + TELESCOPE_TIME + ".")
 
 
 class PlanResponse(Response):
@@ -547,7 +589,8 @@ class PlanResponse(Response):
                          "targets_dropped; `allocated_targets` (targets in a configuration "
                          "as returned), `field_completeness` = allocated_targets / targets "
                          "(every target of the request) and `priority_completeness` (their "
-                         "priority over the priority of every target).")
+                         "priority over the priority of every target); `telescope_time` is the "
+                         "sum of the pointings': " + TELESCOPE_TIME + ".")
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

@@ -122,6 +122,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     page.fill("#time-limit", "10")  # legs get planned on a loaded machine too
     page.fill("#pa", "30")  # the page's projection must rotate as the server's does
     page.select_option("#segmentation", "balanced")
+    page.fill("#exposure-time", "600")  # the page's default 900 s replaced
     page.click("#go")
     assert page.is_disabled("#go")  # no second job while this one runs
     page.wait_for_selector("#result:not([hidden])", timeout=90_000)
@@ -137,6 +138,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     page.uncheck("#park-unlimited")
     page.fill("#park-limit", "90")
     assert page.evaluate("mxs.planRequest({targets: []}).park_move_limit_s") == 90
+    _telescope_time_is_shown(page, result)
     banner = page.inner_text("#banner")
     assert ("NOT executable" in banner) == (not result["executable"])
     summary = page.inner_text("#summary")
@@ -194,6 +196,36 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     ARTEFACTS.mkdir(parents=True, exist_ok=True)
     page.screenshot(path=str(ARTEFACTS / "plan.png"), full_page=True)
     _not_executable_is_flagged(page, result)
+
+
+def _hmm(t_s: float) -> str:
+    h, m = divmod(round(t_s / 60), 60)
+    return f"{h}:{m:02d}"
+
+
+def _telescope_time_is_shown(page, result) -> None:
+    """The exposure time and acquisition reach the request (the acquisition at its default),
+    the stop rules only when set; the plan's telescope time and each pointing's are shown."""
+    request = page.evaluate("mxs.state.request")
+    assert (request["exposure_time_s"], request["acquisition_s"]) == (600, 300)
+    assert not {"max_exposures", "min_priority_per_exposure", "min_targets_per_exposure"} & set(request)
+    page.fill("#max-exposures", "3")
+    page.fill("#min-priority", "50")
+    page.fill("#min-targets", "2")
+    asked = page.evaluate("mxs.planRequest({targets: []})")
+    assert (asked["max_exposures"], asked["min_priority_per_exposure"], asked["min_targets_per_exposure"]) == (3, 50, 2)
+    for sel in ("#max-exposures", "#min-priority", "#min-targets"):
+        page.fill(sel, "")
+    t = result["stats"]["telescope_time"]
+    assert t["exposure_s"] == 600 * t["exposures"]
+    row = page.evaluate("""() => [...document.querySelectorAll('#summary tr')].map((tr) => tr.textContent)
+        .find((r) => r.startsWith('telescope time'))""")
+    assert row is not None and f"{_hmm(t['total_s'])} = {t['exposures']} exposure" in row
+    assert f"reconfiguration {_hmm(t['reconfiguration_s'])}" in row
+    shown = page.locator(".pointing .telescope-time").all_inner_texts()
+    assert len(shown) == len(result["pointings"])
+    for text, p in zip(shown, result["pointings"], strict=True):
+        assert f"Telescope time (h:mm): {_hmm(p['stats']['telescope_time']['total_s'])} = " in text
 
 
 def _not_executable_is_flagged(page, result) -> None:

@@ -6,7 +6,12 @@
 const $ = (id) => document.getElementById(id);
 const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation method",
   solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
-  targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park" };
+  targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park",
+  exposure_time_s: "exposure time", acquisition_s: "acquisition per pointing", max_exposures: "most exposures",
+  min_priority_per_exposure: "least priority per exposure", min_targets_per_exposure: "fewest targets per exposure" };
+// Numeric inputs of the plan form: element id -> request field (an empty input is left out).
+const NUMBER_FIELDS = { "exposure-time": "exposure_time_s", acquisition: "acquisition_s", "max-exposures": "max_exposures",
+  "min-priority": "min_priority_per_exposure", "min-targets": "min_targets_per_exposure" };
 
 const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null };
 
@@ -103,6 +108,10 @@ function planRequest(list) {
   const park = $("park-limit").value.trim();
   if ($("park-unlimited").checked) req.park_move_limit_s = null;
   else if (park) req.park_move_limit_s = Number(park);
+  for (const [id, field] of Object.entries(NUMBER_FIELDS)) {
+    const v = $(id).value.trim();
+    if (v) req[field] = Number(v);
+  }
   return req;
 }
 
@@ -245,6 +254,7 @@ function showSummary(result, request, fate) {
     ["priority observed", pct(sumPrio(allocated) / sumPrio(request.targets))],
     ["motion legs not planned", `${s.motion_plans_failed ?? "?"} of ${s.motion_plans ?? "?"}`],
   ];
+  if (s.telescope_time) rows.splice(3, 0, ["telescope time (h:mm)", telescopeTimeText(s.telescope_time)]);
   for (const [k, label] of [["targets_moved", "targets moved to another configuration"],
     ["legs_via_park", "legs through park"], ["configurations_added", "configurations added"],
     ["targets_dropped", "targets dropped"]]) if (s[k]) rows.push([label, s[k]]);

@@ -32,6 +32,20 @@ function table(head, rows, leftCols) {
 
 function pct(x) { return (100 * x).toFixed(1) + " %"; }
 
+// Seconds as h:mm, rounded to the minute.
+function hoursMinutes(s) {
+  const m = Math.round(s / 60);
+  return `${Math.floor(m / 60)}:${String(m % 60).padStart(2, "0")}`;
+}
+
+// A plan's or a pointing's stats.telescope_time: total, then exposures + acquisitions + reconfiguration.
+function telescopeTimeText(t) {
+  const plural = (n, w) => `${n} ${w}${n === 1 ? "" : "s"}`;
+  return `${hoursMinutes(t.total_s)} = ${plural(t.exposures, "exposure")} ${hoursMinutes(t.exposure_s)} + ` +
+    `${plural(t.acquisitions, "acquisition")} ${hoursMinutes(t.acquisition_s)} + reconfiguration ` +
+    `${hoursMinutes(t.reconfiguration_s)}` + (t.unplanned_legs ? ` (${plural(t.unplanned_legs, "leg")} not planned, not counted)` : "");
+}
+
 // ------------------------------------------------------------------------ one pointing
 
 function pointingSection(p, request, byId, tiers, list) {
@@ -41,6 +55,8 @@ function pointingSection(p, request, byId, tiers, list) {
     el("span", { class: "badge " + (p.executable ? "ok" : "failed") }, p.executable ? "executable" : "NOT executable")),
   el("p", {}, `${p.target_ids.length} targets, ${p.configurations.length} configurations, ${nAlloc} observed, ` +
     `${p.unallocated.length} not observed.`));
+  const t = p.stats && p.stats.telescope_time;
+  if (t) sec.append(el("p", { class: "telescope-time" }, `Telescope time (h:mm): ${telescopeTimeText(t)}.`));
   if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, r))));
   if (p.changes.length) {
     sec.append(el("p", {}, el("span", { class: "badge changed" }, "changed"),
