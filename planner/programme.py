@@ -52,7 +52,7 @@ from solvers.sequencing.options import SequenceOptions as AllocationSequenceOpti
 __all__ = [
     "DEFAULT_LIMIT_S", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "exposure_caps", "next_round",
-    "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "usable_s",
 ]
 
@@ -88,6 +88,10 @@ class ProgrammeShares:
     #: Rounds at most (the first included): each plans again the pointings with a failed leg
     #: on what the earlier rounds left.
     rounds: int = 4
+    #: Of the plan's limit, what the programme optimiser (segmentation mode
+    #: "fewest-exposures") may use, at most ``optimiser_max_s``: the pointings get the rest.
+    optimiser_share: float = 0.08
+    optimiser_max_s: float = 12.0
 
 
 SHARES = ProgrammeShares()
@@ -129,6 +133,14 @@ def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
     if limit_s is None or math.isinf(limit_s):
         return math.inf
     return max(limit_s - reserve_s(limit_s, table), 0.0)
+
+
+def optimiser_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
+    """The wall-clock seconds the programme optimiser of a plan limited to ``limit_s`` may
+    use (its searches get ``effort_share`` of them in effort seconds)."""
+    if limit_s is None or math.isinf(limit_s):
+        return table.optimiser_max_s
+    return min(table.optimiser_share * usable_s(limit_s, table), table.optimiser_max_s)
 
 
 def pointing_need(n_targets: int, table: ProgrammeShares = SHARES, *,

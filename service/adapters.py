@@ -148,7 +148,9 @@ def pointing_out(p: Pointing, ids: Sequence[str] | Mapping[int, str]) -> dict[st
     """``solvers.segmentation.Pointing`` -> PointingOut dict (``ids`` of the segmented targets)."""
     return {"id": str(p.id), "ra_deg": float(p.ra_deg), "dec_deg": float(p.dec_deg),
             "x_mm": float(p.x_mm), "y_mm": float(p.y_mm), "radius_mm": float(p.radius_mm),
-            "target_ids": [ids[int(i)] for i in p.target_indices]}
+            "target_ids": [ids[int(i)] for i in p.target_indices],
+            "position_angle_deg": None if p.position_angle_deg is None else float(p.position_angle_deg),
+            "only_here": [ids[int(i)] for i in p.only_here]}
 
 
 def segmentation_out(seg: Segmentation, ids: Sequence[str]) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from models import clock
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
@@ -57,6 +58,7 @@ from service.schemas import (
     SkyTarget,
 )
 from solvers.allocation import allocate
+from solvers.programme import FillOptions, segment_programme
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -128,9 +130,20 @@ def field_args(req: SegmentationRequest, inst: Instrument) -> dict[str, Any]:
             "mode": req.mode}
 
 
-def segment(req: SegmentationRequest, inst: Instrument) -> Segmentation:
-    """``solvers.segmentation.segment_field`` on the request (thesis ch. 4)."""
-    return segment_field(**field_args(req, inst), seed=int(req.seed or 0))
+def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None = None,
+            optimiser_s: float | None = None) -> Segmentation:
+    """``solvers.programme.segment_programme`` on the request (thesis ch. 4; mode
+    "fewest-exposures": the programme optimiser, allocating as ``fill`` says within
+    ``optimiser_s`` wall-clock seconds, on the effort clock as a pointing's plan)."""
+    args = field_args(req, inst)
+    if req.mode != "fewest-exposures":
+        return segment_field(**args, seed=int(req.seed or 0))
+    wall_s = programme.optimiser_s(None) if optimiser_s is None else float(optimiser_s)
+    with clock.effort(wall_limit_s=wall_s):
+        return segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
+                                 mode=req.mode, threshold_mm=req.threshold_mm,
+                                 tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,
+                                 budget=Budget.start(programme.SHARES.effort_share * wall_s))
 
 
 def segmentation(
@@ -243,9 +256,19 @@ def plan_segmentation(req: PlanRequest) -> SegmentationRequest:
                                mode=req.segmentation_mode, seed=req.seed)
 
 
-def segment_plan(req: PlanRequest, inst: Instrument) -> Segmentation:
-    """The segmentation stage of a plan (deterministic for the request and its seed)."""
-    return segment(plan_segmentation(req), inst)
+def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = None) -> Segmentation:
+    """The segmentation stage of a plan limited to ``limit_s`` (deterministic for the
+    request and its seed); the programme optimiser allocates as the plan will."""
+    fill = FillOptions(method=req.method, solver=req.solver, seed=int(req.seed or 0),
+                       park_move_limit_s=req.park_move_limit_s, position_angle_deg=req.position_angle_deg)
+    return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s))
+
+
+def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:
+    """What a plan limited to ``limit_s`` leaves its pointings after its segmentation."""
+    if req.segmentation_mode != "fewest-exposures":
+        return limit_s
+    return limit_s - programme.optimiser_s(limit_s)
 
 
 def observing_rules(req: PlanRequest) -> ObservingRules:
@@ -280,8 +303,9 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
                               observing_rules(req))
+    pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
-                        req.position_angle_deg, options, float(task.share_s), task.round)
+                        pa, options, float(task.share_s), task.round)
 
 
 def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop, *,
@@ -356,7 +380,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     limit has left when a slow machine left less (then the limit comes first)."""
     limit = plan_limit_s(req, budget_s)
     budget = Budget.start(limit - reserve_s(limit))  # the wall clock: outside any effort block
-    seg = segment_plan(req, inst)
+    seg = segment_plan(req, inst, limit)
     progress(plan_progress(1, 0, 1))
     answers: dict[int, dict[str, Any]] = {}
 
@@ -371,7 +395,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
             progress(plan_progress(task.round, done + 1, len(tasks)))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
-    history = run_rounds(pointing_needs(seg, req), limit, compute)
+    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit), compute)
     return seg, [answers[i] for i in range(len(seg.pointings))], {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": budget.elapsed_s()}
@@ -453,10 +477,20 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
             "telescope_time": total_time(adapters.telescope_time_in(p["stats"]["telescope_time"])
                                          for p in out),
+            **exposure_bound(seg, sum(len(p["configurations"]) for p in out)),
             **stats,
             "segmentation": seg.stats,
         }),
     }
+
+
+def exposure_bound(seg: Segmentation, exposures: int) -> dict[str, Any]:
+    """The proven lower bound on the programme's exposures (the programme optimiser's) and
+    the plan's exposures over it; empty when the segmentation proves none."""
+    bound = seg.stats.get("exposures_lower_bound")
+    if bound is None:
+        return {}
+    return {"exposures_lower_bound": int(bound), "exposures_gap": exposures / bound if bound else None}
 
 
 def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,

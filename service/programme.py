@@ -53,7 +53,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     t0 = time.monotonic()
     req = request if isinstance(request, PlanRequest) else PlanRequest.model_validate(request)
     limit = pipeline.plan_limit_s(req, budget_s)
-    seg = pipeline.segment_plan(req, inst)
+    seg = pipeline.segment_plan(req, inst, limit)
     n = len(seg.pointings)
     if not store.start_pointings(job_id, owner, n):
         return None
@@ -110,7 +110,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return [recorded(t) for t in tasks]  # type: ignore[misc]
 
     try:
-        history = run_rounds(pipeline.pointing_needs(seg, req), limit, compute)
+        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit), compute)
     except _Stopped:
         return None
     return pipeline.plan_out(seg, [answers[i] for i in range(n)], req.targets, {

@@ -84,7 +84,7 @@ BufferMm = Annotated[
 ]
 Method = Literal["ilp", "semigreedy"]
 Solver = Literal["highs", "cpsat", "bnb"]  # bnb: exact bitset branch-and-bound (extension)
-SegmentationMode = Literal["complete-linkage", "balanced"]
+SegmentationMode = Literal["complete-linkage", "balanced", "fewest-exposures"]
 Stats = dict[str, Any]
 
 
@@ -176,7 +176,9 @@ class SegmentationRequest(SkyTargetSource):
     )
     mode: SegmentationMode = Field(
         "complete-linkage",
-        description="'complete-linkage' (thesis ch. 4) or 'balanced' (fewer, more even pointings).",
+        description="'complete-linkage' (thesis ch. 4), 'balanced' (fewer, more even pointings) or "
+                    "'fewest-exposures' (the programme optimiser: pointings, position angles and "
+                    "members with the fewest exposures, and a proven lower bound on them).",
     )
     seed: Seed | None = None
 
@@ -420,6 +422,13 @@ class PointingOut(Response):
     y_mm: float
     radius_mm: float
     target_ids: list[str]
+    position_angle_deg: float | None = Field(
+        None, description="The pointing's position angle, deg, when the segmentation chose it "
+                          "(mode 'fewest-exposures'); null: the request's.")
+    only_here: list[str] = Field(
+        default_factory=list, description="Targets of this pointing that no other pointing of "
+        "the plan holds (mode 'fewest-exposures'): an exposure observing only a few targets is "
+        "kept only for these.")
 
 
 class TangentPoint(Response):

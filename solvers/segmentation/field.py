@@ -46,6 +46,8 @@ from solvers.segmentation.linkage import (
 
 FOV_TOL_MM = 1e-6  # a member may sit this far outside the FOV circle (rounding only)
 Mode = Literal["complete-linkage", "balanced"]
+#: the modes of :func:`solvers.programme.segment_programme`: these, and the optimiser's
+MODES = ("complete-linkage", "balanced", "fewest-exposures")
 
 
 @dataclass(frozen=True)
@@ -53,7 +55,10 @@ class Pointing:
     """One telescope pointing: centre on the sky, on the field's global plane, and members.
 
     ``radius_mm`` is the farthest member from the centre on this pointing's own tangent plane
-    (<= the FOV radius). ``target_indices`` index the input arrays, ascending.
+    (<= the FOV radius). ``target_indices`` index the input arrays, ascending. The programme
+    optimiser (mode "fewest-exposures", :mod:`solvers.programme`) also sets the pointing's
+    ``position_angle_deg`` (None: the plan's), the ``exposures`` its allocation needed, and
+    ``only_here``: the members no other pointing of the plan holds.
     """
 
     id: str
@@ -63,6 +68,9 @@ class Pointing:
     y_mm: float
     radius_mm: float
     target_indices: tuple[int, ...]
+    position_angle_deg: float | None = None
+    exposures: int | None = None
+    only_here: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -263,8 +271,8 @@ def _validate(ra_deg, dec_deg, threshold_mm, tangent_point, R, scale, mode):
     if t > 2 * R:
         raise InputError("threshold_mm", f"{t} mm is larger than the FOV diameter {2 * R} mm: "
                          "targets that far apart can never share a pointing")
-    if mode not in ("complete-linkage", "balanced"):
-        raise InputError("mode", f"must be 'complete-linkage' or 'balanced', got {mode!r}")
+    if mode not in MODES:
+        raise InputError("mode", f"must be one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
     if tangent_point is not None:
         tra, tdec = (float(v) for v in tangent_point)
         if not (0.0 <= tra < 360.0):
@@ -332,6 +340,9 @@ def segment_field(
         if budget.expired():
             raise TimeLimitExceeded("segmentation", time_limit_s)
 
+    if mode == "fewest-exposures":
+        raise InputError("mode", "'fewest-exposures' needs the priorities and the instrument: "
+                         "solvers.programme.segment_programme plans it")
     R, scale = float(fov_radius_mm), float(plate_scale_arcsec_per_mm)
     ra, dec, t, tangent, xy = field_plane(ra_deg, dec_deg, threshold_mm=threshold_mm,
                                           tangent_point=tangent_point, fov_radius_mm=R,

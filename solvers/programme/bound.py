@@ -1,0 +1,185 @@
+"""A proven lower bound on the exposures of a whole programme, wherever its pointings are
+placed and whatever their position angles.
+
+**The argument.** One exposure observes at most ``arms`` targets, all inside one FOV circle of
+radius R. Give every target a weight ``w_i >= 0`` such that no such set weighs more than 1:
+for every disc D of radius R, the ``arms`` heaviest targets inside D weigh at most 1. Then each
+exposure observes at most 1 of weight, so every plan that observes all targets takes at least
+``sum(w)`` exposures (the dual of the fractional cover by discs; weak LP duality). ``w = 1/arms``
+gives the trivial ``ceil(t / arms)``; ``w = 1`` on targets pairwise more than 2R apart gives
+the number of FOVs a sparse field needs.
+
+**Every disc is checked.** Every set of targets a disc of radius R holds lies in a disc of
+radius R with two of them on its rim, or centred on one of them (slide the disc until it
+touches). So the discs centred on each target and those through each pair closer than 2R
+(:func:`disc_centres`) hold every maximal set, and checking the weight condition on them
+checks it on every disc.
+
+**The weights** come from a cutting-plane LP (:func:`lower_bound`): HiGHS maximises ``sum(w)``
+over the violated discs found so far; the heaviest discs of its answer are added until none
+is violated or the rounds run out. Whatever the LP returns is divided by the heaviest disc's
+top-``arms`` weight over *all* discs, so the bound holds even when the cutting planes stop
+early. Targets in different components of the 2R-neighbour graph never share an exposure,
+so the bound is the sum over components of each component's weight rounded up.
+
+Distances are on the programme's tangent plane; the radius is enlarged by ``RADIUS_SLACK``
+so that the plane's distortion of a few arcminutes (parts in 10^6) cannot make a true FOV
+set look wider than R (a larger radius only weakens the bound).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from models import clock
+from models.budget import Budget
+
+__all__ = ["ExposureBound", "RADIUS_SLACK", "disc_centres", "heaviest_disc", "lower_bound"]
+
+#: relative enlargement of the FOV radius used by the bound (keeps it valid under the
+#: tangent plane's distortion and rounding)
+RADIUS_SLACK = 1e-4
+#: the bound enumerates pair discs only up to this many centres; beyond, the trivial and
+#: component bounds alone are reported (still valid)
+MAX_CENTRES = 400_000
+#: cutting-plane rounds and discs added per round
+ROUNDS = 15
+CUTS_PER_ROUND = 200
+#: effort seconds charged per (disc, target) cell examined and per cutting-plane LP solve
+#: (reference seconds, as the costs of solvers.effort)
+CELL_S = 4e-9
+LP_S = 0.02
+#: targets per block of the all-discs check (memory: block x targets floats)
+BLOCK_CELLS = 4_000_000
+
+
+@dataclass(frozen=True)
+class ExposureBound:
+    """``exposures``: the proven lower bound; ``trivial``: ceil(t / arms); ``components``:
+    groups of targets that can never share a FOV; ``weight``: the certified weights' sum
+    (before rounding per component); ``method``: "lp" or "trivial" (too many discs to check)."""
+
+    exposures: int
+    trivial: int
+    components: int
+    weight: float
+    method: str
+    rounds: int = 0
+
+
+def disc_centres(xy: np.ndarray, radius_mm: float) -> np.ndarray:
+    """Centres of the discs of radius ``radius_mm`` that hold every maximal set of targets:
+    each target, and the two discs through each pair closer than twice the radius.
+    (k, 2) mm; may hold duplicates."""
+    pairs = cKDTree(xy).query_pairs(2.0 * radius_mm, output_type="ndarray")
+    if pairs.size == 0:
+        return xy.copy()
+    a, b = xy[pairs[:, 0]], xy[pairs[:, 1]]
+    mid = 0.5 * (a + b)
+    d = b - a
+    dist = np.hypot(d[:, 0], d[:, 1])
+    h = np.sqrt(np.maximum(radius_mm ** 2 - 0.25 * dist ** 2, 0.0))
+    perp = np.column_stack([-d[:, 1], d[:, 0]]) / np.maximum(dist, 1e-12)[:, None]
+    return np.vstack([xy, mid + h[:, None] * perp, mid - h[:, None] * perp])
+
+
+def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: float, arms: int,
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """For every centre, the summed weight of its ``arms`` heaviest targets within
+    ``radius_mm`` and (k, arms) indices of those targets (-1: fewer)."""
+    n = len(xy)
+    k = min(arms, n)
+    clock.charge(CELL_S * len(centres) * n)
+    sums = np.empty(len(centres))
+    tops = np.full((len(centres), k), -1, dtype=np.int64)
+    r2 = radius_mm ** 2
+    block = max(1, BLOCK_CELLS // max(n, 1))
+    for s in range(0, len(centres), block):
+        c = centres[s:s + block]
+        d2 = (c[:, 0, None] - xy[None, :, 0]) ** 2 + (c[:, 1, None] - xy[None, :, 1]) ** 2
+        wm = np.where(d2 <= r2, w[None, :], -1.0)
+        idx = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < n else np.tile(np.arange(n), (len(c), 1))
+        top = np.take_along_axis(wm, idx, axis=1)
+        sums[s:s + block] = np.where(top > 0, top, 0.0).sum(axis=1)
+        tops[s:s + block] = np.where(top >= 0, idx, -1)
+    return sums, tops
+
+
+def heaviest_disc(xy: np.ndarray, w: np.ndarray, radius_mm: float, arms: int) -> float:
+    """The largest summed weight of ``arms`` targets that one disc of ``radius_mm`` holds
+    (over every disc: :func:`disc_centres`)."""
+    sums, _ = _top_sums(xy, w, disc_centres(xy, radius_mm), radius_mm, arms)
+    return float(sums.max(initial=0.0))
+
+
+def _lp(n: int, cuts: list[np.ndarray]) -> np.ndarray:
+    """max sum(w) s.t. sum(w[cut]) <= 1 for every cut, 0 <= w <= 1 (HiGHS)."""
+    import highspy
+
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = n, len(cuts)
+    lp.col_cost_ = np.ones(n)
+    lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
+    lp.row_lower_, lp.row_upper_ = np.full(len(cuts), -np.inf), np.ones(len(cuts))
+    lp.sense_ = highspy.ObjSense.kMaximize
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = np.r_[0, np.cumsum([len(c) for c in cuts])].astype(np.int32)
+    lp.a_matrix_.index_ = (np.concatenate(cuts) if cuts else np.zeros(0)).astype(np.int32)
+    lp.a_matrix_.value_ = np.ones(int(sum(len(c) for c in cuts)))
+    h.passModel(lp)
+    h.run()
+    clock.charge(LP_S)
+    return np.clip(np.asarray(h.getSolution().col_value, float), 0.0, 1.0)
+
+
+def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget | None = None,
+                ) -> ExposureBound:
+    """The proven lower bound on the exposures that observe every target of ``xy`` ((n, 2)
+    mm on the programme's tangent plane) with FOVs of radius ``fov_radius_mm`` and ``arms``
+    arms (module docstring). ``budget``: the cutting planes stop when it expires (the bound
+    stays valid, only weaker)."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    n = len(xy)
+    trivial = math.ceil(n / arms)
+    if n == 0:
+        return ExposureBound(0, 0, 0, 0.0, "trivial")
+    R = fov_radius_mm * (1.0 + RADIUS_SLACK) + 1e-9
+    pairs = cKDTree(xy).query_pairs(2.0 * R, output_type="ndarray")
+    graph_n, labels = _components(n, pairs)
+    if n + 2 * len(pairs) > MAX_CENTRES:
+        return ExposureBound(max(trivial, graph_n), trivial, graph_n, float(n) / arms, "trivial")
+    centres = disc_centres(xy, R)
+    w = np.ones(n)  # the LP with no cut yet
+    cuts: list[np.ndarray] = []
+    rounds = 0
+    while rounds < ROUNDS:
+        rounds += 1
+        sums, tops = _top_sums(xy, w, centres, R, arms)
+        worst = np.argsort(-sums, kind="stable")[:CUTS_PER_ROUND]
+        worst = worst[sums[worst] > 1.0 + 1e-7]
+        if worst.size == 0 or (budget is not None and budget.expired()):
+            break
+        cuts.extend(np.unique(tops[j][tops[j] >= 0]) for j in worst)
+        # a cut holds a disc's top targets; the disc's full member set is what binds, so the
+        # next round re-checks every disc with the new weights
+        w = _lp(n, cuts)
+    sums, _ = _top_sums(xy, w, centres, R, arms)
+    w = w / max(float(sums.max(initial=0.0)), 1e-12)
+    per = np.bincount(labels, weights=w, minlength=graph_n)
+    exposures = int(sum(math.ceil(v - 1e-9) for v in per))
+    return ExposureBound(max(exposures, trivial), trivial, graph_n, float(w.sum()), "lp", rounds)
+
+
+def _components(n: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
+    from scipy import sparse as sp
+
+    g = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])) if len(pairs) else
+                      (np.zeros(0), (np.zeros(0, int), np.zeros(0, int))), shape=(n, n))
+    return connected_components(g, directed=False)

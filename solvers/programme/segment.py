@@ -1,0 +1,95 @@
+"""One entry point for every segmentation mode of a programme: the thesis' complete linkage,
+"balanced" (:func:`solvers.segmentation.segment_field`) and "fewest-exposures", the programme
+optimiser (:func:`solvers.programme.optimiser.optimise`), which also needs the priorities,
+the instrument and the allocation the plan will run."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from models.budget import Budget
+from models.errors import InputError
+from models.instrument import Instrument
+from models.sky import sky_to_focal_mm, tangent_radius_mm
+from solvers.programme.fill import FillOptions
+from solvers.programme.optimiser import OptimiserOptions, ProgrammeResult, optimise
+from solvers.segmentation.field import (
+    FOV_TOL_MM,
+    MODES,
+    Pointing,
+    Segmentation,
+    field_plane,
+    segment_field,
+)
+
+__all__ = ["MODES", "segment_programme"]
+
+
+def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str = "complete-linkage",
+                      threshold_mm: float | None = None, tangent_point: tuple[float, float] | None = None,
+                      seed: int = 0, fill: FillOptions | None = None, budget: Budget | None = None,
+                      ) -> Segmentation:
+    """The programme's pointings in ``mode`` (one of :data:`MODES`). ``fill``: how the plan
+    allocates a pointing (the optimiser's feedback allocates the same way); ``budget``: the
+    optimiser's (default: 10 s on the caller's clock). Raises InputError naming the field."""
+    if mode not in MODES:
+        raise InputError("mode", f"must be one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
+    R, scale = float(inst.fov_radius_mm), float(inst.plate_scale_arcsec_per_mm)
+    if mode != "fewest-exposures":
+        return segment_field(ra_deg, dec_deg, threshold_mm=threshold_mm, tangent_point=tangent_point,
+                             fov_radius_mm=R, plate_scale_arcsec_per_mm=scale, mode=mode, seed=seed)
+    budget = Budget.start(10.0) if budget is None else budget
+    ra, dec, _, tangent, xy = field_plane(ra_deg, dec_deg, tangent_point=tangent_point, fov_radius_mm=R,
+                                          plate_scale_arcsec_per_mm=scale)
+    prio = np.asarray(priority, dtype=np.int64)
+    if prio.shape != ra.shape:
+        raise InputError("priority", f"expected {ra.size} priorities, got shape {prio.shape}")
+    opts = OptimiserOptions(fill=FillOptions(seed=int(seed)) if fill is None else fill)
+    t0 = time.perf_counter()
+    result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget)
+    return _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
+
+
+def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float) -> Segmentation:
+    """The optimiser's pointings as a :class:`Segmentation`, after the guarantees every mode
+    gives: each target in exactly one pointing, inside that pointing's FOV."""
+    n = len(ra)
+    lab = np.full(n, -1, dtype=np.int64)
+    for g, p in enumerate(result.pointings):
+        m = np.asarray(p.members, dtype=np.int64)
+        if np.any(lab[m] >= 0):
+            raise AssertionError("programme optimiser: a target is in two pointings")
+        lab[m] = g
+    if np.any(lab < 0):
+        raise AssertionError("programme optimiser: a target is in no pointing")
+    pra = np.array([p.ra_deg for p in result.pointings])
+    pdec = np.array([p.dec_deg for p in result.pointings])
+    r = tangent_radius_mm(ra, dec, pra[lab], pdec[lab], scale)
+    if np.any(r > R + FOV_TOL_MM):
+        raise AssertionError("programme optimiser: a target lies outside its pointing's FOV")
+    radius = np.zeros(len(pra))
+    np.maximum.at(radius, lab, r)
+    px, py = sky_to_focal_mm(pra, pdec, tangent[0], tangent[1], scale)
+    width = max(4, len(str(len(pra))))
+    pointings = tuple(
+        Pointing(id=f"P{g + 1:0{width}d}", ra_deg=float(p.ra_deg), dec_deg=float(p.dec_deg),
+                 x_mm=float(px[g]), y_mm=float(py[g]), radius_mm=float(radius[g]),
+                 target_indices=tuple(sorted(p.members)), position_angle_deg=float(p.position_angle_deg),
+                 exposures=p.exposures, only_here=tuple(sorted(p.only_here)))
+        for g, p in enumerate(result.pointings))
+    sizes = np.array([len(p.target_indices) for p in pointings])
+    b = result.bound
+    stats = {"mode": "fewest-exposures", "n_targets": n, "n_pointings": len(pointings),
+             "fov_radius_mm": R, "max_radius_mm": float(radius.max()),
+             "members_min": int(sizes.min()), "members_max": int(sizes.max()),
+             "members_mean": float(sizes.mean()), "members_std": float(sizes.std()),
+             "exposures_lower_bound": b.exposures,
+             "bound": {"exposures": b.exposures, "trivial": b.trivial, "components": b.components,
+                       "weight": b.weight, "method": b.method},
+             "optimiser": result.stats, "time_s": wall_s}
+    if not math.isfinite(stats["max_radius_mm"]):
+        raise AssertionError("programme optimiser: a pointing has no finite radius")
+    return Segmentation(float(tangent[0]), float(tangent[1]), pointings, stats)
