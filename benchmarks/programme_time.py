@@ -169,6 +169,8 @@ def small_exposures(plan: dict[str, Any]) -> dict[str, Any]:
     for p in plan["pointings"]:
         for c in p["configurations"]:
             found = only_here_key(c)
+            if found is None and "only_here" in p:  # the pointing's targets no other holds
+                found = ("only_here", p["only_here"])
             if found is not None:
                 key = found[0]
             observed = observed_ids(c)

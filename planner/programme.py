@@ -50,7 +50,7 @@ from solvers.allocation.options import AllocationOptions
 from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 __all__ = [
-    "DEFAULT_LIMIT_S", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
+    "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "exposure_caps", "next_round",
     "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "usable_s",
@@ -100,6 +100,9 @@ SEGMENTED = 0.05
 #: A plan's progress once every pointing has its first-round plan; the later rounds (those
 #: that plan again the pointings with a failed leg) share the rest equally.
 FIRST_ROUND_DONE = 0.85
+#: How a plan splits its field into pointings when the caller does not say
+#: (:data:`solvers.segmentation.field.MODES`).
+DEFAULT_SEGMENTATION_MODE = "complete-linkage"
 #: The limit of a whole plan when the caller gives none: the instrument's configuration time
 #: goal, and the default of ``POST /v1/plans`` and ``mxs-planner plan``.
 DEFAULT_LIMIT_S = 120.0

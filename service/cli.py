@@ -11,9 +11,10 @@ from pathlib import Path
 from typing import Any
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
-from planner.programme import DEFAULT_LIMIT_S
+from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service.tables import TargetFileError, read_target_table, read_targets
+from solvers.segmentation.field import MODES as SEGMENTATION_MODES
 
 __all__ = ["TargetFileError", "main", "read_targets"]
 
@@ -62,6 +63,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm,
+                          segmentation_mode=args.segmentation_mode,
                           park_move_limit_s=None if args.no_park_move_limit else args.park_move_limit,
                           exposure_time_s=args.exposure_time, acquisition_s=args.acquisition,
                           max_exposures=args.max_exposures,
@@ -206,6 +208,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "POST /v1/plans)")
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threshold-mm", type=float, default=None)
+    p.add_argument("--segmentation-mode", choices=list(SEGMENTATION_MODES),
+                   default=DEFAULT_SEGMENTATION_MODE,
+                   help="how the field is split into pointings: 'complete-linkage' (thesis ch. 4), "
+                   "'balanced', or 'fewest-exposures' (the programme optimiser: fewest exposures, "
+                   "with a proven lower bound) (default: %(default)s)")
     reach = p.add_mutually_exclusive_group()
     reach.add_argument("--park-move-limit", type=float, default=CONFIGURATION_TIME_GOAL_S, metavar="S",
                        help="observe each target from a location its arm reaches from park within S "

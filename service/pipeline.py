@@ -131,7 +131,7 @@ def field_args(req: SegmentationRequest, inst: Instrument) -> dict[str, Any]:
 
 
 def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None = None,
-            optimiser_s: float | None = None) -> Segmentation:
+            optimiser_s: float | None = None, mode_field: str = "mode") -> Segmentation:
     """``solvers.programme.segment_programme`` on the request (thesis ch. 4; mode
     "fewest-exposures": the programme optimiser, allocating as ``fill`` says within
     ``optimiser_s`` wall-clock seconds, on the effort clock as a pointing's plan)."""
@@ -143,7 +143,8 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
         return segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
                                  mode=req.mode, threshold_mm=req.threshold_mm,
                                  tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,
-                                 budget=Budget.start(programme.SHARES.effort_share * wall_s))
+                                 budget=Budget.start(programme.SHARES.effort_share * wall_s),
+                                 mode_field=mode_field)
 
 
 def segmentation(
@@ -261,7 +262,7 @@ def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = Non
     request and its seed); the programme optimiser allocates as the plan will."""
     fill = FillOptions(method=req.method, solver=req.solver, seed=int(req.seed or 0),
                        park_move_limit_s=req.park_move_limit_s, position_angle_deg=req.position_angle_deg)
-    return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s))
+    return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s), "segmentation_mode")
 
 
 def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:

@@ -24,6 +24,7 @@ from pydantic import (
 
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
+from planner.programme import DEFAULT_SEGMENTATION_MODE
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
@@ -292,7 +293,7 @@ class PlanRequest(SkyTargetSource):
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
-    segmentation_mode: SegmentationMode = "complete-linkage"
+    segmentation_mode: SegmentationMode = DEFAULT_SEGMENTATION_MODE
     park_move_limit_s: Annotated[float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False)] | None = Field(
         CONFIGURATION_TIME_GOAL_S, description="Every target is observed from a location its arm reaches from "
         "park within this many seconds turning J2 the positive way (the way an arm leaves park without "

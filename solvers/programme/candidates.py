@@ -20,7 +20,10 @@ __all__ = ["Candidates", "maximal_sets"]
 
 #: at most this many centres are examined; a field with more pairs keeps a thinned set
 #: (then the model's optimum is no longer a bound: ``Candidates.complete`` says so)
-MAX_CENTRES = 60_000
+MAX_CENTRES = 30_000
+#: sets inside another are removed only up to this many distinct sets (the check is
+#: quadratic); a model over more keeps them: harmless, a subset is never a better choice
+DOMINANCE_MAX_SETS = 3_000
 #: effort seconds charged per (centre, member) pair found (reference seconds)
 MEMBER_S = 0.15e-6
 
@@ -83,7 +86,8 @@ def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | N
                  ) -> Candidates:
     """The distinct maximal member sets of the discs of ``radius_mm`` through the targets
     ``xy`` ((n, 2) mm), plus those of ``extra_centres``. A set kept is never a subset of
-    another kept set; its centre is the first disc found holding it."""
+    another kept set (up to :data:`DOMINANCE_MAX_SETS` sets); its centre is the first disc
+    found holding it."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     n = len(xy)
     centres, complete = _centres(xy, radius_mm, extra_centres)
@@ -103,7 +107,7 @@ def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | N
     count = np.array([sum(int(v).bit_count() for v in row) for row in bits])
     order = np.argsort(-count, kind="stable")
     bits, centres, count = bits[order], centres[order], count[order]
-    keep = _not_dominated(bits)
+    keep = _not_dominated(bits) if len(bits) <= DOMINANCE_MAX_SETS else np.arange(len(bits))
     bits, centres = bits[keep], centres[keep]
     start = [0]
     index: list[np.ndarray] = []

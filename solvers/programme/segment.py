@@ -25,22 +25,30 @@ from solvers.segmentation.field import (
     segment_field,
 )
 
-__all__ = ["MODES", "segment_programme"]
+__all__ = ["MAX_TARGETS", "MODES", "segment_programme"]
+
+#: the programme optimiser plans programmes of at most this many targets (its candidates
+#: grow with the pairs of targets closer than a FOV diameter)
+MAX_TARGETS = 1_000
 
 
 def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str = "complete-linkage",
                       threshold_mm: float | None = None, tangent_point: tuple[float, float] | None = None,
                       seed: int = 0, fill: FillOptions | None = None, budget: Budget | None = None,
-                      ) -> Segmentation:
+                      mode_field: str = "mode") -> Segmentation:
     """The programme's pointings in ``mode`` (one of :data:`MODES`). ``fill``: how the plan
     allocates a pointing (the optimiser's feedback allocates the same way); ``budget``: the
-    optimiser's (default: 10 s on the caller's clock). Raises InputError naming the field."""
+    optimiser's (default: 10 s on the caller's clock). Raises InputError naming the field
+    (``mode_field`` for the mode)."""
     if mode not in MODES:
-        raise InputError("mode", f"must be one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
+        raise InputError(mode_field, f"must be one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
     R, scale = float(inst.fov_radius_mm), float(inst.plate_scale_arcsec_per_mm)
     if mode != "fewest-exposures":
         return segment_field(ra_deg, dec_deg, threshold_mm=threshold_mm, tangent_point=tangent_point,
                              fov_radius_mm=R, plate_scale_arcsec_per_mm=scale, mode=mode, seed=seed)
+    if len(np.atleast_1d(ra_deg)) > MAX_TARGETS:
+        raise InputError(mode_field, f"'fewest-exposures' plans programmes of at most {MAX_TARGETS:,} "
+                         f"targets (this one has {len(np.atleast_1d(ra_deg)):,}): use 'balanced'")
     budget = Budget.start(10.0) if budget is None else budget
     ra, dec, _, tangent, xy = field_plane(ra_deg, dec_deg, tangent_point=tangent_point, fov_radius_mm=R,
                                           plate_scale_arcsec_per_mm=scale)
