@@ -51,7 +51,7 @@ from solvers.sequencing.options import SequenceOptions as AllocationSequenceOpti
 
 __all__ = [
     "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
-    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "exposure_caps", "next_round",
+    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "next_round",
     "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "usable_s",
 ]
@@ -86,8 +86,9 @@ class ProgrammeShares:
     #: back to park, which even a one-target pointing plans.
     fixed_need_targets: int = 12
     #: Rounds at most (the first included): each plans again the pointings with a failed leg
-    #: on what the earlier rounds left.
-    rounds: int = 4
+    #: on what the earlier rounds left (a round is due only while one fails, and only while
+    #: enough is left for it: so many that a failed leg is given all the limit has).
+    rounds: int = 8
     #: Of the plan's limit, what the programme optimiser (segmentation mode
     #: "fewest-exposures") may use, at most ``optimiser_max_s``: the pointings get the rest.
     optimiser_share: float = 0.08
@@ -373,6 +374,10 @@ class PointingOptions:
     park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
     max_configurations: int | None = None
     rules: ObservingRules = field(default_factory=ObservingRules)
+    #: an allocation of the pointing's targets to use instead of computing one (the programme
+    #: optimiser's, :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced
+    #: by the pointing's own, by index)
+    allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         cap = self.max_configurations
@@ -458,11 +463,13 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     if options.max_configurations == 0 or share_s < table.min_pointing_s:
         return _not_attempted(inst, targets, options)
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
-    result = allocate(inst, targets, method=options.method, solver=options.solver,
-                      configurations="all", seed=options.seed,
-                      budget=budget.share(table.allocation_share),
-                      progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
-                      options=allocation_options(options.park_move_limit_s, options.max_configurations))
+    result = given_allocation(options, targets)
+    if result is None:
+        result = allocate(inst, targets, method=options.method, solver=options.solver,
+                          configurations="all", seed=options.seed,
+                          budget=budget.share(table.allocation_share),
+                          progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
+                          options=allocation_options(options.park_move_limit_s, options.max_configurations))
     result, below = _exposure_rules(result, targets, options)
     progress(0.5)
     motion_s = budget.left_s()
@@ -483,6 +490,33 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
              "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s},
              "exposure_rules": below}
     return PointingPlan(targets, result, seq, err, stats)
+
+
+def given_allocation(options: PointingOptions, targets: PlaneTargets) -> AllocationResult | None:
+    """``options.allocation`` relabelled with ``targets``' ids and cut to the pointing's cap;
+    None when there is none or it is not an allocation of these targets (another count, or a
+    tip more than 1 micron from its target: the plan then allocates the pointing itself)."""
+    given = options.allocation
+    if given is None or given.stats.get("n_targets") != len(targets.ids):
+        return None
+    configs = []
+    for c in given.configurations[:options.max_configurations]:
+        arms = []
+        for a in c.assignments:
+            if a.target_index is not None:
+                i = int(a.target_index)
+                if not (0 <= i < len(targets.ids)) or math.hypot(a.x_mm - float(targets.x_mm[i]),
+                                                                 a.y_mm - float(targets.y_mm[i])) > 1e-3:
+                    return None
+                a = replace(a, target_id=targets.ids[i])
+            arms.append(a)
+        configs.append(replace(c, assignments=tuple(arms)))
+    observed = {a.target_index for c in configs for a in c.assignments if a.target_index is not None}
+    cut = tuple(Unallocated(i, targets.ids[i], "beyond_max_exposures")
+                for c in given.configurations[len(configs):] for a in c.assignments
+                if (i := a.target_index) is not None and i not in observed)
+    unallocated = tuple(replace(u, target_id=targets.ids[u.target_index]) for u in given.unallocated) + cut
+    return AllocationResult(tuple(configs), unallocated, dict(given.stats))
 
 
 def _not_attempted(inst: Instrument, targets: PlaneTargets, options: PointingOptions) -> PointingPlan:

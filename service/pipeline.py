@@ -303,7 +303,7 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
-                              observing_rules(req))
+                              observing_rules(req), p.allocation)
     pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         pa, options, float(task.share_s), task.round)

@@ -7,17 +7,9 @@
 * segmentation and plans: memberships, FOV radii and focal-plane positions recomputed from
   the sky with models.sky.
 
-Tests marked ``KNOWN_BUG`` assert what the package promises and fail on it today (strict:
-they turn red once fixed, so that the marker is removed):
-
-* RIM: every pair disc built by ``bound.disc_centres`` has its two targets exactly on its
-  rim, and the membership tests (``cKDTree.query_ball_point`` in ``maximal_sets``,
-  ``d2 <= r2`` in ``bound._top_sums``) drop such rim targets by rounding. Maximal sets are
-  then missing (random layouts: about a third) and the "proven" bound and the model's dual
-  bound exceed the true optimum (three targets inside one FOV: bound 2, optimum 1).
-* PA: ``fill.POSITION_ANGLES_DEG`` steps by 30 deg, the default instrument's arm pitch, so
-  every angle tried reaches exactly what PA 0 reaches: no rim target is ever rotated into
-  reach, though PA 15 reaches every target PA 0 loses near the rim.
+Two regressions are pinned: a pair disc's two rim targets belong to it (rounding must not
+drop them, or maximal sets go missing and the bound exceeds the optimum), and the position
+angles tried are finer than the arms' pitch (so that a turn brings a rim target into reach).
 """
 
 from __future__ import annotations
@@ -54,15 +46,6 @@ SCALE = float(INST.plate_scale_arcsec_per_mm)
 ARMS = int(INST.n_arms)
 R = 10.0  # the radius of the plane tests (mm; any unit)
 FIT_TOL = R * (1.0 + 1e-4) + 1e-9  # a candidate set's enclosing circle may exceed R by this
-
-RIM_BUG = pytest.mark.xfail(
-    strict=True, raises=AssertionError,
-    reason="known bug (RIM, module docstring): targets on a pair disc's rim are dropped by rounding, "
-           "so maximal sets are missing and the bounds exceed the true optimum")
-PA_BUG = pytest.mark.xfail(
-    strict=True, raises=AssertionError,
-    reason="known bug (PA, module docstring): the angles tried are the arm pitch apart, so "
-           "rotation never brings a rim target into reach")
 
 DERANDOMISED = dict(derandomize=True, database=None, deadline=None, report_multiple_bugs=False,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -266,7 +249,6 @@ def uncovered(xy: np.ndarray, radius: float, disc_radius: float = R) -> list[lis
     return [sorted(m) for m in disc_member_sets(xy, disc_radius) if not any(m <= s for s in sets)]
 
 
-@RIM_BUG
 @pytest.mark.parametrize(("radius", "disc_radius"), [(R * (1.0 + RADIUS_SLACK) + 1e-9, R), (R, R * (1.0 - 1e-9))],
                          ids=["optimiser-radius", "R"])
 @settings(max_examples=60, phases=(Phase.explicit, Phase.generate), **DERANDOMISED)
@@ -291,7 +273,6 @@ def test_known_layouts_every_set_one_fov_holds_lies_in_a_candidate() -> None:
     assert candidate_sets(maximal_sets(xy, R)) == [frozenset(range(8))]
 
 
-@RIM_BUG
 def test_a_pair_disc_holds_its_own_two_targets() -> None:
     """Minimal reproduction: three targets whose smallest enclosing circle (9.17) is inside
     one FOV of radius 10 must be one candidate, and with 3 arms need one exposure; today the
@@ -343,7 +324,6 @@ def test_instances_are_what_the_brief_asks() -> None:
     assert brute_force_exposures(0.99 * NAMED_LAYOUTS["hexagon-radius-R"], R, 4) == 2
 
 
-@RIM_BUG
 def test_bound_never_exceeds_the_brute_force_optimum() -> None:
     over = []
     for k, (xy, radius, arms) in enumerate(INSTANCES):
@@ -387,7 +367,6 @@ def test_bound_of_one_tight_clump_is_the_trivial_bound(arms: int) -> None:
 # ------------------------------------------------------------------------ 3. the model
 
 
-@RIM_BUG
 def test_model_bound_and_optimum_match_the_brute_force() -> None:
     wrong = []
     for k, (xy, radius, arms) in enumerate(INSTANCES[:25]):
@@ -549,7 +528,6 @@ def test_unknown_modes_are_input_errors_naming_mode() -> None:
     assert e.value.field == "priority"
 
 
-@PA_BUG
 def test_position_angle_search_reaches_a_rim_target_some_angle_reaches() -> None:
     """Issue 38: rim targets are rotated into reach rather than lost. A member 1 mm inside
     the rim, 2 deg off an arm's axis, is beyond the park move limit at PA 0 and reached at

@@ -44,6 +44,10 @@ __all__ = ["ExposureBound", "RADIUS_SLACK", "disc_centres", "heaviest_disc", "lo
 #: relative enlargement of the FOV radius used by the bound (keeps it valid under the
 #: tangent plane's distortion and rounding)
 RADIUS_SLACK = 1e-4
+#: a disc holds the targets within its radius times (1 + this) plus MEMBER_TOL_MM: the two
+#: targets a pair disc is drawn through lie on its rim, where rounding would drop them
+MEMBER_REL_TOL = 1e-9
+MEMBER_TOL_MM = 1e-9
 #: the bound enumerates pair discs only up to this many centres; beyond, the trivial and
 #: component bounds alone are reported (still valid)
 MAX_CENTRES = 400_000
@@ -97,7 +101,7 @@ def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: flo
     clock.charge(CELL_S * len(centres) * n)
     sums = np.empty(len(centres))
     tops = np.full((len(centres), k), -1, dtype=np.int64)
-    r2 = radius_mm ** 2
+    r2 = (radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM) ** 2
     block = max(1, BLOCK_CELLS // max(n, 1))
     for s in range(0, len(centres), block):
         c = centres[s:s + block]

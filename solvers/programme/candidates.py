@@ -15,15 +15,20 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from models import clock
+from solvers.programme.bound import MEMBER_REL_TOL, MEMBER_TOL_MM, disc_centres
 
 __all__ = ["Candidates", "maximal_sets"]
 
-#: at most this many centres are examined; a field with more pairs keeps a thinned set
-#: (then the model's optimum is no longer a bound: ``Candidates.complete`` says so)
-MAX_CENTRES = 30_000
+#: at most this many centres are examined; a field with more pairs takes the targets and a
+#: grid instead (then the model's optimum is no longer a bound: ``Candidates.complete`` says so)
+MAX_CENTRES = 20_000
+#: beyond MAX_CENTRES, the centres are the targets and a square grid of this many FOV radii
+GRID_STEP = 0.25
 #: sets inside another are removed only up to this many distinct sets (the check is
 #: quadratic); a model over more keeps them: harmless, a subset is never a better choice
-DOMINANCE_MAX_SETS = 3_000
+DOMINANCE_MAX_SETS = 20_000
+#: effort seconds charged per (set, set, word) of the dominance check (reference seconds)
+DOMINANCE_CELL_S = 7e-9
 #: effort seconds charged per (centre, member) pair found (reference seconds)
 MEMBER_S = 0.15e-6
 
@@ -70,16 +75,24 @@ class Candidates:
 
 
 def _centres(xy: np.ndarray, radius_mm: float, extra: np.ndarray | None) -> tuple[np.ndarray, bool]:
-    from solvers.programme.bound import disc_centres
 
     c = disc_centres(xy, radius_mm)
     complete = True
-    if len(c) > MAX_CENTRES:  # keep the targets and an even thinning of the pair discs
-        keep = np.r_[np.arange(len(xy)), np.linspace(len(xy), len(c) - 1, MAX_CENTRES - len(xy)).astype(int)]
-        c, complete = c[keep], False
+    if len(c) > MAX_CENTRES:  # a dense field: the targets and a grid of GRID_STEP radii
+        c, complete = np.vstack([xy, _grid(xy, GRID_STEP * radius_mm, radius_mm)]), False
     if extra is not None and len(extra):
         c = np.vstack([c, extra])
     return c, complete
+
+
+def _grid(xy: np.ndarray, step_mm: float, radius_mm: float) -> np.ndarray:
+    """A square grid of ``step_mm`` over the targets' box, grown by ``radius_mm``, keeping
+    the points with a target within ``radius_mm``."""
+    lo, hi = xy.min(axis=0) - radius_mm, xy.max(axis=0) + radius_mm
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + step_mm, step_mm), np.arange(lo[1], hi[1] + step_mm, step_mm))
+    g = np.column_stack([gx.ravel(), gy.ravel()])
+    d, _ = cKDTree(xy).query(g, distance_upper_bound=radius_mm)
+    return g[np.isfinite(d)]
 
 
 def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | None = None,
@@ -95,7 +108,7 @@ def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | N
     words = (n + 63) // 64
     bits = np.zeros((len(centres), words), dtype=np.uint64)
     for s in range(0, len(centres), 4096):
-        lists = tree.query_ball_point(centres[s:s + 4096], radius_mm)
+        lists = tree.query_ball_point(centres[s:s + 4096], radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM)
         for r, members in enumerate(lists):
             m = np.asarray(members, dtype=np.int64)
             np.bitwise_or.at(bits[s + r], m // 64, np.left_shift(np.uint64(1), (m % 64).astype(np.uint64)))
@@ -108,6 +121,7 @@ def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | N
     order = np.argsort(-count, kind="stable")
     bits, centres, count = bits[order], centres[order], count[order]
     keep = _not_dominated(bits) if len(bits) <= DOMINANCE_MAX_SETS else np.arange(len(bits))
+    clock.charge(DOMINANCE_CELL_S * min(len(bits), DOMINANCE_MAX_SETS) ** 2 * bits.shape[1] / 2)
     bits, centres = bits[keep], centres[keep]
     start = [0]
     index: list[np.ndarray] = []
@@ -119,13 +133,15 @@ def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | N
                       np.concatenate(index) if index else np.zeros(0, np.int64), complete)
 
 
-def _not_dominated(bits: np.ndarray) -> np.ndarray:
-    """Of sets ordered by decreasing size, those not contained in an earlier kept one."""
-    keep: list[int] = []
-    kept = np.zeros((0, bits.shape[1]), dtype=np.uint64)
-    for j in range(len(bits)):
-        if len(kept) and np.any(np.all((bits[j] & ~kept) == 0, axis=1)):
-            continue
-        keep.append(j)
-        kept = np.vstack([kept, bits[j:j + 1]])
-    return np.asarray(keep, dtype=np.int64)
+def _not_dominated(bits: np.ndarray, block: int = 128) -> np.ndarray:
+    """Of sets ordered by decreasing size, those contained in no earlier one (a set inside a
+    dropped one is inside the one that dropped it, so checking every earlier set is checking
+    the kept ones). Blocks of ``block`` sets against all earlier ones, vectorised."""
+    k = len(bits)
+    dominated = np.zeros(k, dtype=bool)
+    for s in range(0, k, block):
+        rows = bits[s:s + block]
+        inside = np.all((rows[:, None, :] & ~bits[None, :s + len(rows), :]) == 0, axis=2)
+        inside &= np.arange(s + len(rows))[None, :] < np.arange(s, s + len(rows))[:, None]
+        dominated[s:s + len(rows)] = inside.any(axis=1)
+    return np.flatnonzero(~dominated)

@@ -16,14 +16,14 @@ steps before achieved.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from models.budget import Budget
 from models.instrument import Instrument
 from models.sky import focal_mm_to_sky, sky_to_focal_mm, tangent_radius_mm
-from models.types import AllocationResult, PlaneTargets
+from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
 from solvers.allocation.options import AllocationOptions, PackingOptions
 from solvers.programme.reach import arm_masks
@@ -33,12 +33,16 @@ from solvers.sequencing.options import SequenceOptions
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
            "commit", "position_angle", "recentre", "within"]
 
-#: the position angles a pointing may take (the instrument allows any): every 30 deg
-POSITION_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 30))
+#: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
+#: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
+#: between the arms' reaches)
+POSITION_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 5))
 #: members are kept inside the FOV by this margin (mm), so rounding never puts one outside
 RIM_MARGIN_MM = 0.5
 #: added to the priority of a target no other pointing holds, for the feedback allocation
 ONLY_HERE_BOOST = 1_000_000
+#: the reasons a target stays unobserved that no more time would change
+SETTLED = frozenset({"unreachable", "beyond_park_move_limit", "conflict"})
 
 
 @dataclass(frozen=True)
@@ -85,6 +89,7 @@ class Pointing:
     members: np.ndarray
     exposures: int | None = None
     only_here: np.ndarray | None = None
+    allocation: AllocationResult | None = None  # of ``members`` (ascending), its exposures kept
 
 
 def within(f: Field, idx: np.ndarray, centre: tuple[float, float], margin_mm: float = RIM_MARGIN_MM) -> np.ndarray:
@@ -161,13 +166,48 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
         return p
     raised = f.priority.astype(np.int64).copy()
     raised[members[only]] += ONLY_HERE_BOOST
-    keep, p.exposures = _kept(_allocate(f, p, raised, opts, budget), members, only, opts.fill_min)
+    result = _allocate(f, p, raised, opts, budget)
+    keep, p.exposures = _kept(result, members, only, opts.fill_min)
     if keep.size == 0:  # nothing worth an exposure: the model's targets, so that steps end
         keep = np.asarray(given, dtype=np.int64)
         p.exposures = None
+    else:
+        p.allocation = witness(result, members, keep, p.exposures, f.priority)
     p.members = keep
     p.only_here = np.intersect1d(keep, members[only])
     return p
+
+
+def witness(result: AllocationResult, members: np.ndarray, keep: np.ndarray, exposures: int,
+            priority: np.ndarray) -> AllocationResult | None:
+    """The feedback allocation as an allocation of ``keep`` (ascending target indices, ids
+    their ``str``): its first ``exposures`` configurations, re-indexed, their priority the
+    true one; None when a kept target is not observed there for a reason of the geometry
+    (:data:`SETTLED`; a search the budget cut: the plan then allocates the pointing itself)."""
+    pos = {int(g): i for i, g in enumerate(keep)}
+    configs, seen = [], set()
+    for c in result.configurations[:exposures]:
+        arms = []
+        for a in c.assignments:
+            if a.target_index is None:
+                arms.append(a)
+                continue
+            g = int(members[a.target_index])
+            seen.add(g)
+            arms.append(replace(a, target_index=pos[g], target_id=str(g)))
+        total = sum(int(priority[int(keep[a.target_index])]) for a in arms if a.target_index is not None)
+        configs.append(replace(c, index=len(configs), assignments=tuple(arms), total_priority=total))
+    why = {int(members[u.target_index]): u.reason for u in result.unallocated}
+    missing = [g for g in keep if int(g) not in seen]
+    if any(why.get(int(g)) not in SETTLED for g in missing):
+        return None
+    unallocated = tuple(Unallocated(pos[int(g)], str(int(g)), why[int(g)]) for g in missing)
+    observed = len(seen)
+    stats = {"source": "programme optimiser", "n_targets": len(keep), "n_configurations": len(configs),
+             "n_allocated": observed, "field_completeness": observed / len(keep) if len(keep) else 1.0,
+             "unallocated_by_reason": {r: sum(u.reason == r for u in unallocated)
+                                       for r in sorted({u.reason for u in unallocated})}}
+    return AllocationResult(tuple(configs), unallocated, stats)
 
 
 def _kept(result: AllocationResult, members: np.ndarray, only: np.ndarray, fill_min: int,
@@ -183,3 +223,86 @@ def _kept(result: AllocationResult, members: np.ndarray, only: np.ndarray, fill_
     keep = {int(members[i]) for c in seen[:last + 1] for i in c}
     keep |= {int(t) for t in members[only]}
     return np.array(sorted(keep), dtype=np.int64), last + 1
+
+
+def _last(p: Pointing) -> np.ndarray:
+    """The targets (programme indices) of the pointing's last exposure."""
+    if p.allocation is None or not p.allocation.configurations:
+        return np.zeros(0, np.int64)
+    return np.array(sorted(int(p.members[a.target_index]) for a in p.allocation.configurations[-1].assignments
+                           if a.target_index is not None), dtype=np.int64)
+
+
+def _drop_last(f: Field, p: Pointing, moved: np.ndarray) -> Pointing:
+    """The pointing without its last exposure and the targets ``moved`` out of it."""
+    keep = np.setdiff1d(p.members, moved)
+    if keep.size == 0:
+        return Pointing(p.centre, p.pa_deg, keep, 0, np.zeros(0, np.int64), None)
+    configs = p.allocation.configurations[:-1]
+    gone = {int(t) for t in moved}
+    local = AllocationResult(configs, tuple(u for u in p.allocation.unallocated
+                                            if int(p.members[u.target_index]) not in gone), p.allocation.stats)
+    return Pointing(p.centre, p.pa_deg, keep, len(configs), np.setdiff1d(p.only_here, moved),
+                    witness(local, p.members, keep, len(configs), f.priority))
+
+
+def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
+    """Step 6: the last exposure of a pointing, weakest first, is given up when other
+    pointings take all of its targets in the exposures they already have (each re-allocated
+    on its targets and the ones it takes: kept when it still observes every one of them in
+    no more exposures). Returns the exposures saved."""
+    saved = 0
+    order = sorted(range(len(pts)), key=lambda j: (len(_last(pts[j])) or 10 ** 6, j))
+    for j in order:
+        p = pts[j]
+        tail = _last(p)
+        if budget.expired():
+            break
+        if tail.size == 0 or tail.size > opts.fill_min:
+            continue
+        trial = _take(f, pts, j, tail, opts, budget)
+        if trial is None:
+            continue
+        for k, q in trial.items():
+            pts[k] = q
+        pts[j] = _drop_last(f, p, tail)
+        saved += 1
+    return saved
+
+
+def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOptions, budget: Budget,
+          ) -> dict[int, Pointing] | None:
+    """Other pointings taking every target of ``tail`` without a new exposure, or None."""
+    left = set(int(t) for t in tail)
+    trial: dict[int, Pointing] = {}
+    for k in sorted(range(len(pts)), key=lambda k: (-(pts[k].exposures or 0), k)):
+        q = trial.get(k, pts[k])
+        if k == j or not left or q.allocation is None or budget.expired():
+            continue
+        idx = np.array(sorted(left), dtype=np.int64)
+        inside = idx[within(f, idx, q.centre)]
+        if inside.size == 0:
+            continue
+        members = np.union1d(q.members, inside)
+        new = Pointing(q.centre, q.pa_deg, members, None, q.only_here)
+        result = _allocate(f, new, f.priority, opts, budget)
+        observed = {int(members[a.target_index]) for c in result.configurations for a in c.assignments
+                    if a.target_index is not None}
+        if len(result.configurations) <= q.exposures and observed >= set(int(g) for g in q.members) | set(
+                int(t) for t in inside):
+            new.exposures = len(result.configurations)
+            new.allocation = witness(result, members, members, new.exposures, f.priority)
+            if new.allocation is not None:
+                trial[k] = new
+                left -= set(int(t) for t in inside)
+    return trial if not left else None
+
+
+def mark_only_here(f: Field, pts: list[Pointing]) -> None:
+    """Each pointing's ``only_here``: its targets no other pointing's FOV holds."""
+    for j, p in enumerate(pts):
+        elsewhere = np.zeros(len(p.members), bool)
+        for k, q in enumerate(pts):
+            if k != j and len(q.members):
+                elsewhere |= within(f, p.members, q.centre)
+        p.only_here = p.members[~elsewhere]

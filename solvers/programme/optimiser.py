@@ -31,9 +31,18 @@ import numpy as np
 from models.budget import Budget
 from models.instrument import Instrument
 from models.sky import focal_mm_to_sky
+from models.types import AllocationResult
 from solvers.programme.bound import RADIUS_SLACK, ExposureBound, lower_bound
 from solvers.programme.candidates import Candidates, maximal_sets
-from solvers.programme.fill import Field, FillOptions, Pointing, commit, recentre
+from solvers.programme.fill import (
+    Field,
+    FillOptions,
+    Pointing,
+    commit,
+    mark_only_here,
+    recentre,
+    spare_arms,
+)
 from solvers.programme.model import CoverSolution, solve_cover
 from solvers.programme.reach import entry_masks, reach_rows, shortlist
 
@@ -76,6 +85,7 @@ class OptimisedPointing:
     members: tuple[int, ...]
     exposures: int | None
     only_here: tuple[int, ...] = ()
+    allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -118,15 +128,19 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
         todo[p.members] = False
         done.add(j)
         pts.append(p)
+    saved = spare_arms(f, pts, options.fill, budget)
+    pts = [p for p in pts if len(p.members)]
+    mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
                                   tuple(int(i) for i in p.members), p.exposures,
-                                  tuple(int(i) for i in (p.only_here if p.only_here is not None else ())))
+                                  tuple(int(i) for i in (p.only_here if p.only_here is not None else ())),
+                                  p.allocation)
                 for p in pts)
     stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": len(pts),
              "model_status": first.status, "model_exposures": int(first.exposures.sum()),
              "model_pointings": int(np.count_nonzero(first.exposures)),
              "exposures_estimate": sum(p.exposures or 0 for p in pts),
-             "allocated_pointings": sum(p.exposures is not None for p in pts)}
+             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": saved}
     return ProgrammeResult(out, bound, stats)
 
 

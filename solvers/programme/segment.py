@@ -86,7 +86,7 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
         Pointing(id=f"P{g + 1:0{width}d}", ra_deg=float(p.ra_deg), dec_deg=float(p.dec_deg),
                  x_mm=float(px[g]), y_mm=float(py[g]), radius_mm=float(radius[g]),
                  target_indices=tuple(sorted(p.members)), position_angle_deg=float(p.position_angle_deg),
-                 exposures=p.exposures, only_here=tuple(sorted(p.only_here)))
+                 exposures=p.exposures, only_here=tuple(sorted(p.only_here)), allocation=p.allocation)
         for g, p in enumerate(result.pointings))
     sizes = np.array([len(p.target_indices) for p in pointings])
     b = result.bound

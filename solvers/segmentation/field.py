@@ -37,6 +37,7 @@ from models.sky import (
     spherical_centroid_deg,
     tangent_radius_mm,
 )
+from models.types import AllocationResult
 from solvers.segmentation.enclosing_circle import smallest_enclosing_circle
 from solvers.segmentation.linkage import (
     cluster_pair_max_dist,
@@ -71,6 +72,7 @@ class Pointing:
     position_angle_deg: float | None = None
     exposures: int | None = None
     only_here: tuple[int, ...] = ()
+    allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
