@@ -54,7 +54,7 @@ __all__ = [
     "INCOMPATIBILITY_WORK_S", "LP_CELL_S", "LP_SOLVE_S", "MODEL_COLUMN_S", "MODEL_NONZERO_S", "PRUNE_PROBE_S",
     "REPAIR_STEP_S", "SEMIGREEDY_ITERATION_S", "SEMIGREEDY_PASS_S", "SEMIGREEDY_PREPARE_COLUMN_S", "TABU_CELL_S",
     "TABU_MOVE_S", "VERIFY_CONFIGURATION_S", "HighsMeter", "WALL_GUARD_FACTOR", "WALL_GUARD_MIN_S",
-    "charge_literals", "cpsat_solve", "wall_guard_s",
+    "charge_literals", "cpsat_solve", "interrupt_at", "wall_guard_s",
 ]
 
 # the interleaved search of OR-Tools 9.15 aborts the process (``Check failed:
@@ -208,3 +208,30 @@ class HighsMeter:
 
     def wall_guard_s(self, budget_s: float) -> float:
         return wall_guard_s(budget_s, self.effort)
+
+
+def interrupt_at(h, deadline: float, meter: HighsMeter | None = None) -> list[bool]:
+    """Stop the HiGHS instance ``h`` at ``deadline`` (a :func:`models.clock.now` instant)
+    inside its simplex, IPM and MIP loops (their interrupt callbacks), not only where HiGHS
+    checks its own ``time_limit``.  ``meter`` (default: one made here, on the caller's
+    clock) charges the work each callback reports to the effort clock and reads it, so
+    that in effort mode the run stops after the same work on any machine.  Returns a
+    one-element flag, set when the callback stopped the run."""
+    import highspy
+
+    fired = [False]
+    meter = HighsMeter() if meter is None else meter
+
+    def callback(callback_type, message, data_out, data_in, user_data):
+        if data_in is None:
+            return
+        meter.on_callback(callback_type, data_out)
+        if meter.now() > deadline:
+            data_in.user_interrupt = True
+            fired[0] = True
+
+    h.setCallback(callback, None)
+    kinds = highspy.cb.HighsCallbackType
+    for kind in (kinds.kCallbackSimplexInterrupt, kinds.kCallbackIpmInterrupt, kinds.kCallbackMipInterrupt):
+        h.startCallback(kind)
+    return fired

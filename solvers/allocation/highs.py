@@ -17,7 +17,7 @@ from solvers.allocation.backends import Backend
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
 from solvers.allocation.options import ENGINE_SEQUENCING, HighsOptions
-from solvers.effort import HighsMeter
+from solvers.effort import HighsMeter, interrupt_at
 from solvers.model import ModelArrays, hint_vector, stage_matrix
 from solvers.problem import ConfigProblem, ConfigSolution
 
@@ -98,33 +98,6 @@ def _highspy_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem,
         status = "feasible" if has_sol else "timeout"
     return status, x, gap, {"solve_s": solve_s, "solver_status": str(ms), "nodes": int(info.mip_node_count),
                             "interrupted": bool(interrupted[0])}
-
-
-def interrupt_at(h, deadline: float, meter: HighsMeter | None = None) -> list[bool]:
-    """Stop the HiGHS instance ``h`` at ``deadline`` (a :func:`models.clock.now` instant)
-    inside its simplex, IPM and MIP loops (their interrupt callbacks), not only where HiGHS
-    checks its own ``time_limit``.  ``meter`` (default: one made here, on the caller's
-    clock) charges the work each callback reports to the effort clock and reads it, so
-    that in effort mode the run stops after the same work on any machine.  Returns a
-    one-element flag, set when the callback stopped the run."""
-    import highspy
-
-    fired = [False]
-    meter = HighsMeter() if meter is None else meter
-
-    def callback(callback_type, message, data_out, data_in, user_data):
-        if data_in is None:
-            return
-        meter.on_callback(callback_type, data_out)
-        if meter.now() > deadline:
-            data_in.user_interrupt = True
-            fired[0] = True
-
-    h.setCallback(callback, None)
-    kinds = highspy.cb.HighsCallbackType
-    for kind in (kinds.kCallbackSimplexInterrupt, kinds.kCallbackIpmInterrupt, kinds.kCallbackMipInterrupt):
-        h.startCallback(kind)
-    return fired
 
 
 def _pyomo_solve(A, row_lo, row_hi, col_hi, integer, cost, sense_max, problem, time_limit_s):

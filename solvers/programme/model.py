@@ -34,8 +34,7 @@ import numpy as np
 from scipy import sparse as sp
 
 from models.budget import Budget
-from solvers.allocation.highs import interrupt_at
-from solvers.effort import HighsMeter
+from solvers.effort import HighsMeter, interrupt_at
 from solvers.programme.candidates import Candidates
 
 __all__ = ["CoverSolution", "ReachRows", "greedy_cover", "solve_cover"]
