@@ -1,17 +1,17 @@
 """Steps 4-5 of the programme optimiser: pointings committed one at a time, each allocated as
 the plan allocates it, at a position angle that loses no target to reach.
 
-Each step solves the programme model on the targets still to observe (:mod:`.model`) and
-commits its largest pointing: re-centred on the smallest circle enclosing the targets the model
-gives it, rotated (:func:`position_angle`), and allocated (:func:`solvers.allocation.allocate`,
-to completeness, without the post-passes that only shorten the sequence) on every target
-still to observe inside its FOV. Its exposures are kept while they observe at least
-``fill_min`` targets, or a target no other pointing of the model's solution holds (those
-are allocated first: their priority is raised by :data:`ONLY_HERE_BOOST` for this
-allocation). The targets of the exposures dropped stay for the next steps, where a pointing
-with a spare arm takes them. So an exposure observing few targets is kept only for targets
-no other pointing holds, and the model of each step knows what the real allocation of the
-steps before achieved.
+:func:`commit` takes a pointing of the programme model's solution (:mod:`.model`):
+re-centred on the smallest circle enclosing the targets the model gives it, rotated
+(:func:`position_angle`), and allocated (:func:`solvers.allocation.allocate`, to completeness,
+without the repacking post-pass, which costs seconds) on every target still to observe inside
+its FOV. Its exposures are kept while they observe at least ``fill_min`` targets, or a target
+no other pointing of the model's solution holds (those are allocated first: their priority is
+raised by :data:`ONLY_HERE_BOOST` for this allocation). The targets of the exposures dropped
+stay for the later pointings, where an arm is spare. So an exposure observing few targets is
+kept only for targets no other pointing holds. The exposures kept are the pointing's
+allocation in the plan (:func:`witness`). :func:`spare_arms` then gives up a pointing's last
+exposure when other pointings take its targets in the exposures they already have.
 """
 
 from __future__ import annotations

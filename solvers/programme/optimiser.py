@@ -5,18 +5,23 @@ and the measured figures are in docs/programme.md.
 :func:`optimise` runs, within one budget:
 
 1. **Candidates**: the maximal sets of targets one FOV can hold (:mod:`.candidates`).
-2. **Model**: choose pointings and give each target to one of them, fewest exposures then
-   fewest pointings, each pointing's exposures bounded below by its targets over the arms
-   and by arm reach (:mod:`.model`, :mod:`.reach`; HiGHS, started from a greedy cover).
-3. **Bound**: the proven lower bound on the programme's exposures (:mod:`.bound`; with the
-   complete candidate family, also the model's dual bound without the reach rows, which
-   depend on where a pointing is placed).
-4. **Geometry**: each chosen pointing re-centred on the smallest circle enclosing its
-   targets (as far from the rim as they can be).
-5. **Allocation feedback** (:mod:`.fill`): the pointings allocated as the plan allocates
-   them, largest first, each taking the targets still to observe that it holds, at the
-   position angle that loses none to reach (thesis 7.3); weak exposures hand their targets
-   on to the later pointings.
+2. **Bound**: the proven lower bound on the programme's exposures (:mod:`.bound`; on thin
+   fields also the model's dual bound without the reach rows, which depend on where a
+   pointing is placed).
+3. **Model**: choose pointings and give each target to one of them, fewest exposures and
+   acquisitions (telescope time), each pointing's exposures bounded below by its targets
+   over the arms and by arm reach (:mod:`.model`, :mod:`.reach`; HiGHS, started from a
+   greedy cover).
+4. **Commit** (:mod:`.fill`): the model's largest pointing, re-centred on the smallest circle
+   enclosing its targets and turned to the position angle that loses none to reach (thesis
+   7.3), is allocated as the plan allocates it on every target still to observe inside its
+   FOV; its weak exposures hand their targets on. The model is solved again on what is left
+   when a commit gives back targets it had placed; then the next pointing is committed.
+5. **Spare arms** (:func:`.fill.spare_arms`): a pointing's last exposure is given up when
+   other pointings take its targets in the exposures they already have.
+
+The allocation each pointing keeps is the plan's allocation of it (its witness), so the plan
+has no more exposures than the optimiser counted.
 
 The searches run on the caller's clock (a plan's effort clock), so the result depends on the
 programme, the options and the budget only.
