@@ -374,9 +374,10 @@ class PointingOptions:
     park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
     max_configurations: int | None = None
     rules: ObservingRules = field(default_factory=ObservingRules)
-    #: an allocation of the pointing's targets to use instead of computing one (the programme
-    #: optimiser's, :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced
-    #: by the pointing's own, by index)
+    #: an allocation of the pointing's targets, kept instead of the one the plan computes when
+    #: it observes more targets or as many in fewer exposures (the programme optimiser's,
+    #: :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced by the
+    #: pointing's own, by index)
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -463,13 +464,14 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     if options.max_configurations == 0 or share_s < table.min_pointing_s:
         return _not_attempted(inst, targets, options)
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
-    result = given_allocation(options, targets)
-    if result is None:
-        result = allocate(inst, targets, method=options.method, solver=options.solver,
-                          configurations="all", seed=options.seed,
-                          budget=budget.share(table.allocation_share),
-                          progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
-                          options=allocation_options(options.park_move_limit_s, options.max_configurations))
+    result = allocate(inst, targets, method=options.method, solver=options.solver,
+                      configurations="all", seed=options.seed,
+                      budget=budget.share(table.allocation_share),
+                      progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
+                      options=allocation_options(options.park_move_limit_s, options.max_configurations))
+    given = given_allocation(options, targets)
+    if given is not None and _allocation_rank(given) > _allocation_rank(result):
+        result = given
     result, below = _exposure_rules(result, targets, options)
     progress(0.5)
     motion_s = budget.left_s()
@@ -490,6 +492,12 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
              "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s},
              "exposure_rules": below}
     return PointingPlan(targets, result, seq, err, stats)
+
+
+def _allocation_rank(result: AllocationResult) -> tuple[int, int]:
+    """How good an allocation of a pointing is: more targets observed, then fewer exposures."""
+    observed = {a.target_index for c in result.configurations for a in c.assignments if a.target_index is not None}
+    return len(observed), -len(result.configurations)
 
 
 def given_allocation(options: PointingOptions, targets: PlaneTargets) -> AllocationResult | None:

@@ -605,3 +605,54 @@ def test_plan_allocates_each_pointing_at_its_own_position_angle(plan_run) -> Non
                         assert math.hypot(float(x0) - a["x_mm"], float(y0) - a["y_mm"]) > 0.1
                 checked += 1
     assert checked == out["stats"]["allocated_targets"] > 0
+
+
+def test_plan_never_needs_more_exposures_than_the_optimiser_counted(plan_run) -> None:
+    """Each pointing the optimiser allocated is planned on that allocation or on the plan's
+    own when better: without motion changes, never more exposures than the optimiser kept."""
+    out, targets = plan_run
+    req = PlanRequest.model_validate({"targets": targets, "seed": 5, "segmentation_mode": "fewest-exposures",
+                                      "time_limit_s": 20, "position_angle_deg": PLAN_PA})
+    seg = pipeline.segment_plan(req, INST, pipeline.plan_limit_s(req, None))
+    assert [list(p.target_indices) for p in seg.pointings] == [
+        [int(t[1:]) for t in p["target_ids"]] for p in out["pointings"]], "premise: the same pointings"
+    checked = 0
+    for p, sp in zip(out["pointings"], seg.pointings, strict=True):
+        if sp.allocation is not None and not p["changes"]:
+            checked += 1
+            assert len(p["configurations"]) <= sp.exposures == len(sp.allocation.configurations)
+    assert checked, "premise: some pointing has the optimiser's allocation"
+
+
+def test_a_plan_job_gives_the_synchronous_plan(plan_run, tmp_path) -> None:
+    """A plan job segments the same way (the optimiser on the effort clock) and plans the same
+    pointings, angles and exposures as the synchronous plan."""
+    from service import jobs
+    from service.runners import LocalPoolRunner
+
+    out, targets = plan_run
+    request = {"targets": targets, "seed": 5, "segmentation_mode": "fewest-exposures",
+               "time_limit_s": 20, "position_angle_deg": PLAN_PA}
+    store = jobs.JobStore(tmp_path / "j.db")
+    store.init()
+    job_id = store.create("plan", request, time_limit_s=20.0, budget_s=3600.0)
+    assert store.claim("srv/1", lease_s=60.0) is not None
+    assert jobs.run_job(str(store.db_path), job_id, "plan", request, None, 20.0, 3600.0,
+                        owner="srv/1", runner=LocalPoolRunner()) == "done"
+    result = store.get(job_id)["result"]
+    assert [(p["target_ids"], p["position_angle_deg"], len(p["configurations"])) for p in result["pointings"]] == \
+        [(p["target_ids"], p["position_angle_deg"], len(p["configurations"])) for p in out["pointings"]]
+    assert result["stats"]["exposures_lower_bound"] == out["stats"]["exposures_lower_bound"]
+
+
+def test_the_mode_refuses_programmes_over_its_size_naming_the_field() -> None:
+    """Over MAX_TARGETS targets the optimiser is refused with a message naming the field (a
+    422 over HTTP), before any work."""
+    from solvers.programme.segment import MAX_TARGETS
+
+    n = MAX_TARGETS + 1
+    ra, dec, prio = programme(seed=3, n=n, extent_arcmin=20.0)
+    for field in ("mode", "segmentation_mode"):
+        with pytest.raises(InputError) as err:
+            segment_programme(INST, ra, dec, prio, mode="fewest-exposures", mode_field=field)
+        assert err.value.field == field and f"{MAX_TARGETS:,}" in err.value.message

@@ -9,8 +9,8 @@ its FOV. Its exposures are kept while they observe at least ``fill_min`` targets
 no other pointing of the model's solution holds (those are allocated first: their priority is
 raised by :data:`ONLY_HERE_BOOST` for this allocation). The targets of the exposures dropped
 stay for the later pointings, where an arm is spare. So an exposure observing few targets is
-kept only for targets no other pointing holds. The exposures kept are the pointing's
-allocation in the plan (:func:`witness`). :func:`spare_arms` then gives up a pointing's last
+kept only for targets no other pointing holds. The exposures kept go to the plan as a witness
+(:func:`witness`): the plan keeps them unless its own allocation is better. :func:`spare_arms` then gives up a pointing's last
 exposure when other pointings take its targets in the exposures they already have.
 """
 

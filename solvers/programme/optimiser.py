@@ -20,8 +20,9 @@ and the measured figures are in docs/programme.md.
 5. **Spare arms** (:func:`.fill.spare_arms`): a pointing's last exposure is given up when
    other pointings take its targets in the exposures they already have.
 
-The allocation each pointing keeps is the plan's allocation of it (its witness), so the plan
-has no more exposures than the optimiser counted.
+The allocation each pointing keeps (its witness) goes to the plan, which keeps it when its own
+allocation of the pointing is not better: the plan has no more exposures than the optimiser
+counted.
 
 The searches run on the caller's clock (a plan's effort clock), so the result depends on the
 programme, the options and the budget only.

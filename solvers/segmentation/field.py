@@ -58,8 +58,10 @@ class Pointing:
     ``radius_mm`` is the farthest member from the centre on this pointing's own tangent plane
     (<= the FOV radius). ``target_indices`` index the input arrays, ascending. The programme
     optimiser (mode "fewest-exposures", :mod:`solvers.programme`) also sets the pointing's
-    ``position_angle_deg`` (None: the plan's), the ``exposures`` its allocation needed, and
-    ``only_here``: the members no other pointing of the plan holds.
+    ``position_angle_deg`` (None: the plan's), the ``exposures`` its allocation needed,
+    ``only_here``: the members no other pointing of the plan holds, and that ``allocation`` of
+    its members (target ids: ``str`` of the programme's indices), which the plan keeps unless
+    its own allocation of the pointing is better.
     """
 
     id: str
