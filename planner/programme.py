@@ -102,8 +102,9 @@ SEGMENTED = 0.05
 #: that plan again the pointings with a failed leg) share the rest equally.
 FIRST_ROUND_DONE = 0.85
 #: How a plan splits its field into pointings when the caller does not say
-#: (:data:`solvers.segmentation.field.MODES`).
-DEFAULT_SEGMENTATION_MODE = "complete-linkage"
+#: (:data:`solvers.segmentation.field.MODES`): the programme optimiser, which takes fewer
+#: exposures than complete linkage on the programme benchmark (docs/programme.md).
+DEFAULT_SEGMENTATION_MODE = "fewest-exposures"
 #: The limit of a whole plan when the caller gives none: the instrument's configuration time
 #: goal, and the default of ``POST /v1/plans`` and ``mxs-planner plan``.
 DEFAULT_LIMIT_S = 120.0

@@ -163,12 +163,14 @@ def test_sequence_option_is_checked() -> None:
     assert e.value.field == "park_move_limit_s"
 
 
-def sky_body(limit: object = "default") -> dict:
+def sky_body(limit: object = "default", mode: str = "complete-linkage") -> dict:
+    """The rim targets as a plan request; complete linkage keeps the requested angle (0), where
+    the park move limit leaves them out."""
     t = rim_targets()
     ra, dec = focal_mm_to_sky(t.x_mm, t.y_mm, 150.0, 20.0, INS.plate_scale_arcsec_per_mm)
     body = {"targets": [{"id": i, "ra_deg": float(a), "dec_deg": float(d), "priority": 100}
                         for i, a, d in zip(t.ids, ra, dec, strict=True)],
-            "seed": 1, "time_limit_s": 60}
+            "seed": 1, "time_limit_s": 60, "segmentation_mode": mode}
     if limit != "default":
         body["park_move_limit_s"] = limit
     return body
@@ -196,6 +198,24 @@ def test_plan_api_default_limit_and_null(tmp_path) -> None:
     for r in (bad, text):
         assert r.status_code == 422
         assert "park_move_limit_s" in r.text
+
+
+def test_the_default_mode_turns_the_pointing_to_reach_rim_targets(tmp_path) -> None:
+    """The default segmentation (the programme optimiser) searches the position angle: the rim
+    targets the requested angle leaves beyond the park move limit are reached at another
+    angle, within the same limit (issue 38: no target lost where some angle reaches it)."""
+    app = create_app(Settings(job_db=tmp_path / "j.db"))
+    body = sky_body(mode="fewest-exposures")
+    with TestClient(app) as c:
+        r = c.post("/v1/plans", json=body)
+        default = c.post("/v1/plans", json={k: v for k, v in body.items() if k != "segmentation_mode"})
+    assert r.status_code == 200 == default.status_code, r.text
+    out = r.json()
+    assert unallocated_reasons(out) == {}
+    assert out["executable"] is True
+    assert all(p["position_angle_deg"] not in (None, 0.0) for p in out["pointings"])
+    assert [p["position_angle_deg"] for p in default.json()["pointings"]] == \
+        [p["position_angle_deg"] for p in out["pointings"]]
 
 
 def test_cli_park_move_limit_flags(monkeypatch, tmp_path) -> None:

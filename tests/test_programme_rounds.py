@@ -141,15 +141,18 @@ def _case_targets() -> list[dict]:
                  "priority": int(r["priority"])} for r in csv.DictReader(f)]
 
 
-def test_the_reproduction_programme_is_executable_at_the_default_limit() -> None:
-    """cluster-halo-60, seed 12 (6 pointings): executable through the call behind
-    POST /v1/plans with only targets and seed, within the default 120 s budget."""
+@pytest.mark.parametrize("mode", [None, "complete-linkage"])
+def test_the_reproduction_programme_is_executable_at_the_default_limit(mode) -> None:
+    """cluster-halo-60, seed 12: executable through the call behind POST /v1/plans with only
+    targets and seed (the default segmentation), and in complete linkage (6 pointings),
+    within the default 120 s budget."""
     from service import pipeline
     from service.schemas import PlanRequest
 
-    req = PlanRequest.model_validate({"targets": _case_targets(), "seed": 12})
+    body = {"targets": _case_targets(), "seed": 12}
+    req = PlanRequest.model_validate(body if mode is None else {**body, "segmentation_mode": mode})
     out = pipeline.plan(req, INST, budget_s=120.0)
-    assert out["stats"]["pointings"] == 6
+    assert out["stats"]["pointings"] == 6 or mode is None
     assert out["executable"], out["reasons"]
     assert out["stats"]["motion_plans_failed"] == 0
     assert out["stats"]["allocated_targets"] == 60
@@ -204,7 +207,7 @@ def test_a_synchronous_plan_reports_later_rounds_below_one(monkeypatch) -> None:
     monkeypatch.setattr(pipeline, "pointing_result", fake_result)
     heard: list[float] = []
     targets = _case_targets()
-    req = PlanRequest.model_validate({"targets": targets, "seed": 12})
+    req = PlanRequest.model_validate({"targets": targets, "seed": 12, "segmentation_mode": "complete-linkage"})
     seg, answers, stats = pipeline.plan_pointings(req, INST, heard.append, budget_s=120.0)
     assert stats["rounds"] == 2 and len(answers) == 6
     assert heard == sorted(heard) and heard[-1] < 1.0

@@ -169,7 +169,7 @@ def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
     fake = SlowStages()
     monkeypatch.setattr(programme, "allocate", fake.allocate)
     monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
-    req = PlanRequest(targets=sky_targets(3), time_limit_s=60.0, seed=1)
+    req = PlanRequest(targets=sky_targets(3), time_limit_s=60.0, seed=1, segmentation_mode="complete-linkage")
     t0 = time.monotonic()
     out = pipeline.plan(req, INST, budget_s=2.0)
     assert time.monotonic() - t0 <= 2.3
@@ -179,7 +179,8 @@ def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
     fake2 = SlowStages()
     monkeypatch.setattr(programme, "allocate", fake2.allocate)
     monkeypatch.setattr(programme, "plan_sequence", fake2.plan_sequence)
-    out = pipeline.plan(PlanRequest(targets=sky_targets(3), seed=1), INST, budget_s=2.0)
+    out = pipeline.plan(PlanRequest(targets=sky_targets(3), seed=1, segmentation_mode="complete-linkage"), INST,
+                        budget_s=2.0)
     usable = programme.usable_s(2.0)
     t = programme.SHARES
     assert fake2.allocation_limits == [pytest.approx(t.allocation_share * t.effort_share * usable)]

@@ -36,7 +36,8 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
                       threshold_mm: float | None = None, tangent_point: tuple[float, float] | None = None,
                       seed: int = 0, fill: FillOptions | None = None, budget: Budget | None = None,
                       mode_field: str = "mode") -> Segmentation:
-    """The programme's pointings in ``mode`` (one of :data:`MODES`). ``fill``: how the plan
+    """The programme's pointings in ``mode`` (one of :data:`MODES`; ``threshold_mm`` is the
+    complete linkage's, checked in every mode). ``fill``: how the plan
     allocates a pointing (the optimiser's feedback allocates the same way); ``budget``: the
     optimiser's (default: 10 s on the caller's clock). Raises InputError naming the field
     (``mode_field`` for the mode)."""
@@ -50,8 +51,8 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
         raise InputError(mode_field, f"'fewest-exposures' plans programmes of at most {MAX_TARGETS:,} "
                          f"targets (this one has {len(np.atleast_1d(ra_deg)):,}): use 'balanced'")
     budget = Budget.start(10.0) if budget is None else budget
-    ra, dec, _, tangent, xy = field_plane(ra_deg, dec_deg, tangent_point=tangent_point, fov_radius_mm=R,
-                                          plate_scale_arcsec_per_mm=scale)
+    ra, dec, _, tangent, xy = field_plane(ra_deg, dec_deg, threshold_mm=threshold_mm, tangent_point=tangent_point,
+                                          fov_radius_mm=R, plate_scale_arcsec_per_mm=scale)
     prio = np.asarray(priority, dtype=np.int64)
     if prio.shape != ra.shape:
         raise InputError("priority", f"expected {ra.size} priorities, got shape {prio.shape}")
