@@ -133,15 +133,18 @@ def programme_targets(shape: str, seed: int, *, n_range: tuple[int, int] = N_RAN
     return targets, params
 
 
-def plan_programme(targets: list[dict[str, Any]], seed: int) -> tuple[dict[str, Any], float]:
-    """The plan ``POST /v1/plans`` answers for ``{"targets": ..., "seed": seed}`` on a server
-    with default settings, and its wall time."""
+def plan_programme(targets: list[dict[str, Any]], seed: int, mode: str | None = None,
+                   ) -> tuple[dict[str, Any], float]:
+    """The plan ``POST /v1/plans`` answers for ``{"targets": ..., "seed": seed}`` (and
+    ``segmentation_mode``, when ``mode`` is given) on a server with default settings, and its
+    wall time."""
     from service import pipeline
     from service.schemas import PlanRequest
     from service.settings import Settings
 
     settings = Settings()
-    req = PlanRequest.model_validate({"targets": targets, "seed": seed})
+    body = {"targets": targets, "seed": seed}
+    req = PlanRequest.model_validate(body if mode is None else {**body, "segmentation_mode": mode})
     inst = pipeline.instrument_from(None)
     t0 = time.perf_counter()
     plan = pipeline.plan(req, inst, budget_s=settings.plan_budget_s)
@@ -165,7 +168,8 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     }
 
 
-def run(programmes: list[tuple[str, int]], max_targets: int | None = None) -> dict[str, Any]:
+def run(programmes: list[tuple[str, int]], max_targets: int | None = None,
+        mode: str | None = None) -> dict[str, Any]:
     from service import pipeline
 
     pipeline.warm_up()
@@ -175,7 +179,7 @@ def run(programmes: list[tuple[str, int]], max_targets: int | None = None) -> di
         if max_targets is not None:
             targets = targets[:max_targets]
             params["n"] = len(targets)
-        plan, wall_s = plan_programme(targets, seed)
+        plan, wall_s = plan_programme(targets, seed, mode)
         row = {**params, **summarise(plan, wall_s)}
         rows.append(row)
         print(json.dumps(row), file=sys.stderr, flush=True)
@@ -215,12 +219,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     ap.add_argument("--seed0", type=int, default=100, help="the first programme's seed")
     ap.add_argument("--shapes", nargs="+", default=list(SHAPES), choices=ALL_SHAPES)
     ap.add_argument("--smoke", action="store_true", help="two small programmes (CI)")
+    ap.add_argument("--segmentation-mode", default=None,
+                    help="the plans' segmentation_mode (default: the plan's default)")
     args = ap.parse_args(argv)
     if args.smoke:
         programmes = [("clumps", 3), ("scattered", 7)]
     else:
         programmes = [(args.shapes[i % len(args.shapes)], args.seed0 + i) for i in range(args.n)]
-    out = {"params": vars(args), **run(programmes, 30 if args.smoke else None)}
+    out = {"params": vars(args), **run(programmes, 30 if args.smoke else None, args.segmentation_mode)}
     print(json.dumps(out, indent=1))
     return out
 
