@@ -53,7 +53,7 @@ __all__ = [
     "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "next_round",
     "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
-    "run_rounds", "usable_s",
+    "run_rounds", "segmentation_mode", "usable_s",
 ]
 
 Progress = Callable[[float], None]
@@ -105,6 +105,17 @@ FIRST_ROUND_DONE = 0.85
 #: (:data:`solvers.segmentation.field.MODES`): the programme optimiser, which takes fewer
 #: exposures than complete linkage on the programme benchmark (docs/programme.md).
 DEFAULT_SEGMENTATION_MODE = "fewest-exposures"
+
+
+def segmentation_mode(requested: str | None, n_targets: int) -> str:
+    """A plan's segmentation mode: the one requested, else :data:`DEFAULT_SEGMENTATION_MODE`
+    for a programme the optimiser plans (at most
+    :data:`solvers.programme.segment.MAX_TARGETS` targets) and complete linkage beyond."""
+    from solvers.programme.segment import MAX_TARGETS
+
+    if requested is not None:
+        return requested
+    return DEFAULT_SEGMENTATION_MODE if n_targets <= MAX_TARGETS else "complete-linkage"
 #: The limit of a whole plan when the caller gives none: the instrument's configuration time
 #: goal, and the default of ``POST /v1/plans`` and ``mxs-planner plan``.
 DEFAULT_LIMIT_S = 120.0

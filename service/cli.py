@@ -14,6 +14,7 @@ from models.instrument import CONFIGURATION_TIME_GOAL_S
 from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service.tables import TargetFileError, read_target_table, read_targets
+from solvers.programme.segment import MAX_TARGETS
 from solvers.segmentation.field import MODES as SEGMENTATION_MODES
 
 __all__ = ["TargetFileError", "main", "read_targets"]
@@ -209,10 +210,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--threshold-mm", type=float, default=None)
     p.add_argument("--segmentation-mode", choices=list(SEGMENTATION_MODES),
-                   default=DEFAULT_SEGMENTATION_MODE,
+                   default=None,
                    help="how the field is split into pointings: 'complete-linkage' (thesis ch. 4), "
                    "'balanced', or 'fewest-exposures' (the programme optimiser: fewest exposures, "
-                   "with a proven lower bound) (default: %(default)s)")
+                   f"with a proven lower bound) (default: {DEFAULT_SEGMENTATION_MODE} up to {MAX_TARGETS:,} "
+                   "targets, complete-linkage beyond)")
     reach = p.add_mutually_exclusive_group()
     reach.add_argument("--park-move-limit", type=float, default=CONFIGURATION_TIME_GOAL_S, metavar="S",
                        help="observe each target from a location its arm reaches from park within S "

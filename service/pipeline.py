@@ -254,7 +254,12 @@ def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
 def plan_segmentation(req: PlanRequest) -> SegmentationRequest:
     """The segmentation request of a plan."""
     return SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
-                               mode=req.segmentation_mode, seed=req.seed)
+                               mode=plan_mode(req), seed=req.seed)
+
+
+def plan_mode(req: PlanRequest) -> str:
+    """The plan's segmentation mode (:func:`planner.programme.segmentation_mode`)."""
+    return programme.segmentation_mode(req.segmentation_mode, len(req.targets))
 
 
 def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = None) -> Segmentation:
@@ -267,7 +272,7 @@ def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = Non
 
 def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:
     """What a plan limited to ``limit_s`` leaves its pointings after its segmentation."""
-    if req.segmentation_mode != "fewest-exposures":
+    if plan_mode(req) != "fewest-exposures":
         return limit_s
     return limit_s - programme.optimiser_s(limit_s)
 

@@ -35,6 +35,7 @@ from service.schema_rules import (
     unique_arms_check,
     unique_ids,
 )
+from solvers.programme.segment import MAX_TARGETS
 
 N_ARMS = 12
 UNIQUE_ARMS = unique_arms(N_ARMS)
@@ -293,7 +294,10 @@ class PlanRequest(SkyTargetSource):
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
-    segmentation_mode: SegmentationMode = DEFAULT_SEGMENTATION_MODE
+    segmentation_mode: SegmentationMode | None = Field(
+        None, description=f"How the field is split into pointings (see `SegmentationRequest.mode`); "
+                          f"null: '{DEFAULT_SEGMENTATION_MODE}' for programmes of at most "
+                          f"{MAX_TARGETS:,} targets, 'complete-linkage' beyond.")
     park_move_limit_s: Annotated[float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False)] | None = Field(
         CONFIGURATION_TIME_GOAL_S, description="Every target is observed from a location its arm reaches from "
         "park within this many seconds turning J2 the positive way (the way an arm leaves park without "

@@ -656,3 +656,24 @@ def test_the_mode_refuses_programmes_over_its_size_naming_the_field() -> None:
         with pytest.raises(InputError) as err:
             segment_programme(INST, ra, dec, prio, mode="fewest-exposures", mode_field=field)
         assert err.value.field == field and f"{MAX_TARGETS:,}" in err.value.message
+
+
+def test_the_default_mode_is_complete_linkage_beyond_the_optimisers_size() -> None:
+    """Without a mode, a plan of up to MAX_TARGETS targets uses the optimiser and a larger one
+    complete linkage (never a refusal); a mode asked for is kept."""
+    from solvers.programme.segment import MAX_TARGETS
+
+    def request(n: int, mode: str | None = None) -> PlanRequest:
+        ra, dec, prio = programme(seed=4, n=n, extent_arcmin=20.0)
+        body = {"targets": [{"id": f"t{i}", "ra_deg": float(ra[i]), "dec_deg": float(dec[i]),
+                             "priority": int(prio[i])} for i in range(n)]}
+        return PlanRequest.model_validate(body if mode is None else {**body, "segmentation_mode": mode})
+
+    assert pipeline.plan_mode(request(MAX_TARGETS)) == "fewest-exposures"
+    big = request(MAX_TARGETS + 1)
+    assert pipeline.plan_mode(big) == "complete-linkage"
+    seg = pipeline.segment_plan(big, INST, 120.0)
+    assert seg.stats["mode"] == "complete-linkage"
+    assert sum(len(p.target_indices) for p in seg.pointings) == MAX_TARGETS + 1
+    assert pipeline.rounds_limit_s(big, 120.0) == 120.0
+    assert pipeline.plan_mode(request(5, "balanced")) == "balanced"

@@ -101,8 +101,9 @@ function planRequest(list) {
   const req = {
     targets: list.targets.map((t) => ({ id: t.id, ra_deg: t.ra_deg, dec_deg: t.dec_deg, priority: t.priority })),
     method: $("method").value, solver: $("solver").value,
-    position_angle_deg: Number($("pa").value || 0), segmentation_mode: $("segmentation").value,
+    position_angle_deg: Number($("pa").value || 0),
   };
+  if ($("segmentation").value) req.segmentation_mode = $("segmentation").value;  // empty: the plan's default
   const limit = $("time-limit").value.trim();
   if (limit) req.time_limit_s = Number(limit);
   const park = $("park-limit").value.trim();
