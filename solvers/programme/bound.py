@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 from models import clock
 from models.budget import Budget
 
-__all__ = ["ExposureBound", "RADIUS_SLACK", "disc_centres", "heaviest_disc", "lower_bound"]
+__all__ = ["ExposureBound", "RADIUS_SLACK", "disc_centres", "lower_bound"]
 
 #: relative enlargement of the FOV radius used by the bound (keeps it valid under the
 #: tangent plane's distortion and rounding)
@@ -112,13 +112,6 @@ def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: flo
         sums[s:s + block] = np.where(top > 0, top, 0.0).sum(axis=1)
         tops[s:s + block] = np.where(top >= 0, idx, -1)
     return sums, tops
-
-
-def heaviest_disc(xy: np.ndarray, w: np.ndarray, radius_mm: float, arms: int) -> float:
-    """The largest summed weight of ``arms`` targets that one disc of ``radius_mm`` holds
-    (over every disc: :func:`disc_centres`)."""
-    sums, _ = _top_sums(xy, w, disc_centres(xy, radius_mm), radius_mm, arms)
-    return float(sums.max(initial=0.0))
 
 
 def _lp(n: int, cuts: list[np.ndarray]) -> np.ndarray:

@@ -74,14 +74,12 @@ class Candidates:
                           self.index[entries], False), entries
 
 
-def _centres(xy: np.ndarray, radius_mm: float, extra: np.ndarray | None) -> tuple[np.ndarray, bool]:
+def _centres(xy: np.ndarray, radius_mm: float) -> tuple[np.ndarray, bool]:
 
     c = disc_centres(xy, radius_mm)
     complete = True
     if len(c) > MAX_CENTRES:  # a dense field: the targets and a grid of GRID_STEP radii
         c, complete = np.vstack([xy, _grid(xy, GRID_STEP * radius_mm, radius_mm)]), False
-    if extra is not None and len(extra):
-        c = np.vstack([c, extra])
     return c, complete
 
 
@@ -95,15 +93,14 @@ def _grid(xy: np.ndarray, step_mm: float, radius_mm: float) -> np.ndarray:
     return g[np.isfinite(d)]
 
 
-def maximal_sets(xy: np.ndarray, radius_mm: float, extra_centres: np.ndarray | None = None,
-                 ) -> Candidates:
+def maximal_sets(xy: np.ndarray, radius_mm: float) -> Candidates:
     """The distinct maximal member sets of the discs of ``radius_mm`` through the targets
-    ``xy`` ((n, 2) mm), plus those of ``extra_centres``. A set kept is never a subset of
+    ``xy`` ((n, 2) mm). A set kept is never a subset of
     another kept set (up to :data:`DOMINANCE_MAX_SETS` sets); its centre is the first disc
     found holding it."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     n = len(xy)
-    centres, complete = _centres(xy, radius_mm, extra_centres)
+    centres, complete = _centres(xy, radius_mm)
     tree = cKDTree(xy)
     words = (n + 63) // 64
     bits = np.zeros((len(centres), words), dtype=np.uint64)

@@ -22,12 +22,12 @@ import numpy as np
 
 from models.budget import Budget
 from models.instrument import Instrument
-from models.sky import focal_mm_to_sky, sky_to_focal_mm, tangent_radius_mm
+from models.sky import sky_to_focal_mm, tangent_radius_mm
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
 from solvers.allocation.options import AllocationOptions, PackingOptions
 from solvers.programme.reach import arm_masks
-from solvers.segmentation.enclosing_circle import smallest_enclosing_circle
+from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
@@ -88,7 +88,7 @@ class Pointing:
     pa_deg: float
     members: np.ndarray
     exposures: int | None = None
-    only_here: np.ndarray | None = None
+    only_here: np.ndarray | None = None  # set once every pointing is known (mark_only_here)
     allocation: AllocationResult | None = None  # of ``members`` (ascending), its exposures kept
 
 
@@ -101,13 +101,11 @@ def within(f: Field, idx: np.ndarray, centre: tuple[float, float], margin_mm: fl
 
 def recentre(f: Field, members: np.ndarray, start: tuple[float, float]) -> tuple[float, float]:
     """The centre (sky) of the smallest circle enclosing ``members`` on the plane about
-    ``start``, projected twice to absorb the change of plane."""
+    ``start``, fitted twice to absorb the change of plane
+    (:func:`solvers.segmentation.field.local_fit`)."""
     rc, dc = start
     for _ in range(2):
-        x, y = sky_to_focal_mm(f.ra_deg[members], f.dec_deg[members], rc, dc, f.scale)
-        cx, cy, _ = smallest_enclosing_circle(np.column_stack([x, y]), seed=0)
-        r2, d2 = focal_mm_to_sky(np.array([cx]), np.array([cy]), rc, dc, f.scale)
-        rc, dc = float(r2[0]), float(d2[0])
+        rc, dc = local_fit(members, f.ra_deg, f.dec_deg, rc, dc, f.scale)
     return rc, dc
 
 
@@ -162,7 +160,6 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     p = Pointing(centre, pa, members)
     only = ~elsewhere[members]
     if budget.expired():
-        p.only_here = members[only]
         return p
     raised = f.priority.astype(np.int64).copy()
     raised[members[only]] += ONLY_HERE_BOOST
@@ -174,7 +171,6 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     else:
         p.allocation = witness(result, members, keep, p.exposures, f.priority)
     p.members = keep
-    p.only_here = np.intersect1d(keep, members[only])
     return p
 
 
@@ -237,13 +233,13 @@ def _drop_last(f: Field, p: Pointing, moved: np.ndarray) -> Pointing:
     """The pointing without its last exposure and the targets ``moved`` out of it."""
     keep = np.setdiff1d(p.members, moved)
     if keep.size == 0:
-        return Pointing(p.centre, p.pa_deg, keep, 0, np.zeros(0, np.int64), None)
+        return Pointing(p.centre, p.pa_deg, keep, 0)
     configs = p.allocation.configurations[:-1]
     gone = {int(t) for t in moved}
     local = AllocationResult(configs, tuple(u for u in p.allocation.unallocated
                                             if int(p.members[u.target_index]) not in gone), p.allocation.stats)
-    return Pointing(p.centre, p.pa_deg, keep, len(configs), np.setdiff1d(p.only_here, moved),
-                    witness(local, p.members, keep, len(configs), f.priority))
+    return Pointing(p.centre, p.pa_deg, keep, len(configs),
+                    allocation=witness(local, p.members, keep, len(configs), f.priority))
 
 
 def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
@@ -284,7 +280,7 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
         if inside.size == 0:
             continue
         members = np.union1d(q.members, inside)
-        new = Pointing(q.centre, q.pa_deg, members, None, q.only_here)
+        new = Pointing(q.centre, q.pa_deg, members)
         result = _allocate(f, new, f.priority, opts, budget)
         observed = {int(members[a.target_index]) for c in result.configurations for a in c.assignments
                     if a.target_index is not None}

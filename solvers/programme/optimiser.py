@@ -73,8 +73,6 @@ class OptimiserOptions:
     #: the cost of a pointing (its acquisition) in exposures (an exposure and its
     #: reconfiguration): the plan's model minimises telescope time
     pointing_cost: float = 0.3
-    #: which of the model's pointings is committed next (:func:`_next`)
-    order: str = "largest"
     #: candidates the model chooses among (:func:`solvers.programme.reach.shortlist`)
     max_candidates: int = 150
 
@@ -124,7 +122,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
             pts += [_unallocated(f, np.flatnonzero(todo & (cover.owner == j)), sub.centres_mm[j], tangent)
                     for j in np.flatnonzero(used)]
             break
-        j = _next(sub, cover.owner, todo, used, options.order)
+        j = int(np.argmax(used))  # the model's largest pointing
         given = np.flatnonzero(todo & (cover.owner == j))
         elsewhere = np.zeros(n, bool)
         for k in np.flatnonzero(used):
@@ -139,7 +137,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
                                   tuple(int(i) for i in p.members), p.exposures,
-                                  tuple(int(i) for i in (p.only_here if p.only_here is not None else ())),
+                                  tuple(int(i) for i in p.only_here),
                                   p.allocation)
                 for p in pts)
     stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": len(pts),
@@ -148,19 +146,6 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
              "exposures_estimate": sum(p.exposures or 0 for p in pts),
              "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": saved}
     return ProgrammeResult(out, bound, stats)
-
-
-def _next(sub: Candidates, owner: np.ndarray, todo: np.ndarray, used: np.ndarray, order: str) -> int:
-    """The pointing of the model's solution to commit next: "isolated" the one whose targets
-    fewest other pointings hold (then the largest), "largest" the one with most targets."""
-    if order == "largest":
-        return int(np.argmax(used))
-    holders = np.zeros(len(owner), np.int64)
-    live = np.flatnonzero(used)
-    for k in live:
-        holders[sub.of(k)] += 1
-    alone = np.array([np.count_nonzero((owner == k) & todo & (holders == 1)) for k in live])
-    return int(live[np.lexsort((live, -used[live], -alone))[0]])
 
 
 def _model(cand: Candidates, masks: np.ndarray, todo: np.ndarray, arms: int, options: OptimiserOptions,
@@ -181,7 +166,7 @@ def _model(cand: Candidates, masks: np.ndarray, todo: np.ndarray, arms: int, opt
 
 def _unallocated(f: Field, members: np.ndarray, centre_mm: np.ndarray, tangent) -> Pointing:
     centre = recentre(f, members, _sky(centre_mm, tangent, f.scale))
-    return Pointing(centre, 0.0, members, None, members)
+    return Pointing(centre, 0.0, members)
 
 
 def _bound(xy, R, arms, cand: Candidates, budget: Budget, seed: int) -> ExposureBound:

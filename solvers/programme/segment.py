@@ -5,7 +5,6 @@ the instrument and the allocation the plan will run."""
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -13,15 +12,14 @@ import numpy as np
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument
-from models.sky import sky_to_focal_mm, tangent_radius_mm
 from solvers.programme.fill import FillOptions
 from solvers.programme.optimiser import OptimiserOptions, ProgrammeResult, optimise
 from solvers.segmentation.field import (
-    FOV_TOL_MM,
     MODES,
-    Pointing,
     Segmentation,
+    checked_pointings,
     field_plane,
+    member_stats,
     segment_field,
 )
 
@@ -64,41 +62,18 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
 
 def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float) -> Segmentation:
     """The optimiser's pointings as a :class:`Segmentation`, after the guarantees every mode
-    gives: each target in exactly one pointing, inside that pointing's FOV."""
-    n = len(ra)
-    lab = np.full(n, -1, dtype=np.int64)
-    for g, p in enumerate(result.pointings):
-        m = np.asarray(p.members, dtype=np.int64)
-        if np.any(lab[m] >= 0):
-            raise AssertionError("programme optimiser: a target is in two pointings")
-        lab[m] = g
-    if np.any(lab < 0):
-        raise AssertionError("programme optimiser: a target is in no pointing")
+    gives (:func:`solvers.segmentation.field.checked_pointings`)."""
+    groups = [np.asarray(p.members, dtype=np.int64) for p in result.pointings]
     pra = np.array([p.ra_deg for p in result.pointings])
     pdec = np.array([p.dec_deg for p in result.pointings])
-    r = tangent_radius_mm(ra, dec, pra[lab], pdec[lab], scale)
-    if np.any(r > R + FOV_TOL_MM):
-        raise AssertionError("programme optimiser: a target lies outside its pointing's FOV")
-    radius = np.zeros(len(pra))
-    np.maximum.at(radius, lab, r)
-    px, py = sky_to_focal_mm(pra, pdec, tangent[0], tangent[1], scale)
-    width = max(4, len(str(len(pra))))
-    pointings = tuple(
-        Pointing(id=f"P{g + 1:0{width}d}", ra_deg=float(p.ra_deg), dec_deg=float(p.dec_deg),
-                 x_mm=float(px[g]), y_mm=float(py[g]), radius_mm=float(radius[g]),
-                 target_indices=tuple(sorted(p.members)), position_angle_deg=float(p.position_angle_deg),
-                 exposures=p.exposures, only_here=tuple(sorted(p.only_here)), allocation=p.allocation)
-        for g, p in enumerate(result.pointings))
-    sizes = np.array([len(p.target_indices) for p in pointings])
+    extras = [{"position_angle_deg": float(p.position_angle_deg), "exposures": p.exposures,
+               "only_here": tuple(sorted(p.only_here)), "allocation": p.allocation} for p in result.pointings]
+    pointings = checked_pointings(groups, pra, pdec, ra, dec, tangent, R, scale, extras)
     b = result.bound
-    stats = {"mode": "fewest-exposures", "n_targets": n, "n_pointings": len(pointings),
-             "fov_radius_mm": R, "max_radius_mm": float(radius.max()),
-             "members_min": int(sizes.min()), "members_max": int(sizes.max()),
-             "members_mean": float(sizes.mean()), "members_std": float(sizes.std()),
+    stats = {"mode": "fewest-exposures", "n_targets": len(ra), "n_pointings": len(pointings),
+             "fov_radius_mm": R, **member_stats(pointings),
              "exposures_lower_bound": b.exposures,
              "bound": {"exposures": b.exposures, "trivial": b.trivial, "components": b.components,
                        "weight": b.weight, "method": b.method},
              "optimiser": result.stats, "time_s": wall_s}
-    if not math.isfinite(stats["max_radius_mm"]):
-        raise AssertionError("programme optimiser: a pointing has no finite radius")
     return Segmentation(float(tangent[0]), float(tangent[1]), pointings, stats)

@@ -111,7 +111,7 @@ def _centres(xy: np.ndarray, groups: list[np.ndarray], seed: int) -> np.ndarray:
     return out
 
 
-def _local_fit(idx, ra, dec, ra_c, dec_c, scale, seed):
+def local_fit(idx, ra, dec, ra_c, dec_c, scale, seed=0):
     """Re-centre a group on the smallest enclosing circle *on its own tangent plane*."""
     x, y = sky_to_focal_mm(ra[idx], dec[idx], ra_c, dec_c, scale)
     cx, cy, _ = smallest_enclosing_circle(np.column_stack([x, y]), seed=seed)
@@ -128,7 +128,7 @@ def _repair(idx, ra, dec, ra_c, dec_c, R, scale, seed):
     while stack:
         g, rc, dc = stack.pop()
         for _ in range(3):
-            rc, dc = _local_fit(g, ra, dec, rc, dc, scale, seed)
+            rc, dc = local_fit(g, ra, dec, rc, dc, scale, seed)
             if tangent_radius_mm(ra[g], dec[g], rc, dc, scale).max() <= R + FOV_TOL_MM:
                 out.append((g, rc, dc))
                 break
@@ -367,7 +367,22 @@ def segment_field(
         n_repaired += n_rep2
     check()
 
-    # the guarantees, checked on the final answer (never return a target outside its FOV)
+    pointings = checked_pointings(groups, pra, pdec, ra, dec, tangent, R, scale)
+    stats = {
+        "mode": mode, "n_targets": int(len(ra)), "n_pointings": len(pointings),
+        "n_complete_linkage_clusters": n_cl, "n_repaired_clusters": n_repaired,
+        "threshold_mm": t, "fov_radius_mm": R, **member_stats(pointings),
+        "time_s": budget.elapsed_s(),
+    }
+    return Segmentation(tangent[0], tangent[1], pointings, stats)
+
+
+def checked_pointings(groups, pra, pdec, ra, dec, tangent, R: float, scale: float,
+                      extras: list[dict] | None = None) -> tuple[Pointing, ...]:
+    """The pointings of ``groups`` (target indices) centred on (``pra``, ``pdec``), after the
+    guarantees every segmentation gives, checked on the final answer: each target in exactly
+    one pointing, inside that pointing's FOV on its own plane (never return a target outside
+    its FOV). ``extras``: more :class:`Pointing` fields, one dict per group."""
     lab = np.full(len(ra), -1, dtype=np.int64)
     for g, idx in enumerate(groups):
         if np.any(lab[idx] >= 0):
@@ -382,19 +397,16 @@ def segment_field(
     np.maximum.at(radius, lab, r)
     px, py = sky_to_focal_mm(pra, pdec, tangent[0], tangent[1], scale)
     width = max(4, len(str(len(groups))))
-    pointings = tuple(
+    return tuple(
         Pointing(id=f"P{g + 1:0{width}d}", ra_deg=float(pra[g]), dec_deg=float(pdec[g]),
                  x_mm=float(px[g]), y_mm=float(py[g]), radius_mm=float(radius[g]),
-                 target_indices=tuple(int(i) for i in np.sort(idx)))
-        for g, idx in enumerate(groups)
-    )
-    sizes = np.array([len(g) for g in groups])
-    stats = {
-        "mode": mode, "n_targets": int(len(ra)), "n_pointings": len(pointings),
-        "n_complete_linkage_clusters": n_cl, "n_repaired_clusters": n_repaired,
-        "threshold_mm": t, "fov_radius_mm": R, "max_radius_mm": float(radius.max()),
-        "members_min": int(sizes.min()), "members_max": int(sizes.max()),
-        "members_mean": float(sizes.mean()), "members_std": float(sizes.std()),
-        "time_s": budget.elapsed_s(),
-    }
-    return Segmentation(tangent[0], tangent[1], pointings, stats)
+                 target_indices=tuple(int(i) for i in np.sort(idx)), **(extras[g] if extras else {}))
+        for g, idx in enumerate(groups))
+
+
+def member_stats(pointings: tuple[Pointing, ...]) -> dict:
+    """The spread of a segmentation's pointings: farthest member, members per pointing."""
+    sizes = np.array([len(p.target_indices) for p in pointings])
+    return {"max_radius_mm": float(max(p.radius_mm for p in pointings)),
+            "members_min": int(sizes.min()), "members_max": int(sizes.max()),
+            "members_mean": float(sizes.mean()), "members_std": float(sizes.std())}
