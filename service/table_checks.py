@@ -24,6 +24,7 @@ row or column where that applies; an echoed value is cut to a few dozen characte
 from __future__ import annotations
 
 import bz2
+import codecs
 import csv
 import gzip
 import lzma
@@ -54,6 +55,25 @@ _MAGIC: dict[bytes, tuple[str, Any]] = {
     b"\xfd7zXZ\x00": ("xz", lzma.open),
 }
 _CHUNK_BYTES = 1 << 20
+#: The format name of VizieR's tab-separated export (read by :mod:`service.vizier_tsv`).
+TSV = "vizier.tsv"
+#: Bytes of a file looked at to tell what it is.
+HEAD_BYTES = 1 << 16
+#: What a file's first bytes say it is when it is no table (magic numbers).
+NOT_TABLES: tuple[tuple[bytes, str], ...] = (
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"%PDF-", "a PDF document"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF87a", "a GIF image"), (b"GIF89a", "a GIF image"),
+    (b"II*\x00", "a TIFF image"), (b"MM\x00*", "a TIFF image"),
+    (b"\x7fELF", "a program (ELF)"),
+    (b"PK\x03\x04", "a zip archive (a .xlsx or .ods sheet is one: save it as CSV); give the "
+                    "table itself, plain or compressed with gzip, bzip2 or xz"),
+    (b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1", "a Microsoft Office document (save the sheet as CSV)"),
+)
+#: Bytes that text holds rarely or never (controls other than tab, line feed, form feed and
+#: carriage return).
+_CONTROL_BYTES = bytes([*range(0, 9), 11, *range(14, 32), 127])
 
 
 class TargetFileError(ValueError):
@@ -68,7 +88,7 @@ class RowLimit:
     why: str = ""  # appended to "at most N targets", e.g. " in a target list (MXS_...=N)"
 
     def refuse(self, label: str, what: str) -> TargetFileError:
-        return TargetFileError(f"{label}: {what}; at most {self.most} targets{self.why}")
+        return TargetFileError(f"{label}: {what}; at most {count(self.most, 'target')}{self.why}")
 
 
 def echo(text: str, most: int = ECHO_CHARS) -> str:
@@ -76,6 +96,11 @@ def echo(text: str, most: int = ECHO_CHARS) -> str:
     if len(text) <= most:
         return repr(text)
     return repr(text[:most]) + f"... ({len(text)} characters)"
+
+
+def count(n: int, word: str) -> str:
+    """``n`` and ``word`` in the singular or plural (``1 row``, ``2 rows``)."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 # ------------------------------------------------------------------ compression
@@ -119,6 +144,73 @@ def decompress(path: Path, out: Path, max_bytes: int, label: str, setting: str =
     if compression(out) is not None:
         raise TargetFileError(f"{label}: compressed twice; upload it compressed once at most")
     return True
+
+
+def open_plain(path: Path) -> IO[bytes]:
+    """``path`` opened for reading its content: through its decompressor when it is compressed
+    with gzip, bzip2 or xz."""
+    kind = compression(path)
+    opener = next((o for name, o in _MAGIC.values() if name == kind), None)
+    return opener(path, "rb") if opener is not None else open(path, "rb")  # type: ignore[no-any-return]
+
+
+# ------------------------------------------------------------------ what the content is
+
+
+def sniff(path: Path, fmt: str | None, label: str) -> str | None:
+    """The format to read the plain file ``path`` in, from its first :data:`HEAD_BYTES`:
+
+    * content that is no table (an image, a PDF, a program, binary data, text that is not
+      UTF-8) is refused with one line, ``<label>: not a table: <what it is>``;
+    * FITS content (a ``SIMPLE`` card first) is read as FITS whatever the name says;
+    * otherwise ``fmt`` (from the file's name), or, when the name names no format, the format
+      the content shows (:func:`text_format`; None when it shows none)."""
+    with open(path, "rb") as f:
+        head = f.read(HEAD_BYTES)
+    for magic, what in NOT_TABLES:
+        if head.startswith(magic):
+            raise TargetFileError(f"{label}: not a table: {what}")
+    if head.startswith(b"SIMPLE  ="):
+        return "fits"
+    if fmt == "fits":
+        return fmt  # check_fits says what is wrong with it
+    why = _not_text(head, complete=len(head) < HEAD_BYTES, xml=fmt == "votable")
+    if why:
+        raise TargetFileError(f"{label}: not a table: {why}")
+    return fmt or text_format(head)
+
+
+def _not_text(head: bytes, complete: bool, xml: bool) -> str | None:
+    """Why ``head`` (a file's first bytes; ``complete`` when they are the whole file) is no
+    table text, or None. Control bytes make binary data; other text must be UTF-8 (a VOTable's
+    XML may declare another encoding, which its parser reads)."""
+    odd = sum(head.count(bytes([b])) for b in _CONTROL_BYTES)
+    if b"\x00" in head or odd > len(head) // 100:
+        return ("binary data, not text (give a CSV, TSV, ECSV or VOTable file, or a FITS "
+                "table)")
+    if xml:
+        return None
+    try:
+        codecs.getincrementaldecoder("utf-8")().decode(head, final=complete)
+    except UnicodeDecodeError as exc:
+        line = head.count(b"\n", 0, exc.start) + 1
+        return (f"line {line} is not UTF-8 text (byte 0x{head[exc.start]:02x}); save the "
+                "table as UTF-8")
+    return None
+
+
+def text_format(head: bytes) -> str | None:
+    """The format a text file's first bytes show: VOTable (XML), ECSV (its ``# %ECSV``
+    line), :data:`TSV` (a first line that is no comment and holds a tab); None otherwise."""
+    start = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    if start.startswith((b"<?xml", b"<VOTABLE")):
+        return "votable"
+    if start.startswith(b"# %ECSV"):
+        return "ascii.ecsv"
+    for line in start.splitlines():
+        if line.strip() and not line.startswith(b"#"):
+            return TSV if b"\t" in line else None
+    return None
 
 
 # ------------------------------------------------------------------ the checks
@@ -253,7 +345,7 @@ def check_fits(path: Path, label: str, rows: RowLimit | None) -> None:
 # ------------------------------------------------------------------ CSV, ECSV
 
 
-def _lines(f: IO[str], label: str) -> Iterator[str]:
+def bounded_lines(f: IO[str], label: str) -> Iterator[str]:
     """The lines of ``f``, each read with a bound on its length."""
     number = 0
     while line := f.readline(MAX_LINE_CHARS):
@@ -284,7 +376,7 @@ def _ecsv_header(lines: Iterator[str], label: str) -> tuple[str, str]:
     return delimiter, ""
 
 
-def _check_names(names: list[str], label: str, line: int) -> None:
+def check_names(names: list[str], label: str, line: int) -> None:
     if len(names) > MAX_COLUMNS:
         raise TargetFileError(f"{label}: line {line} names {len(names)} columns; at most "
                               f"{MAX_COLUMNS}")
@@ -302,14 +394,14 @@ def _check_names(names: list[str], label: str, line: int) -> None:
         seen[name] = k
 
 
-def _check_row(row: list[str], names: list[str], where: tuple[str, int, int],
+def check_row(row: list[str], names: list[str], where: tuple[str, int, int],
                csv_format: bool) -> None:
     """One data row: its number of cells and each cell's length; ``where`` is (label, row,
     line)."""
     label, n_row, line = where
     if len(row) > MAX_COLUMNS or (csv_format and len(row) > len(names)):
-        raise TargetFileError(f"{label}: row {n_row}, line {line} has {len(row)} cells; the "
-                              f"header names {len(names)} columns")
+        raise TargetFileError(f"{label}: row {n_row}, line {line} has {count(len(row), 'cell')}; "
+                              f"the header names {count(len(names), 'column')}")
     for k, cell in enumerate(row):
         if len(cell) > MAX_CELL_CHARS:
             name = names[k].strip() if k < len(names) else f"#{k + 1}"
@@ -325,7 +417,7 @@ def _blank(row: list[str]) -> bool:
 def check_text(path: Path, label: str, rows: RowLimit | None, *, ecsv: bool = False) -> None:
     """The CSV / ECSV checks of the module doc, in one pass of the :mod:`csv` module."""
     with open(path, encoding="utf-8", errors="replace", newline="") as f:
-        lines = _lines(f, label)
+        lines = bounded_lines(f, label)
         delimiter, first = _ecsv_header(lines, label) if ecsv else (",", "")
         source = _chain(first, lines) if ecsv else lines
         reader = csv.reader(source, delimiter=delimiter, skipinitialspace=delimiter == " ")
@@ -337,10 +429,10 @@ def check_text(path: Path, label: str, rows: RowLimit | None, *, ecsv: bool = Fa
                     continue
                 if names is None:
                     names = row
-                    _check_names(names, label, reader.line_num)
+                    check_names(names, label, reader.line_num)
                     continue
                 n_rows += 1
-                _check_row(row, names, (label, n_rows, reader.line_num), not ecsv)
+                check_row(row, names, (label, n_rows, reader.line_num), not ecsv)
                 if rows is not None and n_rows > rows.most:
                     raise rows.refuse(label, f"more than {rows.most} rows (line "
                                       f"{reader.line_num})")

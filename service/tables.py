@@ -38,7 +38,15 @@ from typing import Any
 import numpy as np
 
 from models.types import MAX_PRIORITY
-from service.table_checks import RowLimit, TargetFileError, check_table_file, compression
+from service.table_checks import (
+    TSV,
+    RowLimit,
+    TargetFileError,
+    check_table_file,
+    compression,
+    sniff,
+)
+from service.vizier_tsv import read_tsv
 
 ALIASES: dict[str, tuple[str, ...]] = {
     "id": ("id", "target_id", "name", "target", "source_id", "objid", "obj_id", "designation",
@@ -54,8 +62,11 @@ UCDS: dict[str, tuple[str, ...]] = {
     "ra_deg": ("pos.eq.ra;meta.main", "pos.eq.ra"),
     "dec_deg": ("pos.eq.dec;meta.main", "pos.eq.dec"),
 }
-FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".vot": "votable", ".xml": "votable",
-           ".votable": "votable", ".fits": "fits", ".fit": "fits", ".fts": "fits"}
+FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".tsv": TSV, ".vot": "votable",
+           ".xml": "votable", ".votable": "votable", ".fits": "fits", ".fit": "fits",
+           ".fts": "fits"}
+#: The formats read, for messages.
+KNOWN = "give a .csv, .tsv, .ecsv, .vot or .fits table"
 #: Suffixes of a compressed file, after its format's (``.fits.gz``, ``.csv.bz2``).
 COMPRESSED = (".gz", ".bz2", ".xz")
 MAX_ID_CHARS = 128
@@ -108,16 +119,21 @@ def read_target_table(path: str | Path, name: str | None = None,
                       rows: RowLimit | None = None) -> TargetTable:
     """Read and validate the table at ``path``; ``name`` is the file name used in messages
     and for the format (default: ``path`` itself). A plain (uncompressed) file is first
-    checked by :func:`service.table_checks.check_table_file`: columns, cells, names and,
-    with ``rows``, the row limit, all before the table reader sees it."""
+    looked at (:func:`service.table_checks.sniff`: content that is no table is refused in one
+    line, a name without a known suffix takes the format its content shows), then checked by
+    :func:`service.table_checks.check_table_file`: columns, cells, names and, with ``rows``,
+    the row limit, all before the table reader sees it."""
     p = Path(path)
     label = name or str(p)
     if not p.is_file():
         raise TargetFileError(f"{label}: no such file")
-    if compression(p) is None:
-        check_table_file(p, _format(label), label, rows)
-    table = _read_table(p, label)
-    if len(table) == 0:
+    fmt = _format(label)
+    if compression(p) in (None, "zip"):
+        fmt = sniff(p, fmt, label)
+        check_table_file(p, fmt, label, rows)
+    loaded = _load(p, fmt, label, rows)
+    table, n = loaded.table, loaded.n_rows
+    if n == 0:
         raise TargetFileError(f"{label}: the table has no rows")
     cols = {k: _find_column(table, k) for k in ALIASES}
     for k in ("ra_deg", "dec_deg"):
@@ -125,18 +141,18 @@ def read_target_table(path: str | Path, name: str | None = None,
             raise TargetFileError(
                 f"{label}: no {k} column (looked for UCD {UCDS[k][0]} and the names "
                 f"{', '.join(ALIASES[k])})")
-    lines = _csv_lines(p, len(table)) if _format(label) == "ascii.csv" else None
+    lines = loaded.lines
     where = _Where(label, lines)
     notices: list[str] = []
     ra = _angles(table[cols["ra_deg"]], "ra_deg", where, notices)
     dec = _angles(table[cols["dec_deg"]], "dec_deg", where, notices)
     _check_ranges(ra, dec, cols, where)
-    n = len(table)
     if cols["id"]:
         ids = _ids(table[cols["id"]], where)
     else:
         ids = [str(i + 1) for i in range(n)]
-        notices.append(f"{label}: no id column; targets are named by their row number 1..{n}")
+        numbers = "1" if n == 1 else f"1..{n}"
+        notices.append(f"{label}: no id column; targets are named by their row number ({numbers})")
     if cols["priority"]:
         prio = _priorities(table[cols["priority"]], where)
     else:
@@ -170,10 +186,35 @@ def _format(label: str) -> str | None:
     return FORMATS[suffix] if suffix else None
 
 
-def _read_table(p: Path, label: str) -> Any:
+@dataclass(frozen=True)
+class _Loaded:
+    """A table as its reader gave it, its number of rows and the file line of each (None when
+    not known)."""
+
+    table: Any
+    n_rows: int
+    lines: list[int] | None
+
+
+def _load(p: Path, fmt: str | None, label: str, rows: RowLimit | None) -> _Loaded:
+    if fmt == TSV:
+        tsv = read_tsv(p, label, rows, _wanted)
+        return _Loaded(tsv.table, tsv.n_rows, tsv.lines)
+    table = _read_table(p, fmt, label)
+    lines = _csv_lines(p, len(table)) if fmt == "ascii.csv" else None
+    return _Loaded(table, len(table), lines)
+
+
+def _wanted(name: str, ucd: str) -> bool:
+    """Whether a column may be read for a field: one of the names or UCDs looked for."""
+    return (any(name.lower() in names for names in ALIASES.values())
+            or any(ucd.lower() in (x.lower() for x in ucds) for ucds in UCDS.values()))
+
+
+def _read_table(p: Path, fmt: str | None, label: str) -> Any:
+    from astropy.io.registry import IORegistryError
     from astropy.table import Table
 
-    fmt = _format(label)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # VOTable unit / schema chatter
@@ -183,6 +224,13 @@ def _read_table(p: Path, label: str) -> Any:
     except Exception as exc:  # noqa: BLE001 - astropy raises many kinds
         if _out_of_memory(exc):
             raise MemoryError(str(exc)) from exc
+        if isinstance(exc, UnicodeDecodeError):
+            raise TargetFileError(f"{label}: not a table: not UTF-8 text (byte "
+                                  f"0x{exc.object[exc.start]:02x}); save the table as "
+                                  "UTF-8") from None
+        if isinstance(exc, IORegistryError) and fmt is None:
+            raise TargetFileError(f"{label}: not a table: neither its name nor its content "
+                                  f"tells a table format ({KNOWN})") from None
         raise TargetFileError(f"{label}: cannot read as a table ({_reason(exc)})") from exc
     return table
 
@@ -279,9 +327,9 @@ def _angles(col: Any, field: str, where: _Where, notices: list[str]) -> np.ndarr
         hours = field == "ra_deg" and sexa_unit == u.hourangle
         decimal = "decimal degrees" if unit is None else f"decimal values in {unit}"
         notices.append(
-            f"{where.label}: column {_echo(col.name)} mixes {decimal} (rows "
-            f"{_row_list(forms['decimal'])}) and sexagesimal {'hours' if hours else 'degrees'} "
-            f"(rows {_row_list(forms['sexagesimal'])}); each value was read by its own form")
+            f"{where.label}: column {_echo(col.name)} mixes {decimal} "
+            f"({_row_list(forms['decimal'])}) and sexagesimal {'hours' if hours else 'degrees'} "
+            f"({_row_list(forms['sexagesimal'])}); each value was read by its own form")
     return out
 
 
@@ -323,8 +371,20 @@ def _echo(text: str) -> str:
 
 
 def _row_list(rows: Sequence[int], most: int = 8) -> str:
+    """``row 3``, ``rows 1, 4``, ``rows 1, 2, ... and 5 more``: the first ``most`` row numbers."""
     shown = ", ".join(str(r) for r in rows[:most])
-    return shown + (f" and {len(rows) - most} more" if len(rows) > most else "")
+    more = f" and {len(rows) - most} more" if len(rows) > most else ""
+    return f"{'row' if len(rows) == 1 else 'rows'} {shown}{more}"
+
+
+def _cell_text(raw: Any) -> str:
+    """A cell as the file wrote it, for reading and echoing: text as is; a number of a float
+    column that is an integer without its ``.0`` (``-5``, not ``-5.0``)."""
+    if isinstance(raw, bytes):
+        return raw.decode(errors="replace").strip()
+    if isinstance(raw, float | np.floating) and math.isfinite(raw) and float(raw).is_integer():
+        return str(int(raw))
+    return str(raw).strip()
 
 
 def _check_ranges(ra: np.ndarray, dec: np.ndarray, cols: dict[str, str | None],
@@ -364,7 +424,7 @@ def _priorities(col: Any, where: _Where) -> list[int]:
         cell = where.cell(i, col.name)
         if masked[i]:
             raise TargetFileError(f"{cell}: empty priority")
-        text = (raw.decode() if isinstance(raw, bytes) else str(raw)).strip()
+        text = _cell_text(raw)
         try:
             f = float(text)
         except ValueError:

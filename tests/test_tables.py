@@ -112,7 +112,7 @@ def test_mixed_ra_column_reads_each_cell_by_its_form(tmp_path: Path) -> None:
     assert expected == pytest.approx(250.42375)
     assert [t.dec_deg for t in table.targets[1:]] == pytest.approx([36 + 27 / 60 + 41 / 3600] * 2)
     (notice,) = [n for n in table.notices if "column 'ra' mixes" in n]
-    assert "'ra'" in notice and "rows 1)" in notice and "rows 2, 3" in notice and "hours" in notice
+    assert "'ra'" in notice and "(row 1)" in notice and "(rows 2, 3)" in notice and "hours" in notice
 
 
 @settings(max_examples=40, deadline=None)
