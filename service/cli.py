@@ -5,19 +5,20 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
-from models.instrument import CONFIGURATION_TIME_GOAL_S
 from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
-from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
-from service.tables import TargetFileError, read_target_table, read_targets
+from service.cli_pictures import OVERVIEW_NAME, pointing_pa_deg, write_overview, write_pictures
+from service.sky_text import plural, radec_text
+from service.tables import ALIASES, UCDS, TargetFileError, read_target_table, read_targets
 from solvers.programme.segment import MAX_TARGETS
 from solvers.segmentation.field import MODES as SEGMENTATION_MODES
 
-__all__ = ["TargetFileError", "main", "read_targets"]
+__all__ = ["TargetFileError", "main", "read_targets", "write_pictures"]
 
 EXIT_OK = 0
 EXIT_INVALID_INPUT = 2
@@ -78,6 +79,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
             loc = ".".join(str(x) for x in e["loc"])
             print(f"error: {loc}: {e['msg']}", file=sys.stderr)
         return EXIT_INVALID_INPUT
+    image = None
+    if args.image:
+        from models.errors import InputError
+        from models.finding_chart import load_fits_image
+
+        try:
+            image = load_fits_image(args.image, field="--image")
+        except InputError as exc:
+            print(f"error: --image {args.image}: {exc.message}", file=sys.stderr)
+            return EXIT_INVALID_INPUT
     from service.settings import Settings
 
     inst_file = args.instrument or Settings().instrument_file
@@ -94,33 +105,73 @@ def cmd_plan(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_INVALID_INPUT
     (out / "plan.json").write_text(json.dumps(result, indent=1))
-    pictures = write_pictures(result, req, inst, out, quiet=args.quiet)
+    pictures = write_pictures(result, req, inst, out, quiet=args.quiet, image=image)
+    overview = write_overview(result, req, inst, out, image=image)
+    print_summary(result, req, out, len(pictures), overview)
+    if result["executable"]:
+        return EXIT_OK
+    print_failed_legs(result)
+    return EXIT_NOT_EXECUTABLE
+
+
+def print_summary(result: Mapping[str, Any], req: Any, out: Path, n_pictures: int,
+                  overview: Path) -> None:
+    """The plan in a few lines: counts, files written, each pointing (sexagesimal and decimal),
+    the telescope time, the changes made, and a warning per reason targets were left out."""
     s = result["stats"]
-    print(f"{s['targets']} targets, {s['pointings']} pointings, {s['configurations']} "
-          f"configurations, {s['allocated_targets']} targets allocated; wrote {out / 'plan.json'}"
-          f" and {len(pictures)} pictures")
+    print(f"{plural(s['targets'], 'target')}, {plural(s['pointings'], 'pointing')}, "
+          f"{plural(s['configurations'], 'configuration')}, "
+          f"{plural(s['allocated_targets'], 'target')} allocated; wrote {out / 'plan.json'}, "
+          f"{plural(n_pictures, 'configuration picture')} (pointing<id>_c<k>.png) and the sky "
+          f"overview {overview}")
+    for p in result["pointings"]:
+        print(f"pointing {p['id']} at {radec_text(p['ra_deg'], p['dec_deg'])}, PA "
+              f"{pointing_pa_deg(p, req):g}°: {plural(len(p['configurations']), 'configuration')}, "
+              f"{plural(len(p['target_ids']), 'target')}")
     print(time_summary(s["telescope_time"]))
     summary = changes_summary(s)
     if summary:
         print(f"changes so that every leg can be executed: {summary}")
     # never fail silently: name every target left out and every motion leg not planned
     for reason, n in sorted(s.get("unallocated_by_reason", {}).items()):
-        print(f"warning: {n} targets not allocated ({reason}); see 'unallocated' in plan.json",
-              file=sys.stderr)
-    if result["executable"]:
-        return EXIT_OK
+        print(f"warning: {plural(n, 'target')} not allocated ({reason}); see 'unallocated' in "
+              "plan.json", file=sys.stderr)
+
+
+def leg_name(i: int, n_legs: int) -> str:
+    """Motion leg ``i`` (index into a pointing's ``motions``) counted from 1, like the
+    configurations: ``leg 1 (park -> c1)``, ..., ``leg n (cn-1 -> park)``."""
+    src = "park" if i == 0 else f"c{i}"
+    dst = "park" if i == n_legs - 1 else f"c{i + 1}"
+    return f"leg {i + 1} ({src} -> {dst})"
+
+
+_LEG_REASON = re.compile(r"^leg (\d+) \([^)]*\)")
+
+
+def leg_reason(reason: str, n_legs: int) -> str:
+    """A plan's reason line (``leg <index> (a -> b): ...``, the index into ``motions``) with the
+    leg counted from 1 as :func:`leg_name` writes it."""
+    return _LEG_REASON.sub(lambda m: leg_name(int(m.group(1)), n_legs), reason, count=1)
+
+
+def print_failed_legs(result: Mapping[str, Any]) -> None:
+    """On stderr: each pointing's failed legs (counted from 1) and why."""
     for p in result["pointings"]:
         if p["executable"]:
             continue
-        failed = [i for i, m in enumerate(p.get("motions", [])) if m.get("status") != "ok"]
-        print(f"error: pointing {p['id']}: motion legs {failed} not planned", file=sys.stderr)
+        motions = p.get("motions", [])
+        failed = [i for i, m in enumerate(motions) if m.get("status") != "ok"]
+        names = ", ".join(leg_name(i, len(motions)) for i in failed)
+        print(f"error: pointing {p['id']}: motion {'leg' if len(failed) == 1 else 'legs'} "
+              f"{names} not planned", file=sys.stderr)
         for reason in p.get("reasons") or [
-            f"leg {i}: arms {p['motions'][i].get('failed_arms')} not planned" for i in failed
+            f"{leg_name(i, len(motions))}: arms {motions[i].get('failed_arms')} not planned"
+            for i in failed
         ]:
-            print(f"error: pointing {p['id']}: {reason}", file=sys.stderr)
+            print(f"error: pointing {p['id']}: {leg_reason(reason, len(motions))}", file=sys.stderr)
     print("error: the plan is not executable; do not execute the failed legs (see 'reasons' "
           "in plan.json)", file=sys.stderr)
-    return EXIT_NOT_EXECUTABLE
 
 
 def hours_minutes(t_s: float) -> str:
@@ -137,7 +188,7 @@ def time_summary(t: dict[str, Any]) -> str:
             f"exposures {hours_minutes(t['exposure_s'])} + {a} acquisition{'' if a == 1 else 's'} "
             f"{hours_minutes(t['acquisition_s'])} + reconfiguration {hours_minutes(t['reconfiguration_s'])}")
     if t["unplanned_legs"]:
-        line += f" ({t['unplanned_legs']} motion legs not planned, not counted)"
+        line += f" ({plural(int(t['unplanned_legs']), 'motion leg')} not planned, not counted)"
     return line
 
 
@@ -157,33 +208,92 @@ def changes_summary(stats: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
-def write_pictures(result: dict[str, Any], req: Any, inst: Any, out: Path,
-                   quiet: bool = False) -> list[Path]:
-    """One PNG per configuration, ``pointing<id>_c<k>.png``: configurations are c1 ... cn
-    (``index`` + 1), as on the page and in the motion legs' reasons."""
-    from tqdm import tqdm
+def _api_default(name: str) -> Any:
+    """The default of ``POST /v1/plans``' field ``name`` (:class:`service.schemas.PlanRequest`),
+    so ``plan`` and the API cannot drift apart."""
+    from service.schemas import PlanRequest
 
-    from service import pipeline
-    from service.plots import plot_configuration, sequence_states
+    return PlanRequest.model_fields[name].default
 
-    by_id = {t.id: t for t in req.targets}
-    jobs = [(p, c) for p in result["pointings"] for c in p["configurations"]]
-    paths = []
-    for p, c in tqdm(jobs, desc="pictures", disable=quiet or not jobs):
-        members = [by_id[t] for t in p["target_ids"]]
-        x, y = pipeline.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst,
-                                     req.position_angle_deg)
-        paths.append(plot_configuration(
-            inst, {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in c["assignments"]},
-            out / f"pointing{p['id']}_c{c['index'] + 1}.png",
-            target_x_mm=x, target_y_mm=y, target_priority=[t.priority for t in members],
-            target_status=sequence_states(p["configurations"], c, [t.id for t in members]),
-            target_ids=[t.id for t in members], position_angle_deg=req.position_angle_deg,
-            title=f"pointing {p['id']} (RA {p['ra_deg']:.5f}, Dec {p['dec_deg']:.5f}) - "
-                  f"configuration c{c['index'] + 1}: {c['arm_yield']} arms, "
-                  f"priority {c['total_priority']}",
-        ))
-    return paths
+
+def _api_choices(name: str) -> list[str]:
+    """The values ``POST /v1/plans`` accepts for the Literal field ``name``."""
+    from service.schemas import PlanRequest
+
+    annotation = PlanRequest.model_fields[name].annotation
+    literal = next((a for a in get_args(annotation) if get_args(a)), annotation)
+    return [str(v) for v in get_args(literal)]
+
+
+def targets_help() -> str:
+    """The ``targets`` argument's help: the formats and every column name recognised
+    (:data:`service.tables.UCDS` and :data:`service.tables.ALIASES`)."""
+    cols = "; ".join(
+        f"{field}: " + (f"UCD {UCDS[field][0]} or " if field in UCDS else "") + ", ".join(names)
+        for field, names in ALIASES.items())
+    return ("target table (CSV, ECSV, VOTable, FITS). Columns are found by VO UCD or by name, "
+            f"case-insensitively: {cols}. RA/Dec in degrees or sexagesimal (RA in hours). "
+            "No id column: row numbers; no priority column: priority 1")
+
+
+def _add_plan_options(p: argparse.ArgumentParser) -> None:
+    """``plan``'s options; every help says the default, taken from the API's defaults."""
+    p.add_argument("targets", help=targets_help())
+    p.add_argument("--out", required=True, help="output directory (required)")
+    p.add_argument("--method", choices=_api_choices("method"), default=_api_default("method"),
+                   help="allocation: exact ILP or the semi-greedy heuristic (default: %(default)s)")
+    p.add_argument("--solver", choices=_api_choices("solver"), default=_api_default("solver"),
+                   help="ILP back-end (default: %(default)s)")
+    p.add_argument("--position-angle", type=float, default=_api_default("position_angle_deg"),
+                   metavar="DEG", help="position angle of the instrument, deg East of North; a "
+                   "pointing whose PA the segmentation chooses uses its own (default: %(default)s)")
+    p.add_argument("--time-limit", type=float, default=DEFAULT_LIMIT_S, metavar="S",
+                   help="wall-clock limit of the whole plan, s, as POST /v1/plans "
+                   "(default: %(default)s)")
+    p.add_argument("--seed", type=int, default=_api_default("seed"),
+                   help="random seed; the same seed and input give the same plan (default: 0)")
+    p.add_argument("--threshold-mm", type=float, default=_api_default("threshold_mm"),
+                   help="segmentation threshold, mm (default: sqrt(3) x the FOV radius, the side "
+                   "of the triangle inscribed in the FOV)")
+    p.add_argument("--segmentation-mode", choices=list(SEGMENTATION_MODES),
+                   default=_api_default("segmentation_mode"),
+                   help="how the field is split into pointings: 'complete-linkage' (thesis ch. 4), "
+                   "'balanced', or 'fewest-exposures' (the programme optimiser: fewest exposures, "
+                   f"with a proven lower bound) (default: {DEFAULT_SEGMENTATION_MODE} up to "
+                   f"{MAX_TARGETS:,} targets, complete-linkage beyond)")
+    reach = p.add_mutually_exclusive_group()
+    reach.add_argument("--park-move-limit", type=float, default=_api_default("park_move_limit_s"),
+                       metavar="S",
+                       help="observe each target from a location its arm reaches from park within S "
+                       "seconds (J2 turning the positive way), so no move from park exceeds the "
+                       "configuration time goal; targets reached only farther away are reported "
+                       "'beyond_park_move_limit' (default: %(default)s, the thesis' T_p)")
+    reach.add_argument("--no-park-move-limit", action="store_true",
+                       help="no park move limit: every reachable target, some moves from park up to "
+                       "200 s (default: the limit applies)")
+    p.add_argument("--exposure-time", type=float, default=_api_default("exposure_time_s"),
+                   metavar="S", help="exposure time of one configuration, s; counted in the plan's "
+                   "telescope time (default: %(default)s)")
+    p.add_argument("--acquisition", type=float, default=_api_default("acquisition_s"), metavar="S",
+                   help="acquisition overhead of one pointing, s (default: %(default)s)")
+    p.add_argument("--max-exposures", type=int, default=_api_default("max_exposures"), metavar="N",
+                   help="stop rule: at most N exposures over the whole plan, spent on the highest "
+                   "priorities; targets left out: 'beyond_max_exposures' (default: no limit)")
+    p.add_argument("--min-priority-per-exposure", type=int,
+                   default=_api_default("min_priority_per_exposure"), metavar="P",
+                   help="stop rule: no exposure observing less summed priority than P; their targets: "
+                   "'below_exposure_threshold' (default: none)")
+    p.add_argument("--min-targets-per-exposure", type=int,
+                   default=_api_default("min_targets_per_exposure"), metavar="N",
+                   help="stop rule: no exposure observing fewer than N targets; their targets: "
+                   "'below_exposure_threshold' (default: none)")
+    p.add_argument("--image", default=None, metavar="FITS",
+                   help="a FITS image with a celestial WCS (a 2MASS or Pan-STARRS cut-out, say): "
+                   f"drawn as a finding chart under {OVERVIEW_NAME} and under every configuration "
+                   "picture (default: none, a blank background)")
+    p.add_argument("--instrument", default=None,
+                   help="instrument TOML file (default: $MXS_INSTRUMENT_FILE or the packaged one)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars (default: shown)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -191,55 +301,16 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     s = sub.add_parser("serve", help="run the HTTP API (settings from MXS_* variables)")
-    s.add_argument("--host", default="127.0.0.1")
-    s.add_argument("--port", type=int, default=8000)
-    s.add_argument("--log-level", default="info")
+    s.add_argument("--host", default="127.0.0.1", help="interface to listen on (default: %(default)s)")
+    s.add_argument("--port", type=int, default=8000, help="TCP port (default: %(default)s)")
+    s.add_argument("--log-level", default="info", help="uvicorn's log level (default: %(default)s)")
     s.add_argument("--workers", type=int, default=None,
-                   help="server processes (uvicorn --workers); they share the job database")
+                   help="server processes (uvicorn --workers); they share the job database "
+                   "(default: one)")
     s.set_defaults(func=cmd_serve)
     p = sub.add_parser("plan", help="plan a target list (CSV, ECSV, VOTable, FITS)",
                        epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("targets", help="target table: columns id, ra_deg, dec_deg, priority")
-    p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--method", choices=["ilp", "semigreedy"], default="ilp")
-    p.add_argument("--solver", choices=["highs", "cpsat", "bnb"], default="bnb")
-    p.add_argument("--position-angle", type=float, default=0.0, help="deg")
-    p.add_argument("--time-limit", type=float, default=DEFAULT_LIMIT_S,
-                   help="wall-clock limit of the whole plan, s (default %(default)s, as "
-                   "POST /v1/plans)")
-    p.add_argument("--seed", type=int, default=None)
-    p.add_argument("--threshold-mm", type=float, default=None)
-    p.add_argument("--segmentation-mode", choices=list(SEGMENTATION_MODES),
-                   default=None,
-                   help="how the field is split into pointings: 'complete-linkage' (thesis ch. 4), "
-                   "'balanced', or 'fewest-exposures' (the programme optimiser: fewest exposures, "
-                   f"with a proven lower bound) (default: {DEFAULT_SEGMENTATION_MODE} up to {MAX_TARGETS:,} "
-                   "targets, complete-linkage beyond)")
-    reach = p.add_mutually_exclusive_group()
-    reach.add_argument("--park-move-limit", type=float, default=CONFIGURATION_TIME_GOAL_S, metavar="S",
-                       help="observe each target from a location its arm reaches from park within S "
-                       "seconds (J2 turning the positive way), so no move from park exceeds the "
-                       "configuration time goal; targets reached only farther away are reported "
-                       "'beyond_park_move_limit' (default: 120, the thesis' T_p)")
-    reach.add_argument("--no-park-move-limit", action="store_true",
-                       help="no park move limit: every reachable target, some moves from park up to 200 s")
-    p.add_argument("--exposure-time", type=float, default=DEFAULT_EXPOSURE_TIME_S, metavar="S",
-                   help="exposure time of one configuration, s (default %(default)s); counted in the "
-                   "plan's telescope time")
-    p.add_argument("--acquisition", type=float, default=DEFAULT_ACQUISITION_S, metavar="S",
-                   help="acquisition overhead of one pointing, s (default %(default)s)")
-    p.add_argument("--max-exposures", type=int, default=None, metavar="N",
-                   help="stop rule: at most N exposures over the whole plan, spent on the highest "
-                   "priorities; targets left out: 'beyond_max_exposures' (default: no limit)")
-    p.add_argument("--min-priority-per-exposure", type=int, default=None, metavar="P",
-                   help="stop rule: no exposure observing less summed priority than P; their targets: "
-                   "'below_exposure_threshold' (default: none)")
-    p.add_argument("--min-targets-per-exposure", type=int, default=None, metavar="N",
-                   help="stop rule: no exposure observing fewer than N targets; their targets: "
-                   "'below_exposure_threshold' (default: none)")
-    p.add_argument("--instrument", default=None,
-                   help="instrument TOML file (default: $MXS_INSTRUMENT_FILE or the packaged one)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_plan_options(p)
     p.set_defaults(func=cmd_plan)
     return parser
 

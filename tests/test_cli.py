@@ -110,7 +110,11 @@ def test_cli_plan(tmp_path: Path, capsys) -> None:
     out = tmp_path / "out"
     code = main(["plan", str(src), "--out", str(out), "--seed", "1", "--time-limit", "60", "--quiet"])
     assert code == 0, capsys.readouterr().err
-    assert "12 targets" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "12 targets" in printed
+    # the sky overview is written and named in the output
+    assert f"sky overview {out / 'sky_overview.png'}" in printed
+    assert (out / "sky_overview.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     result = json.loads((out / "plan.json").read_text())
     PlanResponse.model_validate(result)
     assert sorted(i for p in result["pointings"] for i in p["target_ids"]) == sorted(t["id"])
@@ -119,7 +123,7 @@ def test_cli_plan(tmp_path: Path, capsys) -> None:
     for p in result["pointings"]:
         assert len(p["motions"]) == len(p["configurations"]) + 1
         assert all(m["status"] in ("ok", "failed") for m in p["motions"])
-    pngs = sorted(out.glob("*.png"))
+    pngs = sorted(out.glob("pointing*.png"))
     assert len(pngs) == n_cfg
     # configurations c1 ... cn, as the page and the legs' reasons count them
     assert {p.name for p in pngs} == {f"pointing{p['id']}_c{k}.png" for p in result["pointings"]

@@ -39,8 +39,8 @@ def test_fov_fills_most_of_the_width_and_axes_are_equal() -> None:
     fig, *_ = _figure()
     try:
         ax = fig.axes[0]
-        lo, hi = ax.get_xlim()
-        assert ax.get_ylim() == (lo, hi) and ax.get_aspect() == 1.0
+        hi, lo = ax.get_xlim()  # mirrored: focal-plane +x is drawn leftwards
+        assert ax.get_ylim() == (lo, hi) and ax.get_aspect() == 1.0 and hi > lo
         fov_frac_of_axes = INST.fov_diameter_mm / (hi - lo)
         fig.canvas.draw()
         ax_frac_of_fig = ax.get_window_extent().width / fig.bbox.width
@@ -72,15 +72,16 @@ def test_compass_points_to_north_and_east(pa_deg: float) -> None:
     try:
         pa = math.radians(pa_deg)
         # models.sky: focal +y is at PA east of north, so N = (-sin PA, cos PA), E = (cos, sin)
-        for name, want in (("N", (-math.sin(pa), math.cos(pa))),
-                           ("E", (math.cos(pa), math.sin(pa)))):
+        # on the focal plane, drawn through the mirror (focal +x leftwards): x negated
+        for name, want in (("N", (math.sin(pa), math.cos(pa))),
+                           ("E", (-math.cos(pa), math.sin(pa)))):
             arrow = _artist(fig, f"compass-{name}")
             v = np.subtract(arrow.xy, arrow.xyann)
             assert v / np.linalg.norm(v) == pytest.approx(want, abs=1e-9)
-        # East is North turned by +90 deg on this (unmirrored) focal plane
+        # as on the sky seen by the observer: East is North turned counter-clockwise by 90 deg
         n = np.subtract(_artist(fig, "compass-N").xy, _artist(fig, "compass-N").xyann)
         e = np.subtract(_artist(fig, "compass-E").xy, _artist(fig, "compass-E").xyann)
-        assert n[0] * e[1] - n[1] * e[0] < 0
+        assert n[0] * e[1] - n[1] * e[0] > 0
     finally:
         plt.close(fig)
 
@@ -114,11 +115,11 @@ def test_arms_are_drawn_to_scale_at_their_joint_angles(tmp_path: Path) -> None:
                                target_priority=[5], target_status=["this"], target_ids=["X"])
     try:
         l3 = [b for b in INST.arms[0].bodies if b.joint_to == "tip"][0]
-        line = _artist(fig, f"arm0-{l3.name}")
-        assert (line.get_xdata()[1], line.get_ydata()[1]) == pytest.approx((30.0, -20.0), abs=1e-6)
-        ax = fig.axes[0]
-        pt_per_mm = ax.get_window_extent().width / np.ptp(ax.get_xlim()) * 72 / fig.dpi
-        assert line.get_linewidth() == pytest.approx(2 * l3.half_width_mm * pt_per_mm, rel=1e-6)
+        outline = _artist(fig, f"arm0-{l3.name}").get_xy()
+        # a capsule of the body's true half width: its tip end is an arc about the target
+        d = np.hypot(outline[:, 0] - 30.0, outline[:, 1] + 20.0)
+        assert np.sum(np.isclose(d, l3.half_width_mm, atol=1e-9)) >= 10
+        assert d.min() == pytest.approx(l3.half_width_mm, abs=1e-9)
     finally:
         plt.close(fig)
     out = plot_configuration(INST, joints, tmp_path / "c.png", target_x_mm=[30.0],
