@@ -25,12 +25,10 @@ may be slower than the effort clock's calibration before the wall-clock guard st
 
 from __future__ import annotations
 
-import heapq
 import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 from models import clock
 from models.budget import Budget
@@ -43,6 +41,7 @@ from models.types import (
     Unallocated,
     UnallocatedReason,
 )
+from planner.exposure_caps import TARGETS_PER_EXPOSURE, estimated_exposures, exposure_caps
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
@@ -50,8 +49,9 @@ from solvers.allocation.options import AllocationOptions
 from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 __all__ = [
-    "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
-    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "next_round",
+    "ALLOCATION_PART", "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
+    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
+    "fitting", "need_share_s", "next_round",
     "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
@@ -93,6 +93,17 @@ class ProgrammeShares:
     #: "fewest-exposures") may use, at most ``optimiser_max_s``: the pointings get the rest.
     optimiser_share: float = 0.08
     optimiser_max_s: float = 12.0
+    #: Effort seconds a pointing's plan takes per unit of its need (:func:`pointing_need`),
+    #: measured by ``python benchmarks/time_need.py`` (docs/programme.md): 0.08-0.21 per
+    #: programme over ten programmes of 63-181 stars and the M67-like case, 0.23 the 95th
+    #: percentile of their 93 pointings. A first round that cannot give every pointing this
+    #: (:func:`need_share_s`) plans the neediest that fit instead of starting every pointing
+    #: on too little (:func:`first_round_shares`), and the plan's answer says which limit its
+    #: field needs (:func:`planner.time_advice.needed_limit_s`).
+    need_effort_s: float = 0.22
+    #: A pointing whose plan failed on a share is estimated to need at least this many times
+    #: that share (the estimate behind :func:`time_advice`).
+    failed_growth: float = 2.0
 
 
 SHARES = ProgrammeShares()
@@ -101,6 +112,9 @@ SEGMENTED = 0.05
 #: A plan's progress once every pointing has its first-round plan; the later rounds (those
 #: that plan again the pointings with a failed leg) share the rest equally.
 FIRST_ROUND_DONE = 0.85
+#: Of a pointing's progress, the part its allocation reports (its motion legs the rest): a
+#: progress below it is the allocation's (:func:`planner.stages.plan_stage`).
+ALLOCATION_PART = 0.5
 #: How a plan splits its field into pointings when the caller does not say
 #: (:data:`solvers.segmentation.field.MODES`): the programme optimiser, which takes fewer
 #: exposures than complete linkage on the programme benchmark (docs/programme.md).
@@ -170,12 +184,61 @@ def pointing_need(n_targets: int, table: ProgrammeShares = SHARES, *,
 
 def pointing_shares(limit_s: float | None, needs: Sequence[float],
                     table: ProgrammeShares = SHARES) -> list[float]:
-    """The first round's wall-clock share of each pointing: the usable limit split in
-    proportion to ``needs``, fixed in advance. A share below ``min_pointing_s`` is raised to
-    it, taken from the largest shares; when the limit cannot give every pointing that
-    minimum, the first pointings get it and the others none (their targets ``no_time``)."""
-    n = len(needs)
+    """The usable limit split in proportion to ``needs``, fixed in advance. A share below
+    ``min_pointing_s`` is raised to it, taken from the largest shares; when the limit cannot
+    give every pointing that minimum, the first pointings get it and the others none (their
+    targets ``no_time``)."""
+    return _split_usable(usable_s(limit_s, table), needs, table)
+
+
+def need_share_s(need: float, table: ProgrammeShares = SHARES) -> float:
+    """The wall-clock share a pointing of need ``need`` is expected to be planned in: its
+    ``need_effort_s`` per unit of need in effort seconds over ``effort_share``, at least
+    ``min_pointing_s`` (none for a pointing of no need: it is not attempted)."""
+    if need <= 0:
+        return 0.0
+    return max(need * table.need_effort_s / table.effort_share, table.min_pointing_s)
+
+
+def fitting(usable: float, indices: Sequence[int], needs: Sequence[float],
+            table: ProgrammeShares = SHARES, *, at_least_one: bool = True) -> list[int]:
+    """Of ``indices``, the pointings a plan with ``usable`` seconds plans: the neediest first
+    (ties: the lower index), each taken when its :func:`need_share_s` still fits in what the
+    ones taken before left, so that every pointing taken can be planned whole rather than
+    every pointing started on too little. When none fits and ``at_least_one``, the least
+    needy alone (ties: the lower index; while ``usable`` reaches ``min_pointing_s``): the one
+    most likely to be planned in all there is. Sorted by index."""
+    left, chosen = usable, []
+    wanted = sorted((i for i in indices if needs[i] > 0), key=lambda i: (-needs[i], i))
+    for i in wanted:
+        if need_share_s(needs[i], table) <= left:
+            chosen.append(i)
+            left -= need_share_s(needs[i], table)
+    if at_least_one and not chosen and wanted and usable >= table.min_pointing_s:
+        chosen = [min(wanted, key=lambda i: (needs[i], i))]
+    return sorted(chosen)
+
+
+def first_round_shares(limit_s: float | None, needs: Sequence[float],
+                       table: ProgrammeShares = SHARES) -> list[float]:
+    """The first round's wall-clock share of each pointing. When the usable limit holds
+    every pointing's :func:`need_share_s`, it is :func:`pointing_shares` (split by need).
+    When it does not, only the pointings that :func:`fitting` takes are planned, the usable
+    limit split by need over them (each then gets at least its expected share); the others
+    get none (their targets ``no_time``) and wait for what the rounds leave
+    (:func:`next_round`)."""
     usable = usable_s(limit_s, table)
+    if math.isinf(usable) or sum(need_share_s(w, table) for w in needs) <= usable:
+        return pointing_shares(limit_s, needs, table)
+    chosen = set(fitting(usable, range(len(needs)), needs, table))
+    part = _split_usable(usable, [needs[i] for i in sorted(chosen)], table)
+    given = dict(zip(sorted(chosen), part, strict=True))
+    return [given.get(i, 0.0) for i in range(len(needs))]
+
+
+def _split_usable(usable: float, needs: Sequence[float], table: ProgrammeShares) -> list[float]:
+    """``usable`` seconds split by need (:func:`pointing_shares`)."""
+    n = len(needs)
     if math.isinf(usable):
         return [math.inf] * n
     if usable < n * table.min_pointing_s:
@@ -204,63 +267,6 @@ def pointing_seed(seed: int, index: int, round_: int = 1) -> int:
     return (int(seed) + 2_654_435_761 * int(index) + 40_503 * (int(round_) - 1)) % 2**31
 
 
-# ------------------------------------------------------------------- exposure caps
-
-#: Targets one exposure observes at most (the arms of MIRADAS): a pointing's exposures are
-#: estimated as ceil(members / this) when the segmentation gives no estimate of its own.
-TARGETS_PER_EXPOSURE = 12
-
-
-def estimated_exposures(pointing: Any) -> int:
-    """A pointing's estimated exposures (``solvers.segmentation.Pointing``): its own
-    ``exposures`` when the segmentation gives one, else ceil(members / 12), the fewest that
-    can observe them all."""
-    e = getattr(pointing, "exposures", None)
-    if e is not None:
-        return int(e)
-    return math.ceil(len(pointing.target_indices) / TARGETS_PER_EXPOSURE)
-
-
-def exposure_caps(max_exposures: int, estimates: Sequence[int]) -> list[int]:
-    """A programme's ``max_exposures`` split over its pointings in proportion to their
-    ``estimates`` of exposures, deterministically: caps summing to ``max_exposures``.
-
-    With ``M = max_exposures``, ``n`` pointings and shares ``q_i = M e_i / sum(e)`` (equal
-    shares when every estimate is 0):
-
-    - ``M >= n``: every pointing gets at least 1, and the caps are the integers closest to
-      the shares in least squares, ``min sum (c_i - q_i)^2`` subject to ``c_i >= 1`` and
-      ``sum c_i = M``. The objective is separable and convex, so giving the ``M - n``
-      exposures beyond the first one at a time to the pointing furthest below its share
-      (:math:`q_i - c_i` largest; ties: the larger estimate, then the lower index) is optimal.
-    - ``M < n``: the ``M`` pointings with the largest estimates (ties: the lower index) get 1,
-      the others 0 (not attempted: their targets ``beyond_max_exposures``); the first
-      exposure of a pointing observes the most, so this spreads them where they observe most.
-    """
-    if isinstance(max_exposures, bool) or not isinstance(max_exposures, int) or max_exposures < 0:
-        raise InputError("max_exposures", f"must be an integer >= 0, got {max_exposures!r}")
-    for i, e in enumerate(estimates):
-        if isinstance(e, bool) or not isinstance(e, int) or e < 0:
-            raise InputError(f"estimates[{i}]", f"must be an integer >= 0, got {e!r}")
-    n, m = len(estimates), int(max_exposures)
-    if n == 0:
-        return []
-    w = [int(e) for e in estimates] if any(estimates) else [1] * n
-    if m < n:
-        first = set(sorted(range(n), key=lambda i: (-w[i], i))[:m])
-        return [1 if i in first else 0 for i in range(n)]
-    total = sum(w)
-    caps = [1] * n
-    # q_i - c_i in units of 1 / total, exactly: m * w_i - c_i * total
-    heap = [(-(m * w[i] - total), -w[i], i) for i in range(n)]
-    heapq.heapify(heap)
-    for _ in range(m - n):
-        _, neg_w, i = heapq.heappop(heap)
-        caps[i] += 1
-        heapq.heappush(heap, (-(m * w[i] - caps[i] * total), neg_w, i))
-    return caps
-
-
 # ------------------------------------------------------------------------ rounds
 
 
@@ -287,6 +293,9 @@ class PointingOutcome:
     failed_legs: int
     observed: int
     overran: bool = False
+    #: False when the pointing was not attempted for lack of time (no share, or a deadline
+    #: with less than the least share left): its plan observes nothing and plans no leg.
+    attempted: bool = True
 
     def spent_s(self, table: ProgrammeShares = SHARES) -> float:
         """The wall-clock share this outcome used up, counted deterministically (its effort
@@ -296,10 +305,11 @@ class PointingOutcome:
         return self.share_s if self.overran else min(self.effort_s / table.effort_share, self.share_s)
 
 
-def rank(o: PointingOutcome) -> tuple[bool, int, int]:
-    """How good a pointing's plan is: executable first, then fewer failed legs, then more
-    targets observed."""
-    return (o.executable, -o.failed_legs, o.observed)
+def rank(o: PointingOutcome) -> tuple[bool, bool, int, int]:
+    """How good a pointing's plan is: attempted first (a plan not attempted for lack of time
+    observes nothing, though no leg of it failed), then executable, then fewer failed legs,
+    then more targets observed."""
+    return (o.attempted, o.executable, -o.failed_legs, o.observed)
 
 
 def better(new: PointingOutcome, old: PointingOutcome) -> bool:
@@ -314,8 +324,10 @@ def next_round(needs: Sequence[float], limit_s: float | None,
     pointings whose best plan so far has a failed leg, each with a share of what the earlier
     rounds left in proportion to its need (:func:`_by_need`: at least ``min_pointing_s``, the
     least needy left out when there is not enough for all; its search runs on another seed,
-    :func:`pointing_seed`). Empty when no round is due: every pointing is
-    executable, ``rounds`` are done, or less than ``min_pointing_s`` is left."""
+    :func:`pointing_seed`). When none has a failed leg, the pointings not attempted yet (a
+    short limit's first round left them out) whose expected shares fit in what is left
+    (:func:`fitting`; none when none fits), split by need. Empty when no round is due: every pointing is executable, ``rounds`` are
+    done, or less than ``min_pointing_s`` is left."""
     r = len(history) + 1
     if r > table.rounds or not history:
         return []
@@ -329,11 +341,16 @@ def next_round(needs: Sequence[float], limit_s: float | None,
             spent += o.spent_s(table)
             if o.index not in best or better(o, best[o.index]):
                 best[o.index] = o
-    failed = [i for i, o in best.items() if not o.executable]
+    failed = [i for i, o in best.items() if o.attempted and not o.executable]
     left = usable - spent
-    if not failed or left < table.min_pointing_s:
+    if left < table.min_pointing_s:
         return []
-    return [RoundTask(i, r, share) for i, share in sorted(_by_need(left, failed, needs, table).items())]
+    if failed:
+        return [RoundTask(i, r, share) for i, share in sorted(_by_need(left, failed, needs, table).items())]
+    waiting = fitting(left, sorted(i for i, o in best.items() if not o.attempted), needs, table,
+                      at_least_one=False)
+    shares = _split_usable(left, [needs[i] for i in waiting], table)
+    return [RoundTask(i, r, share) for i, share in zip(waiting, shares, strict=True)]
 
 
 def _by_need(left_s: float, indices: Sequence[int], needs: Sequence[float],
@@ -354,11 +371,11 @@ def _by_need(left_s: float, indices: Sequence[int], needs: Sequence[float],
 def run_rounds(needs: Sequence[float], limit_s: float | None,
                compute: Callable[[Sequence[RoundTask]], Sequence[PointingOutcome]],
                table: ProgrammeShares = SHARES) -> list[list[PointingOutcome]]:
-    """The one plan loop of a programme: the first round on :func:`pointing_shares`, then
+    """The one plan loop of a programme: the first round on :func:`first_round_shares`, then
     :func:`next_round` until none is due. ``compute`` plans a round's tasks (in this process,
     on a job's runner, on Dask: any order) and keeps each pointing's best plan
     (:func:`better`); it returns their outcomes. Returns the outcomes of every round."""
-    shares = pointing_shares(limit_s, needs, table)
+    shares = first_round_shares(limit_s, needs, table)
     tasks = [RoundTask(i, 1, s) for i, s in enumerate(shares)]
     history: list[list[PointingOutcome]] = []
     while tasks:
@@ -460,15 +477,15 @@ def plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpti
     stays the wall-clock limit (or ``wall_limit_s``, when the plan's deadline has less left:
     the budget is still counted from ``share_s``, so that the plan does not depend on how
     long other pointings took): a machine so slow that it is reached stops the searches
-    there, and the plan's ``overran`` says so."""
+    there, and the plan's ``overran`` says so (as it does when the deadline had less than
+    the least share left: the pointing is then not attempted)."""
     table = SHARES if table is None else table  # read at call time
     wall_s = share_s if wall_limit_s is None else min(wall_limit_s, share_s)
+    cut = share_s >= table.min_pointing_s > wall_s  # the deadline, not the share, rules it out
     with clock.effort(wall_limit_s=wall_s) as effort:
-        # a deadline with less than the least share left (a slow machine): not attempted
-        plan = _plan_pointing(inst, targets, options, share_s if wall_s >= table.min_pointing_s
-                              else 0.0, progress, table)
+        plan = _plan_pointing(inst, targets, options, 0.0 if cut else share_s, progress, table)
     return PointingPlan(plan.targets, plan.allocation, plan.sequence, plan.unplanned_reason,
-                        plan.stats, effort.t_s, effort.overran, pointing_telescope_time(plan, options.rules))
+                        plan.stats, effort.t_s, effort.overran or cut, pointing_telescope_time(plan, options.rules))
 
 
 def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
@@ -479,13 +496,13 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     result = allocate(inst, targets, method=options.method, solver=options.solver,
                       configurations="all", seed=options.seed,
                       budget=budget.share(table.allocation_share),
-                      progress=lambda p, _m="": progress(0.5 * min(max(float(p), 0.0), 1.0)),
+                      progress=lambda p, _m="": progress(ALLOCATION_PART * min(max(float(p), 0.0), 1.0)),
                       options=allocation_options(options.park_move_limit_s, options.max_configurations))
     given = given_allocation(options, targets)
     if given is not None and _allocation_rank(given) > _allocation_rank(result):
         result = given
     result, below = _exposure_rules(result, targets, options)
-    progress(0.5)
+    progress(ALLOCATION_PART)
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
     if motion_s < MIN_LEG_S:
@@ -493,7 +510,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
             f"no time left for motion planning ({max(motion_s, 0.0):.2f} s of the pointing's "
             "share for its legs)")
     else:
-        motion_progress = lambda f: progress(0.5 + 0.5 * f)  # noqa: E731
+        motion_progress = lambda f: progress(ALLOCATION_PART + (1.0 - ALLOCATION_PART) * f)  # noqa: E731
         seq, err = _sequence(inst, result.configurations, targets, options, budget, motion_progress)
         if err is None:
             seq, err, weak = _thresholds_after_motion(inst, seq, targets, options, budget, motion_progress)
@@ -551,7 +568,7 @@ def _not_attempted(inst: Instrument, targets: PlaneTargets, options: PointingOpt
             "allocation": {"skipped": skipped}, "motion": motion,
             "exposure_rules": {"max_configurations": 0}})
     return PointingPlan(targets, None, seq, stats={
-        "allocation": {"skipped": "request time limit exhausted"}, "motion": motion})
+        "allocation": {"skipped": "the plan's time limit left this pointing no share"}, "motion": motion})
 
 
 def _observed(config: Configuration, priority_of: dict[str, int]) -> tuple[str, ...]:

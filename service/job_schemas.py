@@ -75,6 +75,14 @@ class JobStatusBase(Response):
                                        "the last 0.15.")
     pointings_total: int | None = Field(None, ge=0, description="A plan job: its pointings "
                                         "(known once the field is segmented).")
+    stage: str | None = Field(None, description="What the job is doing, in words: 'queued'; "
+                              "a plan job then 'optimising pointings' (segmentation mode "
+                              "'fewest-exposures') or 'segmenting the field', 'allocating "
+                              "pointing k of n', 'planning motion, pointing k of n', 'k of n "
+                              "pointings done' (later rounds prefixed 'round r: '), 'assembling "
+                              "the plan'; other kinds 'segmenting the field', 'allocating' or "
+                              "'planning motion'; 'done' once done. A failed or cancelled job "
+                              "keeps the stage it was in.")
 
 
 class SegmentationJobStatus(JobStatusBase):

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from planner import stages
 from planner.programme import SEGMENTED, plan_progress
 from service.errors import clip_message, json_safe
 
@@ -85,9 +86,14 @@ _COLUMNS = {
     "budget_s": "REAL",
     "pointings_done": "INTEGER",
     "pointings_total": "INTEGER",
+    "stage": "TEXT",
 }
 _PUBLIC = ("job_id", "kind", "status", "progress", "result", "error", "created_at", "updated_at",
-           "pointings_done", "pointings_total")
+           "pointings_done", "pointings_total", "stage")
+#: What a job of each kind other than "plan" is doing while it runs (a plan names its own
+#: stages: :mod:`planner.stages`).
+KIND_STAGES = {"segmentation": stages.SEGMENTING, "allocation": "allocating",
+               "motion-plan": "planning motion"}
 # the job may take a commit: open, and (when an owner is named) still that owner's
 _OURS = f"job_id = ? AND status IN {OPEN} AND (? = '' OR owner = ?)"
 
@@ -167,8 +173,9 @@ class JobStore:
                         raise QueueFull(n)
                 con.execute(
                     "INSERT INTO jobs (job_id, kind, status, progress, request, created_at, "
-                    "updated_at, time_limit_s, budget_s) VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?)",
-                    (job_id, kind, blob, now, now, float(time_limit_s), budget_s),
+                    "updated_at, time_limit_s, budget_s, stage) "
+                    "VALUES (?, ?, 'queued', 0, ?, ?, ?, ?, ?, ?)",
+                    (job_id, kind, blob, now, now, float(time_limit_s), budget_s, stages.QUEUED),
                 )
                 con.execute("COMMIT")
             except BaseException:
@@ -295,9 +302,13 @@ class JobStore:
         p = min(max(float(progress), 0.0), 1.0)
         self._update(job_id, "progress=MAX(progress, ?)", (p,))
 
+    def set_stage(self, job_id: str, stage: str) -> None:
+        """What the open job is doing now (:mod:`planner.stages`), in words."""
+        self._update(job_id, "stage=?", (str(stage),))
+
     def set_done(self, job_id: str, result: dict[str, Any]) -> None:
-        self._update(job_id, "status='done', progress=1, result=?, owner=NULL, lease_until=NULL",
-                     (json.dumps(json_safe(result)),))
+        self._update(job_id, "status='done', progress=1, result=?, owner=NULL, lease_until=NULL, "
+                     "stage=?", (json.dumps(json_safe(result)), stages.DONE))
 
     def set_failed(self, job_id: str, error: str) -> None:
         """Fail an open job with ``error``, quoting at most ~100 characters of any input."""
@@ -393,7 +404,7 @@ class JobStore:
             ).rowcount
             requeued = con.execute(
                 f"UPDATE jobs SET status='queued', owner=NULL, lease_until=NULL, updated_at=?, "
-                f"attempts=attempts+1 WHERE {where}", (now, *args),
+                f"attempts=attempts+1, stage=? WHERE {where}", (now, stages.QUEUED, *args),
             ).rowcount
             con.execute("COMMIT")
         return Recovery(requeued, failed)
@@ -403,8 +414,9 @@ class JobStore:
         shutdown: not counted as an attempt)."""
         with _closing(connect(self.db_path)) as con:
             return con.execute(
-                "UPDATE jobs SET status='queued', owner=NULL, lease_until=NULL, updated_at=? "
-                "WHERE status='running' AND owner LIKE ?", (time.time(), f"{instance}/%"),
+                "UPDATE jobs SET status='queued', owner=NULL, lease_until=NULL, updated_at=?, "
+                "stage=? WHERE status='running' AND owner LIKE ?",
+                (time.time(), stages.QUEUED, f"{instance}/%"),
             ).rowcount
 
     def expire(self, retention_s: float, retention_count: int) -> int:
@@ -472,15 +484,21 @@ def run_job(db_path: str, job_id: str, kind: str, request: dict[str, Any],
                 last[:] = [p, now]
                 store.set_progress(job_id, p)
 
+        def stage(words: str) -> None:
+            if cancelled is not None and cancelled.is_set():
+                raise Cancelled()
+            store.set_stage(job_id, words)
+
         inst = pipeline.instrument_from(instrument_file)
         if kind == "plan":
             result = programme.run_plan(store, job_id, owner, request, inst,
                                         runner or LocalPoolRunner(),
                                         budget_s=budget_s, progress=progress,
-                                        cancelled=cancelled)
+                                        cancelled=cancelled, on_stage=stage)
             if result is None:
                 return CANCELLED if store.status(job_id) == CANCELLED else "stopped"
         else:
+            stage(KIND_STAGES.get(kind, kind))
             result = pipeline.run(kind, request, inst, progress, time_limit_s=time_limit_s,
                                   budget_s=budget_s)
         store.set_done(job_id, result)

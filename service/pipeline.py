@@ -26,7 +26,7 @@ from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
-from planner import plan_motion, programme
+from planner import plan_motion, programme, stages
 from planner.clearance import compile_kernels
 from planner.options import MotionOptions
 from planner.programme import (
@@ -47,6 +47,7 @@ from planner.programme import (
 )
 from planner.telescope_time import ObservingRules
 from planner.telescope_time import total as total_time
+from planner.time_advice import time_advice
 from service import adapters
 from service.errors import FieldError
 from service.schemas import (
@@ -71,6 +72,26 @@ def warm_up() -> None:
 
 def _noop(_: float) -> None:
     pass
+
+
+Stage = Callable[[str], None]
+
+
+def _no_stage(_: str) -> None:
+    pass
+
+
+class Stages:
+    """``on_stage`` called only when the stage changes (progress reports come many times a
+    second; the stage's words change a few times a pointing)."""
+
+    def __init__(self, on_stage: Stage):
+        self.on_stage, self.last = on_stage, ""
+
+    def __call__(self, stage: str) -> None:
+        if stage != self.last:
+            self.last = stage
+            self.on_stage(stage)
 
 
 @lru_cache(maxsize=8)
@@ -339,7 +360,7 @@ def pointing_result(task: PointingTask, inst: Instrument,
     observed = sum(1 for c in out["configurations"] for a in c["assignments"]
                    if a["target_id"] is not None)
     o = PointingOutcome(task.index, task.round, task.share_s, pp.effort_s, out["executable"],
-                        failed, observed, pp.overran)
+                        failed, observed, pp.overran, pp.allocation is not None)
     out["stats"].update({"compute_s": time.monotonic() - t0,
                          "effort": {"effort_s": pp.effort_s, "overran": pp.overran},
                          "rounds": [outcome_out(o)]})
@@ -350,7 +371,7 @@ def outcome_out(o: PointingOutcome) -> dict[str, Any]:
     """One round's outcome as an entry of a PlanPointing's ``stats.rounds``."""
     return {"round": o.round, "share_s": o.share_s, "effort_s": o.effort_s,
             "executable": o.executable, "failed_legs": o.failed_legs, "observed": o.observed,
-            "overran": o.overran}
+            "overran": o.overran, "attempted": o.attempted}
 
 
 def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
@@ -358,7 +379,7 @@ def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
     the rounds whose plans it replaced or kept)."""
     return [PointingOutcome(index, int(r["round"]), float(r["share_s"]), float(r["effort_s"]),
                             bool(r["executable"]), int(r["failed_legs"]), int(r["observed"]),
-                            bool(r["overran"]))
+                            bool(r["overran"]), bool(r.get("attempted", True)))
             for r in answer.get("stats", {}).get("rounds", [])]
 
 
@@ -374,7 +395,7 @@ def keep_better(old: dict[str, Any] | None, new: dict[str, Any], index: int) -> 
 
 
 def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
-                   budget_s: float | None = None,
+                   budget_s: float | None = None, on_stage: Stage = _no_stage,
                    ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
     """Segmentation -> per pointing: projection onto the pointing's own tangent plane
     (``position_angle_deg``) -> allocation (all configurations) -> executable motion sequence
@@ -383,36 +404,92 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     with a failed leg), as a plan job computes them.
 
     The whole plan ends within :func:`plan_limit_s`: a pointing's share is cut to what the
-    limit has left when a slow machine left less (then the limit comes first)."""
+    limit has left when a slow machine left less (then the limit comes first). ``on_stage``
+    hears each stage as it begins (:mod:`planner.stages`). The stats hold the plan's
+    ``time_limit_advice`` (:func:`limit_advice`) when its limit left a pointing unplanned."""
     limit = plan_limit_s(req, budget_s)
     budget = Budget.start(limit - reserve_s(limit))  # the wall clock: outside any effort block
+    stage = Stages(on_stage)
+    stage(stages.segmentation_stage(plan_mode(req)))
     seg = segment_plan(req, inst, limit)
     progress(plan_progress(1, 0, 1))
     answers: dict[int, dict[str, Any]] = {}
+
+    def report(round_: int, done: float, total: int) -> None:
+        progress(plan_progress(round_, done, total))
+        stage(stages.plan_stage(round_, done, total))
 
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
         for done, task in enumerate(tasks):
             i = task.index
             answer = pointing_result(
                 pointing_task(req, seg, task), inst,
-                lambda f, d=done, r=task.round: progress(plan_progress(r, d + f, len(tasks))),
+                lambda f, d=done, r=task.round: report(r, d + f, len(tasks)),
                 wall_limit_s=max(budget.left_s(), 0.0))
             answers[i] = keep_better(answers.get(i), answer, i)
-            progress(plan_progress(task.round, done + 1, len(tasks)))
+            report(task.round, done + 1, len(tasks))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
     history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit), compute)
-    return seg, [answers[i] for i in range(len(seg.pointings))], {
+    stage(stages.ASSEMBLING)
+    pointings = [answers[i] for i in range(len(seg.pointings))]
+    advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
+    return seg, pointings, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
-        "elapsed_s": budget.elapsed_s()}
+        "elapsed_s": budget.elapsed_s(), **({} if advice is None else {"time_limit_advice": advice})}
+
+
+def sync_limit_s(budget_s: float | None) -> float:
+    """The longest limit a synchronous plan has: the server's ``budget_s``, else the
+    library default (the CLI's, the page's); a field that needs more is planned as a job."""
+    return DEFAULT_LIMIT_S if budget_s is None else float(budget_s)
+
+
+def limit_advice(req: PlanRequest, seg: Segmentation, pointings: Sequence[dict[str, Any]],
+                 history: Sequence[Sequence[PointingOutcome]], limit_s: float,
+                 sync_s: float | None) -> dict[str, Any] | None:
+    """The TimeLimitAdvice dict of a plan whose ``limit_s`` left some pointing unplanned
+    (:func:`planner.time_advice.time_advice`), None otherwise; each pointing not planned gets
+    its ``not_planned`` reason, naming the limit. ``sync_s``: the longest limit of a
+    synchronous plan (None: the plan already runs as a job, so none is suggested)."""
+    advice = time_advice(limit_s, pointing_needs(seg, req), history,
+                         plan_mode(req) == "fewest-exposures")
+    if advice is None:
+        return None
+    needed = advice.needed_limit_s
+    for i in advice.not_attempted:
+        pointings[i]["not_planned"] = (
+            f"not planned: the plan's time limit of {limit_s:g} s went to the pointings that fit "
+            f"in it (this field needs about {needed:g} s)")
+    ids = [pointings[i]["id"] for i in advice.not_attempted]
+    missed = sum(len(pointings[i]["target_ids"]) for i in advice.not_attempted)
+    use_job = sync_s is not None and needed > sync_s
+    planned = sum(1 for p in pointings if p["executable"] and p.get("not_planned") is None)
+    parts = [f"The time limit of {limit_s:g} s is too short for this field: it needs about "
+             f"{needed:g} s (time_limit_s; --time-limit on the command line)."]
+    if ids:
+        parts.append(f"Within {limit_s:g} s, {planned} of {len(pointings)} pointings were planned; "
+                     f"{len(ids)} were not ({missed} targets no_time).")
+    if advice.failed:
+        parts.append(f"{len(advice.failed)} pointings kept a failed leg when the limit ran out.")
+    if use_job:
+        parts.append(f"That is more than a synchronous plan's {sync_s:g} s: submit it as a plan "
+                     "job (POST /v1/jobs, kind 'plan').")
+    return {"time_limit_s": limit_s, "needed_limit_s": needed, "use_job": use_job,
+            "pointings_total": len(pointings), "pointings_planned": planned,
+            "pointings_not_planned": ids,
+            "pointings_failed": [pointings[i]["id"] for i in advice.failed],
+            "targets_not_planned": missed, "message": " ".join(parts)}
+
 
 
 def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
-         budget_s: float | None = None) -> dict[str, Any]:
+         budget_s: float | None = None, on_stage: Stage = _no_stage) -> dict[str, Any]:
     """:func:`plan_pointings` as a PlanResponse dict. A motion leg that cannot be planned is
     returned with status "failed", never as an exception; the pointing and the plan then say
-    ``executable: false`` with the reasons."""
-    seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s)
+    ``executable: false`` with the reasons. ``on_stage`` hears the stages
+    (:mod:`planner.stages`)."""
+    seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
     out = plan_out(seg, pointings, req.targets, stats)
     progress(1.0)
     return out
@@ -441,7 +518,8 @@ def pointing_plan_out(pointing: Pointing, pp: PointingPlan, ids: Sequence[str] |
     return {**adapters.pointing_out(pointing, ids), "ra_deg": pointing.ra_deg % 360.0,
             "configurations": seq["configurations"], "motions": motions,
             "unallocated": unallocated + seq["dropped"], "changes": seq["changes"],
-            "executable": seq["executable"], "reasons": seq["reasons"], "stats": stats}
+            "executable": seq["executable"], "reasons": seq["reasons"], "not_planned": None,
+            "stats": stats}
 
 
 def _completeness(out: Sequence[dict[str, Any]],
@@ -460,13 +538,19 @@ def _completeness(out: Sequence[dict[str, Any]],
 def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget],
              stats: dict[str, Any]) -> dict[str, Any]:
     """A PlanResponse dict from the segmentation and its PlanPointing dicts, in pointing
-    order (``targets`` of the request; ``stats`` of the whole plan's deadline)."""
+    order (``targets`` of the request; ``stats`` of the whole plan's deadline, and its
+    ``time_limit_advice``, which goes to the answer's field of that name and its
+    ``notices``)."""
     reasons: dict[str, int] = {}
     for p in out:
         for u in p["unallocated"]:
             reasons[u["reason"]] = reasons.get(u["reason"], 0) + 1
     motions = [m for p in out for m in p["motions"]]
+    stats = dict(stats)
+    advice = stats.pop("time_limit_advice", None)
     return {
+        "time_limit_advice": advice,
+        "notices": [] if advice is None else [advice["message"]],
         "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
         "pointings": list(out),
         "executable": all(p["executable"] for p in out),
@@ -500,8 +584,10 @@ def exposure_bound(seg: Segmentation, exposures: int) -> dict[str, Any]:
 
 
 def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
-        *, time_limit_s: float, budget_s: float | None = None) -> dict[str, Any]:
-    """Run one stage by its job kind on an already validated (or raw dict) request."""
+        *, time_limit_s: float, budget_s: float | None = None,
+        on_stage: Stage = _no_stage) -> dict[str, Any]:
+    """Run one stage by its job kind on an already validated (or raw dict) request
+    (``on_stage``: a plan's stages)."""
     model = REQUEST_TYPES[kind]
     req = request if isinstance(request, model) else model.model_validate(request)
     if isinstance(req, SegmentationRequest):
@@ -511,4 +597,4 @@ def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
     if isinstance(req, MotionPlanRequest):
         return motion_plan(req, inst, progress, time_limit_s=time_limit_s)
     assert isinstance(req, PlanRequest)
-    return plan(req, inst, progress, budget_s=budget_s)
+    return plan(req, inst, progress, budget_s=budget_s, on_stage=on_stage)

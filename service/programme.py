@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from models.instrument import Instrument
+from planner import stages
 from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
 from service import adapters, pipeline
 from service.jobs import JobStore
@@ -40,12 +41,15 @@ def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
 def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instrument,
              runner: PointingRunner, *, budget_s: float | None = None,
              progress: pipeline.Progress = lambda _: None,
-             cancelled: threading.Event | None = None) -> dict[str, Any] | None:
+             cancelled: threading.Event | None = None,
+             on_stage: pipeline.Stage = lambda _: None) -> dict[str, Any] | None:
     """Run (or resume) plan job ``job_id`` owned by ``owner`` on ``runner``; its
     PlanResponse dict, or None when it stopped before its end: ``cancelled`` was set, or the
     job is no longer open and ``owner``'s (cancelled, finished elsewhere, or taken over after
     a lost lease). ``progress`` hears :func:`planner.programme.plan_progress` of the round's
-    tasks done plus the part done of the one being computed, when the runner sees it.
+    tasks done plus the part done of the one being computed, when the runner sees it;
+    ``on_stage`` hears each stage as it begins (:func:`planner.stages.plan_stage`, on the same
+    counts).
 
     The rounds are :func:`planner.programme.run_rounds`', as in the synchronous plan; a round
     whose outcome a committed answer already records (``stats.rounds``) is not computed
@@ -53,6 +57,8 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     t0 = time.monotonic()
     req = request if isinstance(request, PlanRequest) else PlanRequest.model_validate(request)
     limit = pipeline.plan_limit_s(req, budget_s)
+    stage = pipeline.Stages(on_stage)
+    stage(stages.segmentation_stage(pipeline.plan_mode(req)))
     seg = pipeline.segment_plan(req, inst, limit)
     n = len(seg.pointings)
     if not store.start_pointings(job_id, owner, n):
@@ -94,12 +100,13 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         todo = [pipeline.pointing_task(req, seg, t) for t in tasks if recorded(t) is None]
         computed[0] += len(todo)
         first = tasks[0].round == 1  # the first round counts every pointing, resumed ones too
-        count = _RoundProgress(progress, tasks[0].round, n if first else len(tasks),
+        count = _RoundProgress(progress, stage, tasks[0].round, n if first else len(tasks),
                                committed[0] if first else len(tasks) - len(todo))
 
         def done(index: int, answer: dict[str, Any]) -> bool:
             ok = on_done(index, answer)
             count.done += ok
+            count.part(0.0)
             return ok
 
         if not runner.run(todo, inst, done, keep_going, count.part):
@@ -113,24 +120,31 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit), compute)
     except _Stopped:
         return None
-    return pipeline.plan_out(seg, [answers[i] for i in range(n)], req.targets, {
+    stage(stages.ASSEMBLING)
+    pointings = [answers[i] for i in range(n)]
+    advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
+    return pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": computed[0]})
+        "pointings_resumed": resumed, "pointings_computed": computed[0],
+        **({} if advice is None else {"time_limit_advice": advice})})
 
 
 @dataclass
 class _RoundProgress:
-    """A plan job's progress while a round runs (:func:`planner.programme.plan_progress`):
-    ``done`` of the round's ``total`` tasks, plus the part done of the one being computed."""
+    """A plan job's progress while a round runs (:func:`planner.programme.plan_progress`)
+    and its stage (:func:`planner.stages.plan_stage`): ``done`` of the round's ``total``
+    tasks, plus the part done of the one being computed."""
 
     progress: pipeline.Progress
+    stage: pipeline.Stage
     round_: int
     total: int
     done: int
 
     def part(self, fraction: float) -> None:
         self.progress(plan_progress(self.round_, self.done + fraction, self.total))
+        self.stage(stages.plan_stage(self.round_, self.done + fraction, self.total))
 
 
 class _Stopped(Exception):

@@ -574,6 +574,9 @@ class PlanPointing(PointingOut):
                              "(status 'ok').")
     reasons: list[str] = Field(description="One line per failed motion leg: which leg, which "
                                "arms, why. Empty when `executable`.")
+    not_planned: str | None = Field(None, description="Why this pointing was not planned (the "
+                                    "plan's time limit left it no time: its targets 'no_time'); "
+                                    "null when it was.")
     stats: Stats = Field(default_factory=dict, description="Allocation and motion statistics "
                          "of this pointing; `allocation` is the allocator's (its completeness "
                          "before the motion planner's changes, over the pointing's targets); "
@@ -585,10 +588,29 @@ class PlanPointing(PointingOut):
                          "budget, stopped them: only then can the same request give another "
                          "plan); `rounds` holds the outcome of every round that planned the "
                          "pointing (round, share_s, effort_s, executable, failed_legs, observed, "
-                         "overran); the plan returned is the best of them; `exposure_rules` holds "
+                         "overran, attempted); the plan returned is the best of them; `exposure_rules` holds "
                          "its exposure cap (max_configurations, its share of max_exposures) and "
                          "the exposures and targets the stop rules left out; `telescope_time` is "
                          "what the pointing costs: " + TELESCOPE_TIME + ".")
+
+
+class TimeLimitAdvice(Response):
+    """A plan whose time limit left some pointing unplanned: the limit this field needs."""
+
+    time_limit_s: float = Field(description="The plan's wall-clock limit, s.")
+    needed_limit_s: float = Field(description="Estimated limit that plans every pointing, s "
+                                  "(from the planner's effort model and its shares of the "
+                                  "limit; docs/programme.md).")
+    use_job: bool = Field(description="The needed limit is beyond a synchronous plan's: "
+                          "submit the plan as a job (POST /v1/jobs, kind 'plan').")
+    pointings_total: int = Field(ge=0)
+    pointings_planned: int = Field(ge=0, description="Pointings planned whole (every leg).")
+    pointings_not_planned: list[str] = Field(description="Pointings the limit left no time "
+                                             "for (their targets 'no_time').")
+    pointings_failed: list[str] = Field(description="Pointings left with a failed leg when "
+                                        "the limit ran out.")
+    targets_not_planned: int = Field(ge=0, description="Targets of the pointings not planned.")
+    message: str = Field(description="The advice in one sentence, also in `notices`.")
 
 
 class PlanResponse(Response):
@@ -605,6 +627,12 @@ class PlanResponse(Response):
                          "(every target of the request) and `priority_completeness` (their "
                          "priority over the priority of every target); `telescope_time` is the "
                          "sum of the pointings': " + TELESCOPE_TIME + ".")
+    time_limit_advice: TimeLimitAdvice | None = Field(
+        None, description="Set when the time limit left a pointing unplanned: the limit this "
+        "field needs and whether to plan it as a job.")
+    notices: list[str] = Field(default_factory=list, description="Sentences for the "
+                               "astronomer about the plan as a whole (e.g. the time limit it "
+                               "needs), shown by the page's banner and the CLI's summary.")
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {
