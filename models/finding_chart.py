@@ -24,9 +24,11 @@ flipped axes, SIP distortions, Galactic or FK4 frames), so North and East follow
 
 from __future__ import annotations
 
+import gzip
 import io
 import math
 import warnings
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -49,6 +51,8 @@ ZSCALE_TOP = 0.85
 #: Softening of the asinh stretch inside the zscale limits (astropy's default).
 ASINH_A = 0.1
 _ARCSEC_PER_ARCMIN = 60.0
+#: Bytes a decompressed file may hold beyond its pixels: headers and other HDUs.
+_HEADER_ALLOWANCE_BYTES = 16 * 2880 * 36
 
 
 @dataclass(frozen=True)
@@ -154,7 +158,10 @@ def read_fits_image(raw: bytes, *, max_pixels: int = MAX_IMAGE_PIXELS,
     """The first HDU of the FITS bytes ``raw`` holding a 2-D image (other axes of length 1 are
     dropped) with a celestial WCS. Raises :class:`InputError` naming ``field``: "not a FITS
     image", "the image has no celestial WCS", "image larger than N pixels". The size is
-    checked from the header before any data is read."""
+    checked from the header before any data is read. A gzip-compressed file (``.fits.gz``) is
+    decompressed first, to at most the bytes of ``max_pixels`` 64-bit pixels and their
+    headers."""
+    raw = _gunzip(raw, max_pixels, field)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # astropy's notes on non-standard headers
         try:
@@ -167,6 +174,22 @@ def read_fits_image(raw: bytes, *, max_pixels: int = MAX_IMAGE_PIXELS,
     if found is None:
         raise InputError(field, "not a FITS image: no HDU holds a 2-D image")
     return found
+
+
+def _gunzip(raw: bytes, max_pixels: int, field: str) -> bytes:
+    """``raw`` decompressed when it is gzip data, else ``raw``; refused past the bound."""
+    if raw[:2] != b"\x1f\x8b":
+        return raw
+    most = 8 * max_pixels + _HEADER_ALLOWANCE_BYTES
+    try:
+        with gzip.GzipFile(fileobj=io.BytesIO(raw)) as z:
+            plain = z.read(most + 1)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(field, f"not a FITS image: bad gzip data ({_reason(exc)})") from exc
+    if len(plain) > most:
+        raise InputError(field, f"image larger than {max_pixels} pixels (more than {most} "
+                         "bytes once decompressed)")
+    return plain
 
 
 def _reason(exc: BaseException) -> str:
