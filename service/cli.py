@@ -163,8 +163,7 @@ def print_failed_legs(result: Mapping[str, Any]) -> None:
         motions = p.get("motions", [])
         failed = [i for i, m in enumerate(motions) if m.get("status") != "ok"]
         names = ", ".join(leg_name(i, len(motions)) for i in failed)
-        print(f"error: pointing {p['id']}: motion {'leg' if len(failed) == 1 else 'legs'} "
-              f"{names} not planned", file=sys.stderr)
+        print(f"error: pointing {p['id']}: motion {names} not planned", file=sys.stderr)
         for reason in p.get("reasons") or [
             f"{leg_name(i, len(motions))}: arms {motions[i].get('failed_arms')} not planned"
             for i in failed
