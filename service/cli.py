@@ -106,7 +106,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             return EXIT_INVALID_INPUT
     (out / "plan.json").write_text(json.dumps(result, indent=1))
     pictures = write_pictures(result, req, inst, out, quiet=args.quiet, image=image)
-    overview = write_overview(result, req, inst, out, image=image)
+    overview = overview_or_none(result, req, inst, out, image)
     print_summary(result, req, out, len(pictures), overview)
     if result["executable"]:
         return EXIT_OK
@@ -114,16 +114,29 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_NOT_EXECUTABLE
 
 
+def overview_or_none(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
+                     image: Any) -> Path | None:
+    """:func:`service.cli_pictures.write_overview`, or None with a notice when the field has no
+    single gnomonic view (targets 90 degrees or more from their centre)."""
+    from models.errors import InputError
+
+    try:
+        return write_overview(result, req, inst, out, image=image)
+    except InputError as exc:
+        print(f"notice: no sky overview: {exc}", file=sys.stderr)
+        return None
+
+
 def print_summary(result: Mapping[str, Any], req: Any, out: Path, n_pictures: int,
-                  overview: Path) -> None:
+                  overview: Path | None) -> None:
     """The plan in a few lines: counts, files written, each pointing (sexagesimal and decimal),
     the telescope time, the changes made, and a warning per reason targets were left out."""
     s = result["stats"]
     print(f"{plural(s['targets'], 'target')}, {plural(s['pointings'], 'pointing')}, "
           f"{plural(s['configurations'], 'configuration')}, "
           f"{plural(s['allocated_targets'], 'target')} allocated; wrote {out / 'plan.json'}, "
-          f"{plural(n_pictures, 'configuration picture')} (pointing<id>_c<k>.png) and the sky "
-          f"overview {overview}")
+          f"{plural(n_pictures, 'configuration picture')} (pointing<id>_c<k>.png)"
+          + (f" and the sky overview {overview}" if overview else ""))
     for p in result["pointings"]:
         print(f"pointing {p['id']} at {radec_text(p['ra_deg'], p['dec_deg'])}, PA "
               f"{pointing_pa_deg(p, req):g}°: {plural(len(p['configurations']), 'configuration')}, "

@@ -10,6 +10,7 @@ chose (``position_angle_deg`` of the pointing) or, when it chose none, the reque
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,19 @@ def chart_values(image: Any, ra_deg: float, dec_deg: float, half_width_arcmin: f
                         size_px).values
 
 
+def chart_or_none(image: Any, ra_deg: float, dec_deg: float, half_width_arcmin: float,
+                  up_pa_deg: float, size_px: int, what: str) -> np.ndarray | None:
+    """:func:`chart_values`, or None with a notice on stderr when the chart cannot be drawn
+    (a view wider than a chart may be): the picture is then drawn without it."""
+    from models.errors import InputError
+
+    try:
+        return chart_values(image, ra_deg, dec_deg, half_width_arcmin, up_pa_deg, size_px)
+    except InputError as exc:
+        print(f"notice: --image: {what} drawn without the finding chart ({exc})", file=sys.stderr)
+        return None
+
+
 def write_pictures(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
                    quiet: bool = False, image: Any = None) -> list[Path]:
     """One PNG per configuration, ``pointing<id>_c<k>.png``: configurations are c1 ... cn
@@ -66,8 +80,8 @@ def write_pictures(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
         x, y = pipeline.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst, pa)
         if image is not None and p["id"] not in charts:
             half_arcmin = view_half_width_mm(inst) * inst.plate_scale_arcsec_per_mm / 60.0
-            charts[p["id"]] = chart_values(image, p["ra_deg"], p["dec_deg"], half_arcmin, pa,
-                                           view_size_px())
+            charts[p["id"]] = chart_or_none(image, p["ra_deg"], p["dec_deg"], half_arcmin, pa,
+                                            view_size_px(), f"pointing {p['id']}")
         paths.append(plot_configuration(
             inst, {a["arm"]: (a["theta1_rad"], a["theta2_rad"]) for a in c["assignments"]},
             out / f"pointing{p['id']}_c{c['index'] + 1}.png",
@@ -96,6 +110,7 @@ def write_overview(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
     if image is not None:
         ra, dec = sky_plots.sky_tangent_deg(marks)
         half = sky_plots.overview_half_width_arcmin(marks, pointings, radius_arcmin)
-        background = chart_values(image, ra, dec, half, 0.0, sky_plots.view_size_px())
+        background = chart_or_none(image, ra, dec, half, 0.0, sky_plots.view_size_px(),
+                                   OVERVIEW_NAME)
     return sky_plots.plot_sky_overview(out / OVERVIEW_NAME, marks, pointings, radius_arcmin,
                                        background=background)

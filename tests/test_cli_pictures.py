@@ -372,6 +372,41 @@ def test_finding_chart_under_the_sky_overview_peaks_on_the_star(tmp_path: Path) 
     assert abs(col - (px - 0.5)) <= 1.0 and abs(row - (height - py - 0.5)) <= 1.0
 
 
+def test_write_pictures_draws_the_chart_at_the_pointings_own_pa(tmp_path: Path, capsys) -> None:
+    """``plan --image``'s writer on a one-configuration result whose pointing has its own PA
+    (30 deg, the request's 0): the star under focal-plane (30, -20) mm at PA 30 peaks within
+    1 pixel of where the configuration picture's axes put that point."""
+    from models.finding_chart import load_fits_image
+    from service.cli_pictures import OVERVIEW_NAME, write_overview, write_pictures
+    from service.schemas import PlanRequest
+
+    ra0, dec0, pa = 150.0, 20.0, 30.0
+    tra, tdec = focal_mm_to_sky(np.array([-60.0, 70.0]), np.array([60.0, 70.0]), ra0, dec0, SCALE, pa)
+    req = PlanRequest(targets=[{"id": f"t{i}", "ra_deg": float(a), "dec_deg": float(d), "priority": 3}
+                               for i, (a, d) in enumerate(zip(tra, tdec, strict=True))])
+    conf = {"index": 0, "arm_yield": 0, "total_priority": 0,
+            "assignments": [{"arm": a.index, "theta1_rad": a.park[0], "theta2_rad": a.park[1],
+                             "target_id": None} for a in INST.arms]}
+    result = {"pointings": [{"id": "P0001", "ra_deg": ra0, "dec_deg": dec0, "position_angle_deg": pa,
+                             "target_ids": ["t0", "t1"], "configurations": [conf]}]}
+    star = focal_mm_to_sky(np.array([30.0]), np.array([-20.0]), ra0, dec0, SCALE, pa)
+    _synthetic_fits(tmp_path / "img.fits", ra0, dec0, (float(star[0][0]), float(star[1][0])))
+    image = load_fits_image(tmp_path / "img.fits")
+    [png] = write_pictures(result, req, INST, tmp_path, quiet=True, image=image)
+    assert png.name == "pointingP0001_c1.png"
+    assert (write_overview(result, req, INST, tmp_path, image=image) == tmp_path / OVERVIEW_NAME)
+    assert "notice" not in capsys.readouterr().err
+    fig = plots.configuration_figure(INST, {}, position_angle_deg=pa)  # the same geometry
+    try:
+        px, py = fig.axes[0].transData.transform((30.0, -20.0))
+        height = fig.bbox.height
+    finally:
+        plt.close(fig)
+    col, row, contrast = _peak_near(png, px - 0.5, height - py - 0.5)
+    assert contrast > 0.1
+    assert abs(col - (px - 0.5)) <= 1.0 and abs(row - (height - py - 0.5)) <= 1.0
+
+
 def test_cli_refuses_a_bad_image_naming_the_option(tmp_path: Path, capsys) -> None:
     csv = tmp_path / "t.csv"
     csv.write_text("id,ra_deg,dec_deg,priority\na,150.0,20.0,5\n")
