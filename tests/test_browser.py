@@ -129,7 +129,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert not page.is_disabled("#go")
     assert f"{N_EXAMPLE} targets read from m13.csv" in page.inner_text("#table-info")
     assert "column 'RAJ2000' mixes" in page.inner_text("#table-info")
-    assert "done 100 %" in page.inner_text("#status")
+    assert page.inner_text("#status").startswith("done: ") and "(100 %)" in page.inner_text("#status")
     result = page.evaluate("mxs.state.result")
     assert page.evaluate("mxs.state.request.position_angle_deg") == 30
     assert page.evaluate("mxs.state.request.park_move_limit_s") == 120  # the page's default, T_p
@@ -151,7 +151,7 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     rows = page.evaluate("""() => [...document.querySelectorAll('.every-target tbody tr')]
         .map((tr) => [...tr.children].map((td) => td.textContent))""")
     assert len(rows) == N_EXAMPLE
-    for target, _prio, pointing, conf, arm, reason in rows:
+    for target, _prio, _ra, _dec, _ra_deg, _dec_deg, pointing, conf, arm, reason in rows:
         assert ((pointing, conf, arm) == where[target] and reason == "") if target in where \
             else (conf == "" and reason == why[target])
     n_conf = sum(len(p["configurations"]) for p in result["pointings"])
@@ -334,7 +334,7 @@ def test_cancel_a_running_plan(page, server) -> None:
             for i in range(300)]  # one crowded pointing: minutes of work
     page.fill("#targets", "id,ra,dec,priority\n" + "\n".join(rows) + "\n")
     page.click("#go")
-    page.wait_for_function("document.querySelector('#status').textContent.includes('running')",
+    page.wait_for_function("document.querySelector('#status').dataset.state === 'running'",
                            timeout=60_000)
     assert not page.is_disabled("#cancel")
     job_id = page.evaluate("mxs.state.jobId")

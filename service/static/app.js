@@ -1,19 +1,18 @@
 // MXS planner observation-preparation page: an ordinary client of the public API.
 // POST v1/target-lists reads the table (the CLI's reader), POST v1/jobs runs the plan, and
-// the result is drawn here from the response and GET v1/instrument (arms to scale).
+// the result is drawn here from the response and GET v1/instrument (arms to scale). The form
+// (controls, defaults, the request) is form.js's.
 "use strict";
 
 const $ = (id) => document.getElementById(id);
 const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation method",
   solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
-  targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park",
+  targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park", seed: "seed",
   exposure_time_s: "exposure time", acquisition_s: "acquisition per pointing", max_exposures: "most exposures",
   min_priority_per_exposure: "least priority per exposure", min_targets_per_exposure: "fewest targets per exposure" };
-// Numeric inputs of the plan form: element id -> request field (an empty input is left out).
-const NUMBER_FIELDS = { "exposure-time": "exposure_time_s", acquisition: "acquisition_s", "max-exposures": "max_exposures",
-  "min-priority": "min_priority_per_exposure", "min-targets": "min_targets_per_exposure" };
-
-const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null };
+// The plan shown: `origin` says which input it was made from and when (null: none shown).
+const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null,
+  origin: null, defaults: null, touched: new Set() };
 
 // ------------------------------------------------------------------------ HTTP helpers
 
@@ -81,39 +80,39 @@ async function readTargetList() {
   return r.body;
 }
 
-// Read the chosen file at once, so its notices and errors show before planning.
+// Read the chosen file at once, so its notices and errors show before planning; an error for
+// the new input also clears the plan of the old one.
 async function previewTable() {
+  showInputUsed();
+  markStale();
   if (!$("file").files[0] || state.running) return;
   clearError();
-  try { await readTargetList(); } catch (e) { $("table-info").hidden = true; showError(e.message); }
+  try { await readTargetList(); } catch (e) { $("table-info").hidden = true; clearResult(); showError(e.message); }
+}
+
+// Which input the plan uses: the chosen file, else the pasted table (greyed while a file is chosen).
+function showInputUsed() {
+  const file = $("file").files[0];
+  $("targets").classList.toggle("unused", Boolean(file));
+  $("clear-file").hidden = !file;
+  $("input-used").textContent = file ? `not used: the file ${file.name} is (type here to use this table instead)` :
+    "the pasted table is used";
+}
+
+// Typing in the table switches the input back to it.
+function usePastedTable() {
+  if ($("file").files[0]) { $("file").value = ""; $("table-info").hidden = true; }
+  showInputUsed();
+  markStale();
 }
 
 function showTableInfo(list) {
   const box = $("table-info");
   box.replaceChildren();
   const cols = Object.entries(list.columns).map(([k, v]) => `${k} <- ${v === null ? "(none)" : v}`);
-  box.append(el("p", {}, `${list.targets.length} targets read from ${list.filename} (${cols.join(", ")}).`));
+  box.append(el("p", {}, `${plural(list.targets.length, "target")} read from ${list.filename} (${cols.join(", ")}).`));
   if (list.notices.length) box.append(el("ul", {}, ...list.notices.map((n) => el("li", {}, n))));
   box.hidden = false;
-}
-
-function planRequest(list) {
-  const req = {
-    targets: list.targets.map((t) => ({ id: t.id, ra_deg: t.ra_deg, dec_deg: t.dec_deg, priority: t.priority })),
-    method: $("method").value, solver: $("solver").value,
-    position_angle_deg: Number($("pa").value || 0),
-  };
-  if ($("segmentation").value) req.segmentation_mode = $("segmentation").value;  // empty: the plan's default
-  const limit = $("time-limit").value.trim();
-  if (limit) req.time_limit_s = Number(limit);
-  const park = $("park-limit").value.trim();
-  if ($("park-unlimited").checked) req.park_move_limit_s = null;
-  else if (park) req.park_move_limit_s = Number(park);
-  for (const [id, field] of Object.entries(NUMBER_FIELDS)) {
-    const v = $(id).value.trim();
-    if (v) req[field] = Number(v);
-  }
-  return req;
 }
 
 // ------------------------------------------------------------------------ the job
@@ -123,6 +122,7 @@ async function runPlan() {
   state.running = true;
   $("go").disabled = true;
   clearError();
+  clearResult();
   try {
     setStatus("reading the target table ...", 0);
     const list = await readTargetList();
@@ -136,7 +136,7 @@ async function runPlan() {
     state.list = list;
     state.request = request;
     sessionStorage.setItem("mxs-job", JSON.stringify({ id: r.body.job_id, list, request }));
-    await followJob(r.body.job_id);
+    await followJob(r.body.job_id, false);
   } catch (e) {
     showError(e.message);
     setStatus("", null);
@@ -146,24 +146,30 @@ async function runPlan() {
   }
 }
 
-function setStatus(text, progress) {
+function setStatus(text, progress, jobState) {
   $("status").textContent = text;
+  $("status").dataset.state = jobState || "";
   const bar = $("progress");
   bar.hidden = progress === null;
   if (progress !== null) bar.value = progress;
 }
 
-async function followJob(jobId) {
+// Poll a plan job until it ends; `restored`: the job of a plan made before a reload.
+async function followJob(jobId, restored) {
   setJob(jobId);
   try {
     for (;;) {
       const r = await fetchJson("v1/jobs/" + encodeURIComponent(jobId), { headers: authHeaders() });
       if (r.status !== 200) throw new Error(`job ${jobId}: ${errorText(r.status, r.body)}`);
       const job = r.body;
-      setStatus(`job ${job.job_id}: ${job.status} ${(100 * job.progress).toFixed(0)} %`, job.progress);
-      if (job.status === "done") { showResult(job.result, state.request, state.list); return; }
-      if (job.status === "failed") throw new Error(`job ${job.job_id} failed: ${job.error}`);
-      if (job.status === "cancelled") { setStatus(`job ${job.job_id}: cancelled`, null); return; }
+      setStatus(progressText(job), job.status === "cancelled" ? null : job.progress, job.status);
+      if (job.status === "done") {
+        showResult(job.result, state.request, state.list,
+          { name: state.list.filename, finishedAt: job.updated_at, restored });
+        return;
+      }
+      if (job.status === "failed") throw new Error(`the plan failed: ${job.error}`);
+      if (job.status === "cancelled") return;
       await new Promise((res) => setTimeout(res, 500));
     }
   } finally {
@@ -171,10 +177,12 @@ async function followJob(jobId) {
   }
 }
 
-// The job being followed (null: none); the Cancel button works only while there is one.
+// The job being followed (null: none); the Cancel button works only while there is one. Its
+// id stays in a small detail beside the status.
 function setJob(jobId) {
   state.jobId = jobId;
   $("cancel").disabled = jobId === null;
+  if (jobId !== null) { $("job-id").textContent = `job ${jobId.slice(0, 8)}`; $("job-id").title = `job ${jobId}`; }
 }
 
 // POST v1/jobs/{id}/cancel: the job ends as "cancelled" (409 when it has just finished).
@@ -215,20 +223,69 @@ function priorityTiers(priorities) {
   return { label: (p) => names[index(p)], index, names };
 }
 
-function showResult(result, request, list) {
+// The plan on the page, first what is read first: where it comes from, the banner, the summary
+// beside the sky view, the command line, the pointings with their configurations; then the
+// long table of every target (closed) and the raw answer. `origin`: {name, finishedAt (Unix
+// s), restored} of the plan.
+function showResult(result, request, list, origin = state.origin) {
   state.result = result;
+  state.origin = origin;
   $("result").hidden = false;
+  $("result").classList.remove("stale");
+  showOrigin(origin, request, false);
   const fate = targetFates(result);
   showBanner(result);
   showSummary(result, request, fate);
-  const box = $("pointings");
-  box.replaceChildren();
   const tiers = priorityTiers(request.targets.map((t) => t.priority));
   const byId = new Map(request.targets.map((t) => [t.id, t]));
-  if (result.pointings.length) box.append(skyView(result, request, tiers, fate));
-  for (const p of result.pointings) box.append(pointingSection(p, request, byId, tiers, list));
+  $("sky").replaceChildren(...(result.pointings.length ? [skyView(result, request, tiers, fate)] : []));
+  $("cli-line").replaceChildren("The same plan from the command line: ",
+    el("code", {}, cliLine(request, (origin && origin.name) || (list && list.filename) || "targets.csv", result.stats)),
+    origin && origin.name === "pasted.csv" ? " (the pasted table saved as pasted.csv)" : "");
+  $("pointings").replaceChildren(...result.pointings.map((p) => pointingSection(p, request, byId, tiers, list)));
+  $("every-target").replaceChildren(everyTarget(request, fate));
   $("raw-json").textContent = JSON.stringify(result, null, 1);
 }
+
+// "Plan of m67.csv (150 targets), finished at 02:41:07 on 2026-12-05", saying so when the plan
+// is the previous one restored after a reload, or stale because the input has changed.
+function showOrigin(origin, request, stale) {
+  const box = $("plan-origin");
+  if (!origin) { box.replaceChildren(); return; }
+  const when = origin.finishedAt ? `, finished at ${clockText(origin.finishedAt)}` : "";
+  const what = `${origin.name} (${plural(request.targets.length, "target")})${when}`;
+  box.className = "plan-origin" + (stale ? " stale" : origin.restored ? " restored" : "");
+  box.textContent = stale ? `Stale: this plan is of the previous input, ${what}. The input has changed since: plan again.` :
+    origin.restored ? `Previous plan, restored after a reload: ${what}.` : `Plan of ${what}.`;
+}
+
+// Unix seconds as local "hh:mm:ss on yyyy-mm-dd".
+function clockText(unixS) {
+  const d = new Date(unixS * 1000), two = (n) => String(n).padStart(2, "0");
+  return `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())} on ` +
+    `${d.getFullYear()}-${two(d.getMonth() + 1)}-${two(d.getDate())}`;
+}
+
+// The input changed: the plan shown no longer answers it, and says so.
+function markStale() {
+  if ($("result").hidden || !state.result) return;
+  $("result").classList.add("stale");
+  showOrigin(state.origin, state.request, true);
+}
+
+// No plan shown (a new plan runs, or the new input gave an error); a reload restores none.
+function clearResult() {
+  $("result").hidden = true;
+  $("result").classList.remove("stale");
+  state.result = null;
+  state.origin = null;
+  showOrigin(null);
+  sessionStorage.removeItem("mxs-job");
+}
+
+// Reasons a not-executable plan's banner lists open; more are folded, so the summary and the
+// sky view stay on the first screen.
+const BANNER_REASONS = 3;
 
 function showBanner(result) {
   const b = $("banner");
@@ -238,8 +295,10 @@ function showBanner(result) {
     b.append("Every motion leg of every pointing was planned: the plan is executable.");
   } else {
     b.className = "bad";
+    const reasons = el("ul", {}, ...result.reasons.map((r) => el("li", {}, r)));
     b.append("This plan is NOT executable: some motion legs could not be planned. Do not execute the failed legs.",
-      el("ul", {}, ...result.reasons.map((r) => el("li", {}, r))));
+      result.reasons.length <= BANNER_REASONS ? reasons :
+        el("details", {}, el("summary", {}, `the ${result.reasons.length} reasons`), reasons));
   }
   b.hidden = false;
 }
@@ -267,25 +326,27 @@ function showSummary(result, request, fate) {
     byPrio.set(t.priority, e);
   }
   const tierRows = [...byPrio.entries()].sort((a, b) => b[0] - a[0])
-    .map(([p, e]) => [p, e.n, e.done, pct(e.done / e.n)]);
+    .map(([p, e]) => [priorityText(p), e.n, e.done, pct(e.done / e.n)]);
   $("summary").replaceChildren(
     table(["", "value"], rows),
     el("h3", {}, "Targets observed per priority"),
-    table(["priority", "targets", "observed", "completeness"], tierRows, []),
-    everyTarget(request, fate));
+    table(["priority", "targets", "observed", "completeness"], tierRows, []));
 }
 
-// One row per target of the request: where it is observed, or why not.
+// One row per target of the request, with its position in both forms: where it is observed,
+// or why not. Closed: it is long, and read after the pictures.
 function everyTarget(request, fate) {
   const rows = request.targets.map((t) => {
     const f = fate.get(t.id) || {};
     const observed = f.configuration !== undefined;
-    return [t.id, t.priority, f.pointing || "", observed ? `c${f.configuration + 1}` : "",
-      observed ? f.arm : "", observed ? "" : (f.reason || "not in any pointing")];
+    return [t.id, priorityText(t.priority), raHms(t.ra_deg), decDms(t.dec_deg), t.ra_deg.toFixed(5), t.dec_deg.toFixed(5),
+      f.pointing || "", observed ? `c${f.configuration + 1}` : "", observed ? f.arm : "",
+      observed ? "" : (f.reason || "not in any pointing")];
   });
-  return el("details", { class: "every-target", open: "" },
-    el("summary", {}, `Every target (${rows.length}): pointing, configuration, arm, or why it is not observed`),
-    table(["target", "priority", "pointing", "configuration", "arm", "not observed because"], rows, [0, 2, 3, 5]));
+  return el("details", { class: "every-target" },
+    el("summary", {}, `Every target (${rows.length}): position, pointing, configuration, arm, or why it is not observed`),
+    table(["target", "priority", "RA (h:m:s)", "Dec (d:m:s)", "RA [deg]", "Dec [deg]", "pointing", "configuration",
+      "arm", "not observed because"], rows, [0, 6, 7, 9]));
 }
 
 function sumPrio(ts) { return ts.reduce((a, t) => a + t.priority, 0) || 1; }
@@ -318,11 +379,12 @@ function assignmentsCsv(result, request) {
   return rows.map((r) => r.map(csvCell).join(",")).join("\n") + "\n";
 }
 
+// Controller commands, one row each; legs counted from 1 like configurations (leg 1: park -> c1).
 function commandsCsv(result) {
   const rows = [["pointing", "leg", "leg_status", "arm", "joint", "t_start_s", "from_rad", "to_rad", "speed_rad_s"]];
   for (const p of result.pointings) {
     p.motions.forEach((m, i) => m.trajectories.forEach((tr) => tr.commands.forEach((c) =>
-      rows.push([p.id, i, m.status, tr.arm, c.joint, c.t_start_s, c.from_rad, c.to_rad, c.speed_rad_s]))));
+      rows.push([p.id, i + 1, m.status, tr.arm, c.joint, c.t_start_s, c.from_rad, c.to_rad, c.speed_rad_s]))));
   }
   return rows.map((r) => r.map(csvCell).join(",")).join("\n") + "\n";
 }
@@ -332,26 +394,54 @@ function commandsCsv(result) {
 async function start() {
   $("go").onclick = runPlan;
   $("cancel").onclick = cancelJob;
-  $("clear-file").onclick = () => { $("file").value = ""; $("table-info").hidden = true; };
+  $("clear-file").onclick = usePastedTable;
   $("file").onchange = previewTable;
+  $("targets").oninput = usePastedTable;
+  $("options").addEventListener("input", optionChanged);
+  $("options").addEventListener("change", optionChanged);
+  $("finding-image").onchange = chooseFindingImage;
   $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
   $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
   $("dl-commands").onclick = () => download("commands.csv", commandsCsv(state.result), "text/csv");
+  showInputUsed();
+  state.defaults = await planDefaults().catch(() => null);
+  if (state.defaults) setControls(state.defaults, state.touched);
+  else showError("cannot read the API's defaults from openapi.json: the controls keep the page's own");
   const r = await fetchJson("v1/instrument");
   if (r.status !== 200) { showError("cannot read the instrument: " + errorText(r.status, r.body)); return; }
   state.instrument = r.body;
+  $("go").disabled = false;
+  document.body.dataset.ready = "true";
   const saved = sessionStorage.getItem("mxs-job");
   if (saved) resumeJob(JSON.parse(saved));
 }
 
+// A control the user set: the API's defaults, read while the page loads, leave it alone; the
+// plan shown no longer answers the form (the token changes no plan).
+function optionChanged(e) {
+  if (e.target.id === "token") return;
+  state.touched.add(e.target.id);
+  markStale();
+}
+
+// The sky image under the pictures: handed to the viewer (setFindingImage, when it has one).
+function chooseFindingImage() {
+  const file = $("finding-image").files[0] || null;
+  if (typeof setFindingImage === "function") setFindingImage(file);
+}
+
+// The plan of the job started before a reload: its controls shown again, labelled as the
+// previous plan with its input's name.
 async function resumeJob(saved) {
   state.list = saved.list;
   state.request = saved.request;
+  setControls(saved.request);
   state.running = true;
   $("go").disabled = true;
-  try { await followJob(saved.id); } catch (e) {
+  try { await followJob(saved.id, true); } catch (e) {
     sessionStorage.removeItem("mxs-job");
     showError(e.message);
+    setStatus("", null);
   } finally {
     state.running = false;
     $("go").disabled = false;
@@ -359,5 +449,5 @@ async function resumeJob(saved) {
 }
 
 window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
-  state };
+  cliLine, progressText, CONTROLS, state };
 start();
