@@ -4,6 +4,9 @@ cost the reader time or memory out of proportion to the file.
 * :func:`decompress` stream-decompresses a gzip, bzip2 or xz file to a plain one, refusing
   at a bound on the decompressed bytes (so a small file declaring a huge size costs at most
   the bound, never the memory of the whole) and refusing nested compression and zip archives.
+* :func:`sniff` looks at the plain file's first bytes: content that is no table (an image, a
+  PDF, a zip archive, binary data, text that is not UTF-8) is refused in one line, ``not a
+  table: <what it is>``, and a name without a known suffix takes the format the content shows.
 * :func:`check_table_file` reads only what it needs of the plain file:
 
   - FITS: the headers of every HDU, card by card (no data). Each HDU's declared data size
@@ -16,6 +19,8 @@ cost the reader time or memory out of proportion to the file.
     over it). An ECSV header (its ``#`` lines) holds at most :data:`MAX_ECSV_HEADER_CHARS`.
   - VOTable: ``<FIELD`` and ``<TR`` elements counted in the raw bytes against
     :data:`MAX_COLUMNS` and the row limit.
+  - VizieR's TSV: checked by its reader (:mod:`service.vizier_tsv`) in its one pass, with
+    the CSV bounds.
 
 Every refusal is a :class:`TargetFileError` naming the file, and the line,
 row or column where that applies; an echoed value is cut to a few dozen characters.

@@ -1,7 +1,14 @@
-"""Target tables (CSV, ECSV, VOTable, FITS) -> validated targets ``{id, ra_deg, dec_deg, priority}``.
+"""Target tables (CSV, VizieR's TSV, ECSV, VOTable, FITS) -> validated targets
+``{id, ra_deg, dec_deg, priority}``.
 
 One reader for every entry point (the CLI's ``plan`` and the web page's upload,
-``POST /v1/target-lists``), so a file means the same thing wherever it is handed in.
+``POST /v1/target-lists``), so a file means the same thing wherever it is handed in. The format
+is the file name's suffix (:data:`FORMATS`); a name without a known one takes the format its
+content shows (XML, ``# %ECSV``, FITS, a tab-separated header), and content that is no table
+(an image, a PDF, binary data, text that is not UTF-8) is refused in one line,
+``<file>: not a table: <what it is>`` (:func:`service.table_checks.sniff`). VizieR's TSV
+export (comment lines, a units row and a row of dashes under the header) is read by
+:mod:`service.vizier_tsv`.
 
 Columns are recognised the way the Virtual Observatory names them:
 

@@ -276,17 +276,22 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
               tags=["targets"], dependencies=[auth], responses=responses)
     async def create_target_list(
         request: Request,
-        file: Annotated[UploadFile, File(description="Target table: CSV, ECSV, VOTable or FITS "
-                                         "(by the file name's suffix; CSV otherwise).")],
+        file: Annotated[UploadFile, File(description="Target table: CSV, VizieR's TSV, ECSV, "
+                                         "VOTable or FITS, plain or compressed with gzip, bzip2 "
+                                         "or xz (by the file name's suffix; by the content "
+                                         "when the name has none known; CSV when neither "
+                                         "tells).")],
         include_targets: IncludeTargets = True,
     ) -> Response:
-        """Read a target table the way `mxs-planner plan` does and store it: VO UCDs and common
+        """Read a target table the way `mxs-planner plan` does and store it: VizieR's TSV export
+        as it is downloaded (comment lines, units and dashes rows), VO UCDs and common
         column names (VizieR `_RAJ2000`/`_DEJ2000`, Gaia `source_id`/`ra`/`dec`, ...),
         sexagesimal or decimal values cell by cell, column units, row ids and priority 1 when
         the file has none (said in `notices`). A bad cell is a 422 naming the file's row (and
-        CSV line) and column; more than `MXS_MAX_TARGET_LIST_TARGETS` targets a 422, a body
+        CSV or TSV line) and column; more than `MXS_MAX_TARGET_LIST_TARGETS` targets a 422, a body
         over `MXS_MAX_UPLOAD_BYTES` a 413. Also a 422 naming the file, for what the file's
-        content decides: a file that is not a table, a table with no rows or no RA or Dec
+        content decides: a file that is not a table (one line, "<file>: not a table: <what it
+        is>"), a table with no rows or no RA or Dec
         column, duplicate ids, empty or duplicate column names, more than the bounds on
         columns, line or cell length and decompressed bytes, a read past
         `MXS_UPLOAD_PARSE_TIME_S`. Pass `target_list_id` to a segmentation, plan or job request
