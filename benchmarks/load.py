@@ -9,6 +9,12 @@ fresh job database in a temporary directory, and talks to them with httpx.
   heavy requests answered within limit + 1 s, answered late, refused at once (503/429 with
   ``Retry-After``, < 1 s), refused without ``Retry-After`` or slowly, errors (connection,
   other statuses); the server tree's peak RSS.
+* ``greedy`` (``--greedy``: this scenario alone, 12 clients unless ``--clients`` says
+  otherwise): after one warm-up request, ``--clients`` greedy clients post motion plans back
+  to back for ``--seconds``, ignoring ``Retry-After`` (no pause after a refusal), while a
+  prober in a process of its own (``--prober thread``: a thread beside the clients') gets
+  ``/v1/health`` every 50 ms. Reported: health latency
+  p50/p95/p99/max and failures, the heavy requests' answers by status, and the config.
 * ``abandoned``: clients that give up after 1 s; the CPU seconds the server tree spends in
   the ``--seconds / 2`` after they left (work for clients that left should stop).
 * ``restarts``: plan jobs submitted, then (a) ``kill -9`` mid-run and a new server,
@@ -33,12 +39,15 @@ Usage:
     python benchmarks/load.py --smoke         # a small size of every scenario (minutes)
     python benchmarks/load.py --only load,flood --out load.json
     python benchmarks/load.py --attack        # upload attacks only, at the 50 MB upload limit
+    python benchmarks/load.py --greedy        # 12 greedy clients (no back-off), 60 s
+    python benchmarks/load.py --greedy --clients 50
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import os
 import signal
 import socket
@@ -57,7 +66,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples" / "requests"
-SCENARIOS = ("load", "abandoned", "restarts", "flood", "slow_bodies")
+SCENARIOS = ("load", "greedy", "abandoned", "restarts", "flood", "slow_bodies")
+DEFAULT_SCENARIOS = ("load", "abandoned", "restarts", "flood", "slow_bodies")
+DEFAULT_CLIENTS = {"load": 50, "greedy": 12}
 
 
 # ------------------------------------------------------------------ processes
@@ -276,6 +287,87 @@ def _probe_while(url: str, threads: list[threading.Thread]) -> dict[str, Any]:
     lat, fails = probe_health(url, threads)
     return {"probes": len(lat) + fails, "failures": fails, "p50_ms": pct(lat, 50),
             "p99_ms": pct(lat, 99), "max_ms": pct(lat, 100)}
+
+
+def scenario_greedy(a: argparse.Namespace) -> dict[str, Any]:
+    """Greedy clients (no back-off after a refusal) and a prober in a process of its own, so
+    that the clients' threads do not delay the prober's own measurement."""
+    with workdir() as d:
+        srv = start_server(d / "jobs.sqlite3", **a.server_env)
+        warm_s = warm_up(srv, motion_request(a.limit))
+        try:
+            req = motion_request(a.limit)
+            statuses: list[str] = []
+            lock = threading.Lock()
+            ctx = multiprocessing.get_context("spawn")
+            mine, theirs = ctx.Pipe(duplex=False)
+            prober: Any = (ctx.Process if a.prober == "process" else threading.Thread)(
+                target=_prober, args=(srv.url, a.seconds, 0.05, theirs))
+            load0 = os.getloadavg()[0]
+            prober.start()
+            stop = time.monotonic() + a.seconds
+
+            def client() -> None:
+                with httpx.Client(base_url=srv.url, timeout=a.limit + 60) as c:
+                    while time.monotonic() < stop:
+                        status = _greedy_status(c, req)
+                        with lock:
+                            statuses.append(status)
+
+            threads = [threading.Thread(target=client) for _ in range(a.clients)]
+            for t in threads:
+                t.start()
+            lat, fails = mine.recv()
+            prober.join()
+            for t in threads:
+                t.join()
+            health = {"probes": len(lat) + fails, "failures": fails, "p50_ms": pct(lat, 50),
+                      "p95_ms": pct(lat, 95), "p99_ms": pct(lat, 99), "max_ms": pct(lat, 100)}
+            return {"config": {"clients": a.clients, "seconds": a.seconds, "limit_s": a.limit,
+                               "probe_every_s": 0.05, "prober": a.prober,
+                               "server_env": a.server_env,
+                               "load_average_1min_at_start": round(load0, 2),
+                               "commit": _commit()},
+                    "warm_up_s": warm_s, "health": health,
+                    "heavy_by_status": {k: statuses.count(k) for k in sorted(set(statuses))}}
+        finally:
+            end(srv)
+
+
+def _greedy_status(c: httpx.Client, req: dict[str, Any]) -> str:
+    try:
+        return str(c.post("/v1/motion-plans", json=req).status_code)
+    except httpx.HTTPError as exc:
+        return f"error_{type(exc).__name__}"
+
+
+def _prober(url: str, seconds: float, every_s: float, out: Any) -> None:
+    """Get ``/v1/health`` every ``every_s`` for ``seconds``; send (latencies s, failures)."""
+    lat: list[float] = []
+    fails = 0
+    stop = time.monotonic() + seconds
+    with httpx.Client(base_url=url, timeout=10) as c:
+        while time.monotonic() < stop:
+            t0 = time.perf_counter()
+            try:
+                ok = c.get("/v1/health").status_code == 200
+            except httpx.HTTPError:
+                ok = False
+            if ok:
+                lat.append(time.perf_counter() - t0)
+            else:
+                fails += 1
+            time.sleep(every_s)
+    out.send((lat, fails))
+    out.close()
+
+
+def _commit() -> str | None:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, text=True,
+                              capture_output=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
 
 
 def scenario_abandoned(a: argparse.Namespace) -> dict[str, Any]:
@@ -506,7 +598,8 @@ def _slow_sender(port: int, declared: int, send: int, over_s: float) -> tuple[st
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--clients", type=int, default=50)
+    p.add_argument("--clients", type=int, default=None,
+                   help="heavy clients (default 50; 12 with --greedy)")
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--limit", type=float, default=5.0, help="time_limit_s of each motion plan")
     p.add_argument("--jobs", type=int, default=6, help="plan jobs per restart scenario")
@@ -516,7 +609,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--slow", type=int, default=50, help="slow-body connections")
     p.add_argument("--body-mb", type=float, default=10.0)
     p.add_argument("--body-timeout", type=float, default=20.0)
-    p.add_argument("--only", default=",".join(SCENARIOS))
+    p.add_argument("--only", default=",".join(DEFAULT_SCENARIOS))
+    p.add_argument("--greedy", action="store_true",
+                   help="run the greedy-clients scenario only (no back-off after a refusal)")
+    p.add_argument("--prober", choices=("process", "thread"), default="process",
+                   help="--greedy's health prober: a process of its own (default), or a thread "
+                   "beside the clients' (then their interpreter lock delays it too)")
+    p.add_argument("--server-env", action="append", default=[], metavar="NAME=VALUE",
+                   help="a server setting, e.g. heavy_threads=2 (MXS_ prefix optional)")
     p.add_argument("--smoke", action="store_true", help="small sizes of every scenario")
     p.add_argument("--out", type=Path)
     p.add_argument("--attack", action="store_true",
@@ -526,6 +626,11 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.attack:
         return _emit({"cpus": os.cpu_count(), "attack": _attack(a)}, a.out)
+    a.server_env = _server_env(p, a.server_env)
+    if a.greedy:
+        a.only = "greedy"
+    if a.clients is None:
+        a.clients = DEFAULT_CLIENTS["greedy" if a.greedy else "load"]
     if a.smoke:
         a.clients, a.seconds, a.limit, a.jobs, a.settle = 4, 6.0, 2.0, 2, 120.0
         a.job_targets = 3
@@ -539,6 +644,16 @@ def main(argv: list[str] | None = None) -> int:
     for name in only:
         out[name] = globals()[f"scenario_{name}"](a)
     return _emit(out, a.out)
+
+
+def _server_env(p: argparse.ArgumentParser, pairs: list[str]) -> dict[str, str]:
+    out = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        if not sep or not name:
+            p.error(f"--server-env wants NAME=VALUE, got {pair!r}")
+        out[name.lower().removeprefix("mxs_")] = value
+    return out
 
 
 def _attack(a: argparse.Namespace) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
@@ -16,7 +17,7 @@ from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 
@@ -35,7 +36,14 @@ from service.errors import (
     install_error_handlers,
     parse_loc,
 )
-from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
+from service.executor import (
+    Cancelled,
+    HeavyExecutor,
+    Overloaded,
+    RefuseWhenFull,
+    Ticket,
+    wait_or_cancel,
+)
 from service.job_schemas import JOB_STATUS, JobCreated, JobRequest, JobStatus
 from service.jobpool import JobManager, PoolOptions
 from service.jobs import CANCELLED, EXPIRED
@@ -58,6 +66,7 @@ from service.schemas import (
     ValidationErrorResponse,
 )
 from service.settings import Settings, env_name
+from service.sync_workers import StageCall, WorkerOptions, WorkerPool
 from service.target_lists import TargetListStore, install_target_lists, resolve
 from service.uploads import start_fork_server
 from service.web import install_web
@@ -89,6 +98,9 @@ LIST_NOT_FOUND: dict[str, Any] = {
     "model": ErrorResponse,
     "description": "`target_list_id` names no stored target list (never uploaded, or deleted by "
                    "the retention); `detail` names the field and the id."}
+#: the routes whose work takes a heavy slot (refused before their body is read when all are taken)
+HEAVY_PATHS = frozenset({"/v1/segmentations", "/v1/allocations", "/v1/motion-plans", "/v1/plans",
+                         "/v1/target-lists"})
 QUEUE_FULL: dict[str, Any] = {"model": ErrorResponse, "headers": RETRY_AFTER,
                               "description": "The job queue is full (`MXS_MAX_QUEUED_JOBS`): retry after "
                                              "`Retry-After` seconds."}
@@ -105,6 +117,7 @@ class ServiceState:
         )
         self._jobs: JobManager | None = None
         self._heavy: HeavyExecutor | None = None
+        self._workers: WorkerPool | None = None
         self._lists: TargetListStore | None = None
         self._lock = threading.Lock()
 
@@ -143,12 +156,31 @@ class ServiceState:
                 self._heavy = HeavyExecutor(s.heavy_threads, s.heavy_queue, s.retry_after_s)
             return self._heavy
 
+    @property
+    def workers(self) -> WorkerPool | None:
+        """The worker processes of the heavy threads (None: the threads compute themselves,
+        ``MXS_HEAVY_PROCESSES=false``)."""
+        s = self.settings
+        if not s.heavy_processes:
+            return None
+        with self._lock:
+            if self._workers is None:
+                self._workers = WorkerPool(WorkerOptions(
+                    size=s.heavy_threads,
+                    instrument_file=str(s.instrument_file) if s.instrument_file else None,
+                    nice=s.heavy_nice, kill_grace_s=s.heavy_kill_grace_s,
+                    retry_after_s=s.retry_after_s))
+            return self._workers
+
     def close(self) -> None:
         with self._lock:
             heavy, self._heavy = self._heavy, None
             jobs, self._jobs = self._jobs, None
+            workers, self._workers = self._workers, None
         if heavy is not None:
             heavy.shutdown()
+        if workers is not None:
+            workers.close()
         if jobs is not None:
             jobs.shutdown()
 
@@ -235,23 +267,34 @@ def _cancelling(ticket: Ticket) -> pipeline.Progress:
     return progress
 
 
-_MIN_LIMIT_S = 0.1  # the least time limit a request that waited for a thread is given
-Compute = Callable[[pipeline.Progress, Callable[[float], float]], dict[str, Any]]
+_MIN_LIMIT_S = 0.1  # the least time limit a request that waited for a worker is given
+Stage = Callable[..., dict[str, Any]]
 
 
-async def _heavy(request: Request, st: ServiceState, model: type[BaseModel],
-                 compute: Compute) -> JSONResponse:
-    """Run ``compute(progress, left)`` in the bounded executor (503 + Retry-After when full)
-    and answer its result, validated and rendered off the event loop; stop it if the client
-    leaves. ``left(limit_s)`` is what remains of a time limit after the wait for a thread."""
+async def _heavy(request: Request, st: ServiceState, model: type[BaseModel], fn: Stage,
+                 req: Any, limit: tuple[str, float] | None = None) -> Response:
+    """Answer ``fn(req, instrument, progress, **{name: seconds})`` in a slot of the bounded
+    executor (503 + Retry-After when full), validated against ``model`` and encoded off the
+    event loop; stop it if the client leaves. ``limit`` = (``fn``'s keyword, time limit):
+    what remains of the limit after the wait for a worker is passed; without one the work is
+    bounded by ``MXS_MAX_TIME_LIMIT_S``. With ``MXS_HEAVY_PROCESSES`` (the default) ``fn``
+    runs in a worker process (:mod:`service.sync_workers`), else in the heavy thread."""
 
-    def work(ticket: Ticket) -> JSONResponse:
-        waited_s = ticket.waited_s
+    def stage_call(ticket: Ticket) -> StageCall:
+        if limit is None:
+            return StageCall(fn, req, model, st.settings.max_time_limit_s)
+        name, limit_s = limit
+        left_s = max(limit_s - (time.monotonic() - ticket.admitted_at), _MIN_LIMIT_S)
+        return StageCall(fn, req, model, left_s, {name: left_s})
 
-        def left(limit_s: float) -> float:
-            return max(limit_s - waited_s, _MIN_LIMIT_S)
-
-        result = compute(_cancelling(ticket), left)
+    def work(ticket: Ticket) -> Response:
+        pool = st.workers
+        if pool is not None:
+            with pool.slot() as slot:
+                body = slot.call(lambda: stage_call(ticket), ticket.cancel)
+            return Response(body, media_type="application/json")
+        call = stage_call(ticket)
+        result = call.fn(call.request, st.instrument, _cancelling(ticket), **call.kwargs)
         return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
 
     heavy = st.heavy
@@ -297,6 +340,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         _ = state.lists
         await run_in_threadpool(pipeline.warm_up)  # the planner's compiled kernels, before the first request
         start_fork_server()  # the upload readers' (in the background)
+        if state.workers is not None:
+            state.workers.start()  # the heavy workers warm up in the background
         heavy = state.heavy
         restore = _on_sigterm(heavy.close)
         yield
@@ -318,12 +363,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     describe_security(app, required=effective_token(settings) is not None)
     describe_limits(app, settings.max_time_limit_s, 2.0 * state.instrument.fov_radius_mm)
     # outermost last: CORS headers on every answer (401, 413, 503 included); the token is
-    # checked before the body is read
+    # checked before the body is read, and so is whether a heavy slot is free
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes,
                        setting=env_name("max_body_bytes"), routes=_body_limits(settings))
     app.add_middleware(BodyTimeoutMiddleware, timeout_s=settings.body_timeout_s,
                        buffer_bytes=settings.max_body_buffer_bytes,
                        retry_after_s=settings.retry_after_s)
+    app.add_middleware(RefuseWhenFull, executor=lambda: state.heavy, paths=HEAVY_PATHS)
     app.add_middleware(AuthMiddleware, token=effective_token(settings))
     app.add_middleware(CatchAllMiddleware)
     if settings.cors_origin_list:
@@ -350,7 +396,8 @@ def _body_limits(settings: Settings) -> dict[str, tuple[int, str]]:
 
 
 # Cheap routes are ``async``: they run on the event loop, never behind heavy work (which
-# runs in the bounded HeavyExecutor, never in the thread pool the page and files use).
+# runs in the bounded HeavyExecutor's worker processes, never in the thread pool the page and
+# files use).
 
 
 def _service_routes(app: FastAPI) -> None:
@@ -405,8 +452,7 @@ def _stage_routes(app: FastAPI) -> None:
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
         return await _from_list(list_id, _heavy(
-            request, st, SegmentationResponse,
-            lambda progress, _: pipeline.segmentation(req, st.instrument, progress)))
+            request, st, SegmentationResponse, pipeline.segmentation, req))
 
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
@@ -420,8 +466,8 @@ def _stage_routes(app: FastAPI) -> None:
         target 90 deg or more from the pointing, an arm the instrument does not have. A valid
         request that cannot be satisfied answers 200 with `unallocated[].reason`."""
         req, limit = await _admit(req, st)
-        return await _heavy(request, st, AllocationResponse, lambda progress, left: pipeline.allocation(
-            req, st.instrument, progress, time_limit_s=left(limit)))
+        return await _heavy(request, st, AllocationResponse, pipeline.allocation, req,
+                            ("time_limit_s", limit))
 
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
               dependencies=[Auth], responses=ERRORS)
@@ -434,8 +480,8 @@ def _stage_routes(app: FastAPI) -> None:
         alone must be a multiple of 0.1 s), and (220 s / dt_s) x (220 s / dt_col_s) may not
         exceed 1e6. A plan that cannot be found answers 200 with `status: "failed"`."""
         req, limit = await _admit(req, st)
-        return await _heavy(request, st, MotionPlanResponse, lambda progress, left: pipeline.motion_plan(
-            req, st.instrument, progress, time_limit_s=left(limit)))
+        return await _heavy(request, st, MotionPlanResponse, pipeline.motion_plan, req,
+                            ("time_limit_s", limit))
 
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
               dependencies=[Auth], responses={**ERRORS, 404: LIST_NOT_FOUND})
@@ -460,8 +506,8 @@ def _stage_routes(app: FastAPI) -> None:
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
         return await _from_list(list_id, _heavy(
-            request, st, PlanResponse, lambda progress, left: pipeline.plan(
-                req, st.instrument, progress, budget_s=left(st.settings.plan_budget_s))))
+            request, st, PlanResponse, pipeline.plan, req,
+            ("budget_s", st.settings.plan_budget_s)))
 
 
 def _job_routes(app: FastAPI) -> None:

@@ -1,10 +1,13 @@
 """The bounded executor of the synchronous heavy endpoints, with admission control.
 
-Segmentations, allocations, motion plans and plans run on a fixed set of daemon threads
-(``MXS_HEAVY_THREADS``), never on the event loop nor on the thread pool that serves cheap
-routes, so ``/v1/health`` answers whatever the load. At most ``MXS_HEAVY_QUEUE`` more
-requests may wait for a thread (the time they wait is taken off their time limit); beyond that :meth:`HeavyExecutor.submit` refuses at once
-with :class:`Overloaded` (HTTP 503 with ``Retry-After``) instead of queueing without end.
+Segmentations, allocations, motion plans, plans and uploads take one of a fixed set of daemon
+threads (``MXS_HEAVY_THREADS``), never the event loop nor the thread pool that serves cheap
+routes. A stage request's thread hands the computation to its worker process
+(:mod:`service.sync_workers`) and only waits on a pipe, so ``/v1/health`` answers whatever
+the load. At most ``MXS_HEAVY_QUEUE`` more requests may wait for a thread (the time they wait
+is taken off their time limit); beyond that :meth:`HeavyExecutor.submit` refuses at once with
+:class:`Overloaded` (HTTP 503 with ``Retry-After``) instead of queueing without end, and
+:class:`RefuseWhenFull` gives the same answer before the request's body is even read.
 
 Every admitted request carries a :class:`Ticket`. Its ``cancel`` event is set when the
 client disconnects or the server shuts down: a request still waiting is dropped before it
@@ -25,7 +28,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from service.errors import ServiceError
+from starlette.responses import JSONResponse
+from starlette.types import ASGIApp, Receive, Scope, Send
+
+from service.errors import ServiceError, error_body
 
 log = logging.getLogger("service.executor")
 
@@ -107,6 +113,11 @@ class HeavyExecutor:
         with self._lock:
             return len(self._admitted)
 
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called (the server is stopping)."""
+        return self._closed
+
     def has_room(self) -> bool:
         with self._lock:
             return not self._closed and len(self._admitted) < self.capacity
@@ -120,9 +131,7 @@ class HeavyExecutor:
                 raise Overloaded("the server is shutting down; retry on another instance",
                                  self.retry_after_s)
             if len(self._admitted) >= self.capacity:
-                raise Overloaded(
-                    f"all {self.capacity} heavy-request slots are in use; retry later or "
-                    "submit the work as a job (POST /v1/jobs)", self.retry_after_s)
+                raise Overloaded(_full_message(self.capacity), self.retry_after_s)
             self._admitted.add(ticket)
         ticket.future, ticket.loop = loop.create_future(), loop
         self._queue.put(_Work(ticket, fn, loop))
@@ -194,6 +203,40 @@ def _resolve(ticket: Ticket, outcome: tuple[bool, Any]) -> None:
         fut.set_exception(value)
         if isinstance(value, Cancelled):
             fut.exception()  # maybe nobody awaits it any more (the client left): not an error
+
+
+class RefuseWhenFull:
+    """ASGI middleware: a ``POST`` to one of ``paths`` while every heavy slot is taken is
+    refused (503 + ``Retry-After``, as :meth:`HeavyExecutor.submit` would) before its body is
+    read, parsed and checked. A client that retries at once, ignoring ``Retry-After``, then
+    costs the event loop a header's worth of work instead of a request's, so health checks
+    and cheap routes keep their latency. (A request refused here is not validated: when the
+    server is full, a malformed one is answered 503, and 422 once it is retried.)"""
+
+    def __init__(self, app: ASGIApp, executor: Callable[[], HeavyExecutor],
+                 paths: frozenset[str]):
+        self.app = app
+        self.executor = executor
+        self.paths = paths
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (scope["type"] == "http" and scope["method"] == "POST"
+                and scope["path"] in self.paths):
+            heavy = self.executor()
+            if not heavy.has_room():
+                why = ("the server is shutting down; retry on another instance" if heavy.closed
+                       else _full_message(heavy.capacity))
+                exc = Overloaded(why, heavy.retry_after_s)
+                answer = JSONResponse(error_body(exc.code, exc.message), status_code=503,
+                                      headers={"Retry-After": str(exc.retry_after_s)})
+                await answer(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
+def _full_message(capacity: int) -> str:
+    return (f"all {capacity} heavy-request slots are in use; retry later or submit the work "
+            "as a job (POST /v1/jobs)")
 
 
 async def wait_or_cancel(executor: HeavyExecutor, ticket: Ticket,

@@ -80,8 +80,25 @@ class Settings(BaseSettings):
     )
 
     heavy_threads: int = Field(
-        2, ge=1, le=64, description="Threads computing synchronous stage requests "
-        "(segmentations, allocations, motion plans, plans)."
+        2, ge=1, le=64, description="Synchronous stage requests (segmentations, allocations, "
+        "motion plans, plans) computed at once: one heavy thread each, and with "
+        "heavy_processes one worker process each."
+    )
+    heavy_processes: bool = Field(
+        True, description="Compute synchronous stage requests in worker processes (one per "
+        "heavy thread, started with the server and replaced when one dies), so that the "
+        "server's event loop never waits for a computation; false: in the heavy threads of "
+        "the server process."
+    )
+    heavy_nice: int = Field(
+        10, ge=0, le=19, description="Niceness added to the heavy worker processes, so that "
+        "the server's event loop (health checks, cheap routes) wins a busy CPU."
+    )
+    heavy_kill_grace_s: float = Field(
+        5.0, gt=0, description="Seconds a heavy worker process may run past its request's "
+        "time limit (a segmentation's: max_time_limit_s), or after its request was "
+        "cancelled, before it is killed and replaced; the request is then answered as out "
+        "of time (422 naming time_limit_s)."
     )
     heavy_queue: int = Field(
         2, ge=0, le=1000, description="Stage requests that may wait for a heavy thread (the "

@@ -113,7 +113,8 @@ def check_failed(out: dict[str, Any]) -> None:
 def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail: bool) -> None:
     fake = fake_plan_sequence(fail)
     monkeypatch.setattr(programme, "plan_sequence", fake)
-    app = create_app(Settings(job_db=tmp_path / "j.db", api_token=TOKEN))
+    # heavy_processes=False: the plan computes in this process, where the fake applies
+    app = create_app(Settings(job_db=tmp_path / "j.db", api_token=TOKEN, heavy_processes=False))
     with TestClient(app) as c:
         r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3},
                    headers=AUTH)
@@ -143,7 +144,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
         raise RuntimeError("a bug")
 
     monkeypatch.setattr(programme, "plan_sequence", broken)
-    app = create_app(Settings(job_db=tmp_path / "j.db"))
+    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_processes=False))
     with TestClient(app) as c:
         r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3})
     assert r.status_code == 200, r.text

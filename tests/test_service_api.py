@@ -487,13 +487,21 @@ def test_unexpected_error_is_never_500(tmp_path, monkeypatch) -> None:
         assert r.json()["error"] == "internal_error"
 
 
-def test_domain_input_error_is_422(tmp_path, monkeypatch) -> None:
+def _bad_segmentation(*_: Any, **__: Any) -> Any:
+    """Module-level, so that a heavy worker process can import it by name."""
     from models.errors import InputError
 
-    def bad(*_: Any, **__: Any) -> Any:
-        raise InputError("targets[3].dec_deg", "too close to the pole")
+    raise InputError("targets[3].dec_deg", "too close to the pole")
 
-    monkeypatch.setattr(pipeline, "segmentation", bad)
+
+def _slow_segmentation(*_: Any, **__: Any) -> Any:
+    from models.errors import TimeLimitExceeded
+
+    raise TimeLimitExceeded("segmentation", 0.5)
+
+
+def test_domain_input_error_is_422(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(pipeline, "segmentation", _bad_segmentation)
     app = create_app(Settings(job_db=tmp_path / "j.db"))
     with TestClient(app) as c:
         r = c.post("/v1/segmentations", json={"targets": sky(4)})
@@ -502,12 +510,7 @@ def test_domain_input_error_is_422(tmp_path, monkeypatch) -> None:
 
 
 def test_stage_out_of_time_is_422_on_time_limit(tmp_path, monkeypatch) -> None:
-    from models.errors import TimeLimitExceeded
-
-    def slow(*_: Any, **__: Any) -> Any:
-        raise TimeLimitExceeded("segmentation", 0.5)
-
-    monkeypatch.setattr(pipeline, "segmentation", slow)
+    monkeypatch.setattr(pipeline, "segmentation", _slow_segmentation)
     app = create_app(Settings(job_db=tmp_path / "j.db"))
     with TestClient(app) as c:
         r = c.post("/v1/segmentations", json={"targets": sky(4)})

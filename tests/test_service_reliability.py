@@ -78,7 +78,8 @@ def alive(pid: int) -> bool:
 
 
 class SlowStage:
-    """A stand-in segmentation that runs until told to stop or cancelled via progress."""
+    """A stand-in segmentation that runs until told to stop or cancelled via progress, in the
+    server's heavy threads (``heavy_processes=False``: its events live in this process)."""
 
     def __init__(self) -> None:
         self.started = threading.Semaphore(0)
@@ -108,7 +109,7 @@ def test_saturated_executor_refuses_at_once_and_health_answers(tmp_path, monkeyp
     slow = SlowStage()
     monkeypatch.setattr(pipeline, "segmentation", slow)
     app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=1,
-                              retry_after_s=7))
+                              retry_after_s=7, heavy_processes=False))
     with serve(app) as url:
         results: list[int] = []
 
@@ -147,7 +148,8 @@ def test_saturated_executor_refuses_at_once_and_health_answers(tmp_path, monkeyp
 def test_work_of_a_client_that_left_stops(tmp_path, monkeypatch) -> None:
     slow = SlowStage()
     monkeypatch.setattr(pipeline, "segmentation", slow)
-    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=0))
+    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=0,
+                              heavy_processes=False))
     with serve(app) as url:
         with pytest.raises(httpx.ReadTimeout):
             httpx.post(url + "/v1/segmentations", json=SEG, timeout=1.0)  # gives up after 1 s
@@ -425,7 +427,8 @@ def test_a_waiting_request_whose_client_left_frees_its_slot_and_never_runs(tmp_p
                                                                            monkeypatch) -> None:
     slow = SlowStage()
     monkeypatch.setattr(pipeline, "segmentation", slow)
-    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=1))
+    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, heavy_queue=1,
+                              heavy_processes=False))
     with serve(app) as url:
         codes: list[int] = []
 
