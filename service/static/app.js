@@ -95,7 +95,7 @@ function showInputUsed() {
   const file = $("file").files[0];
   $("targets").classList.toggle("unused", Boolean(file));
   $("clear-file").hidden = !file;
-  $("input-used").textContent = file ? `not used: the file ${file.name} is (type here to use this table instead)` :
+  $("input-used").textContent = file ? `not used: the plan reads the file ${file.name} (type here to use this table instead)` :
     "the pasted table is used";
 }
 
@@ -287,6 +287,12 @@ function clearResult() {
 // sky view stay on the first screen.
 const BANNER_REASONS = 3;
 
+// A reason of the plan ("... leg 0 (park -> c1): ...", the index into `motions`) with its leg
+// counted from 1, as configurations are: "leg 1 (park -> c1)".
+function legFromOne(reason) {
+  return reason.replace(/\bleg (\d+) \(/g, (_, i) => `leg ${Number(i) + 1} (`);
+}
+
 function showBanner(result) {
   const b = $("banner");
   b.replaceChildren();
@@ -295,7 +301,7 @@ function showBanner(result) {
     b.append("Every motion leg of every pointing was planned: the plan is executable.");
   } else {
     b.className = "bad";
-    const reasons = el("ul", {}, ...result.reasons.map((r) => el("li", {}, r)));
+    const reasons = el("ul", {}, ...result.reasons.map((r) => el("li", {}, legFromOne(r))));
     b.append("This plan is NOT executable: some motion legs could not be planned. Do not execute the failed legs.",
       result.reasons.length <= BANNER_REASONS ? reasons :
         el("details", {}, el("summary", {}, `the ${result.reasons.length} reasons`), reasons));
@@ -449,5 +455,5 @@ async function resumeJob(saved) {
 }
 
 window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
-  cliLine, progressText, CONTROLS, state };
+  cliLine, progressText, legFromOne, CONTROLS, state };
 start();
