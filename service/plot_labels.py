@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.axes import Axes
 from matplotlib.text import Text
 from matplotlib.transforms import Bbox
@@ -32,6 +33,8 @@ DIRECTIONS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (-1, 1), (1, -1), (-1, -
 #: label on a ring other than the first gets a leader line.
 RINGS_PX = (0.0, 9.0, 20.0, 34.0)
 PAD_PX = 1.5  # gap between a label's box and its anchor's clearance
+#: A thin white halo keeps a label readable over a finding chart or an arm outline.
+HALO = (patheffects.withStroke(linewidth=2.0, foreground="white", alpha=0.85),)
 
 
 @dataclass(frozen=True)
@@ -113,7 +116,8 @@ def place_labels(ax: Axes, specs: Sequence[LabelSpec], obstacles: np.ndarray) ->
     layout = LabelLayout([], [])
     for spec in specs:
         t = ax.annotate(spec.text, (spec.x, spec.y), xytext=(0, 0), textcoords="offset pixels",
-                        ha="center", va="center", gid=spec.gid, **spec.style)
+                        ha="center", va="center", gid=spec.gid,
+                        **{"path_effects": list(HALO), **spec.style})
         ext = t.get_window_extent(renderer)  # no arrow: the text's own box
         cx, cy = ax.transData.transform((spec.x, spec.y))
         cand, ring = candidates(cx, cy, spec.radius_px, ext.width, ext.height, spec.rings_px)

@@ -25,7 +25,7 @@ from service.sky_text import priority_text
 #: Tier colours, highest priority first (no blue: the arms are drawn in blue-grey).
 TIER_COLOURS = ("#d62728", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b")
 MAX_TIERS = len(TIER_COLOURS)
-ARM_COLOURS = {"on target": "#3b5b92", "parked": "0.55", "on blank sky": "#7f7f7f"}
+ARM_COLOURS = {"on target": "#1f4e9c", "parked": "0.45", "on blank sky": "#6b6b6b"}
 FOCAL_ORIENTATION = "Sky as seen: North up, East left (focal-plane +x drawn leftwards)"
 SKY_ORIENTATION = "Sky as seen: North up, East left (xi, East, increases leftwards)"
 
@@ -90,7 +90,7 @@ def draw_capsule(ax: Axes, a: np.ndarray, b: np.ndarray, half_width: float, colo
     """An arm body drawn to scale as an outline with a light fill, so overlapping neighbours
     show two outlines crossing (not one dark blob that reads as a collision)."""
     ax.add_patch(Polygon(capsule(a, b, half_width), closed=True, facecolor=(*_rgb(colour), 0.10),
-                         edgecolor=colour, lw=0.7, gid=gid))
+                         edgecolor=colour, lw=0.8, gid=gid))
 
 
 def _rgb(colour: str) -> tuple[float, float, float]:
