@@ -46,7 +46,8 @@ DELIMITERS = ("\t", "|", ";", ",")
 #: Units of a VizieR units row that name sexagesimal forms: hours or degrees.
 SEXAGESIMAL_UNITS = {"h:m:s": "hourangle", "d:m:s": "deg", "hms": "hourangle", "dms": "deg"}
 _DASHES = re.compile(r"^-+$")
-_COLUMN_UCD = re.compile(r"^#Column\t([^\t]+)\t.*\[ucd=([^\]\t]+)\]")
+#: A ``#Column`` line longer than this is not looked at for its UCD.
+MAX_COLUMN_LINE_CHARS = 4096
 #: Comment lines that open another table of the same export.
 _NEW_TABLE = ("#Table", "#RESOURCE")
 
@@ -69,7 +70,8 @@ class _Layout:
     names: list[str] = field(default_factory=list)
     units: list[str] = field(default_factory=list)
     ucds: dict[str, str] = field(default_factory=dict)
-    rows: list[list[str]] = field(default_factory=list)
+    kept: list[int] = field(default_factory=list)  # the columns built, by index
+    rows: list[list[str]] = field(default_factory=list)  # each data row's kept cells
     lines: list[int] = field(default_factory=list)
 
 
@@ -80,13 +82,13 @@ def read_tsv(path: Path, label: str, rows: RowLimit | None,
     with open_plain(path) as raw:
         text = io.TextIOWrapper(raw, encoding="utf-8", newline="")
         try:
-            layout = _scan(_numbered(bounded_lines(text, label)), label, rows)
+            layout = _scan(_numbered(bounded_lines(text, label)), label, rows, keep)
         except UnicodeDecodeError:
             raise TargetFileError(f"{label}: not a table: not UTF-8 text; save the table as "
                                   "UTF-8") from None
     if not layout.names:
         raise TargetFileError(f"{label}: the table has no header row (only comment lines)")
-    return TsvTable(_table(layout, keep), len(layout.rows), layout.lines)
+    return TsvTable(_table(layout), len(layout.rows), layout.lines)
 
 
 def _numbered(lines: Iterator[str]) -> Iterator[tuple[int, str]]:
@@ -94,7 +96,8 @@ def _numbered(lines: Iterator[str]) -> Iterator[tuple[int, str]]:
         yield number, line.rstrip("\r\n")
 
 
-def _scan(lines: Iterator[tuple[int, str]], label: str, rows: RowLimit | None) -> _Layout:
+def _scan(lines: Iterator[tuple[int, str]], label: str, rows: RowLimit | None,
+          keep: Callable[[str, str], bool]) -> _Layout:
     """The pass: comments (and their UCDs), the header, the units and dashes rows, the data."""
     layout = _Layout()
     pending: list[tuple[int, list[str]]] = []  # rows after the header, until the layout is known
@@ -112,6 +115,8 @@ def _scan(lines: Iterator[tuple[int, str]], label: str, rows: RowLimit | None) -
             layout.delimiter = next((d for d in DELIMITERS if d in line), "\t")
             layout.names = [c.strip() for c in line.split(layout.delimiter)]
             check_names(layout.names, label, number)
+            layout.kept = [k for k, name in enumerate(layout.names)
+                           if keep(name, layout.ucds.get(name, ""))]
             continue
         cells = [c.strip() for c in line.split(layout.delimiter)]
         if not head_done:
@@ -149,9 +154,13 @@ def _unquote(unit: str) -> str:
 
 
 def _note_ucd(line: str, layout: _Layout) -> None:
-    m = _COLUMN_UCD.match(line)
-    if m and not layout.names:
-        layout.ucds.setdefault(m.group(1).strip(), m.group(2).strip())
+    """The UCD of a ``#Column<TAB>name<TAB>(format)<TAB>description<TAB>[ucd=...]`` line."""
+    if layout.names or not line.startswith("#Column\t") or len(line) > MAX_COLUMN_LINE_CHARS:
+        return
+    parts = line.split("\t")
+    last = parts[-1].strip()
+    if len(parts) >= 3 and last.startswith("[ucd=") and last.endswith("]"):
+        layout.ucds.setdefault(parts[1].strip(), last[5:-1].strip())
 
 
 def _add_row(layout: _Layout, cells: list[str], line: int, label: str,
@@ -162,22 +171,21 @@ def _add_row(layout: _Layout, cells: list[str], line: int, label: str,
     check_row(cells, layout.names, (label, n_row, line), True)
     if rows is not None and n_row > rows.most:
         raise rows.refuse(label, f"more than {rows.most} rows (line {line})")
-    layout.rows.append(cells)
+    layout.rows.append([cells[k] if k < len(cells) else "" for k in layout.kept])
     layout.lines.append(line)
 
 
-def _table(layout: _Layout, keep: Callable[[str, str], bool]) -> Any:
+def _table(layout: _Layout) -> Any:
     """The kept columns as masked text columns (an empty or missing cell masked), each with
     its unit (units row) and UCD (``#Column`` line)."""
     import numpy as np
     from astropy.table import MaskedColumn, Table
 
     table = Table()
-    for k, name in enumerate(layout.names):
+    for j, k in enumerate(layout.kept):
+        name = layout.names[k]
         ucd = layout.ucds.get(name, "")
-        if not keep(name, ucd):
-            continue
-        cells = [row[k] if k < len(row) else "" for row in layout.rows]
+        cells = [row[j] for row in layout.rows]
         data = np.empty(len(cells), dtype=object)
         data[:] = cells
         col = MaskedColumn(data, name=name, mask=[not c for c in cells],
