@@ -1,9 +1,20 @@
 // MXS planner page: the pictures (drawn in the browser from the API's answers). Loaded
-// before app.js; its functions are called once both are loaded.
+// after format.js and before app.js; its functions are called once all are loaded.
+//
+// Orientation (docs/orientation.md): every picture shows the sky as the observer sees it,
+// North up and East left. The sky view draws standard coordinates xi (East) leftwards and eta
+// (North) up; the configuration viewer draws focal-plane +y up and +x leftwards (fpSvg, the one
+// place of that mirror), because models/sky.py puts +x East and +y North at PA 0.
 "use strict";
 
 const SVG_NS = "http://www.w3.org/2000/svg";
 const TIER_COLOURS = ["#d62728", "#ff7f0e", "#b8a000", "#2ca02c", "#17becf", "#1f77b4", "#9467bd"];
+const FOCAL_CONVENTION = "Sky as seen: North up, East left (focal-plane +x drawn leftwards)";
+const SKY_CONVENTION = "Sky as seen: North up, East left";
+const LABEL_FONT = "DejaVu Sans Mono, Liberation Mono, monospace";
+// Arm colours by assignment kind (the legend names them).
+const ARM_KINDS = { target: ["#1f4e99", "arm on a target"], park: ["#8a8a8a", "parked arm"],
+  blank: ["#8e44ad", "arm on blank sky"], fixed: ["#b0b0b0", "disabled arm (left where it is)"] };
 
 // ------------------------------------------------------------------------ DOM helpers
 
@@ -40,35 +51,23 @@ function hoursMinutes(s) {
 
 // A plan's or a pointing's stats.telescope_time: total, then exposures + acquisitions + reconfiguration.
 function telescopeTimeText(t) {
-  const plural = (n, w) => `${n} ${w}${n === 1 ? "" : "s"}`;
   return `${hoursMinutes(t.total_s)} = ${plural(t.exposures, "exposure")} ${hoursMinutes(t.exposure_s)} + ` +
     `${plural(t.acquisitions, "acquisition")} ${hoursMinutes(t.acquisition_s)} + reconfiguration ` +
     `${hoursMinutes(t.reconfiguration_s)}` + (t.unplanned_legs ? ` (${plural(t.unplanned_legs, "leg")} not planned, not counted)` : "");
 }
 
-// ------------------------------------------------------------------------ one pointing
+// ------------------------------------------------------------------------ geometry
 
-function pointingSection(p, request, byId, tiers, list) {
-  const sec = el("div", { class: "pointing" + (p.executable ? "" : " not-executable"), "data-pointing": p.id });
-  const nAlloc = p.configurations.reduce((a, c) => a + c.assignments.filter((x) => x.target_id).length, 0);
-  sec.append(el("h3", {}, `Pointing ${p.id}: RA ${p.ra_deg.toFixed(5)}°, Dec ${p.dec_deg.toFixed(5)}° `,
-    el("span", { class: "badge " + (p.executable ? "ok" : "failed") }, p.executable ? "executable" : "NOT executable")),
-  el("p", {}, `${p.target_ids.length} targets, ${p.configurations.length} configurations, ${nAlloc} observed, ` +
-    `${p.unallocated.length} not observed.`));
-  const t = p.stats && p.stats.telescope_time;
-  if (t) sec.append(el("p", { class: "telescope-time" }, `Telescope time (h:mm): ${telescopeTimeText(t)}.`));
-  if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, r))));
-  if (p.changes.length) {
-    sec.append(el("p", {}, el("span", { class: "badge changed" }, "changed"),
-      " The motion planner changed the allocation so that the legs can be executed:"),
-    el("ul", { class: "changes" }, ...p.changes.map((c) => el("li", {}, `leg ${c.leg}: ${c.kind} - ${c.reason}` +
-      (c.target_ids.length ? ` (targets ${c.target_ids.join(", ")})` : "")))));
-  }
-  const members = p.target_ids.map((id) => byId.get(id)).filter(Boolean);
-  const pos = projectTargets(members, p, request.position_angle_deg);
-  if (p.configurations.length) sec.append(configurationViewer(p, members, pos, tiers));
-  sec.append(targetTable(p, members));
-  return sec;
+// Focal plane (mm) -> SVG user units: +y up, +x LEFT, so the picture is the sky as seen.
+function fpSvg(x, y) { return [-x, -y]; }
+
+// Standard coordinates (arcmin, xi East, eta North) -> SVG user units: East left, North up.
+function skySvg(xiArcmin, etaArcmin) { return [-xiArcmin, -etaArcmin]; }
+
+// The position angle a pointing is observed at: its own when the segmentation chose one.
+function pointingPa(p, request) {
+  return p.position_angle_deg === null || p.position_angle_deg === undefined
+    ? (request.position_angle_deg || 0) : p.position_angle_deg;
 }
 
 // Gnomonic (TAN) projection about the pointing, as models/sky.py: +xi East, +eta North,
@@ -92,11 +91,131 @@ function standardCoords(raDeg, decDeg, ra0Deg, dec0Deg) {
           (Math.cos(de0) * Math.sin(de) - Math.sin(de0) * Math.cos(de) * Math.cos(ra - ra0)) / cosc / d2r];
 }
 
+// ------------------------------------------------------------------------ label layout
+
+// Measure label texts (and a picture's fixed texts) as the browser draws them: a picture not
+// yet on the page goes for a moment into an off-screen host styled like its place there
+// (`hostClasses`, outermost first), because text metrics depend on the drawn scale. Sets each
+// item's size = [dx, dy, w, h] (its box from the baseline's left end); returns the fixed
+// texts' boxes [x0, y0, x1, y1].
+function measureTexts(root, hostClasses, items, fixedNodes) {
+  const probe = svg("g", { class: "label-probe" });
+  const nodes = items.map((it) => svg("text", { x: 0, y: 0, "font-size": it.fs, "font-family": LABEL_FONT }, it.text));
+  probe.append(...nodes);
+  root.append(probe);
+  let host = null;
+  if (!root.isConnected && document.body) {
+    host = el("div", { style: "position:absolute;left:-10000px;top:0;width:80em;visibility:hidden" });
+    let inner = host;
+    for (const c of hostClasses) { const d = el("div", { class: c }); inner.append(d); inner = d; }
+    inner.append(root);
+    document.body.append(host);
+  }
+  items.forEach((it, i) => {
+    const b = nodes[i].getBBox();
+    it.size = b.width > 0 ? [b.x, b.y, b.width, b.height] : [0, -0.95 * it.fs, 0.62 * it.fs * it.text.length, 1.25 * it.fs];
+  });
+  const fixed = fixedNodes.map((t) => { const b = t.getBBox(); return [b.x, b.y, b.x + b.width, b.y + b.height]; });
+  probe.remove();
+  if (host) { root.remove(); host.remove(); }
+  return fixed;
+}
+
+function boxesOverlap(a, b) { return a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]; }
+
+// Where a label may go around a marker: the 8 directions next to it, then the same directions
+// further out (drawn with a leader line).
+const LABEL_DIRECTIONS = [[1, 0], [-1, 0], [0, -1], [0, 1], [1, -1], [-1, -1], [1, 1], [-1, 1]];
+
+function candidateBoxes(item, w, h) {
+  const out = [];
+  for (const ring of [0, 1.6, 3.4]) {
+    for (const [dx, dy] of LABEL_DIRECTIONS) {
+      const d = item.r + item.gap + ring * h, n = Math.hypot(dx, dy);
+      const px = item.x + d * dx / n, py = item.y + d * dy / n;
+      const x0 = dx > 0 ? px : dx < 0 ? px - w : px - w / 2, y0 = dy > 0 ? py : dy < 0 ? py - h : py - h / 2;
+      out.push({ box: [x0, y0, x0 + w, y0 + h], leader: ring > 0 });
+    }
+  }
+  return out;
+}
+
+// Greedy collision-avoiding layout: items (in priority order: {x, y, r, gap, text, fs, size}) take
+// the first candidate box that overlaps no obstacle (markers, fixed texts), no label already
+// placed, and stays inside `bounds`; an item with no such box gets no label (its marker keeps
+// the id as a tooltip). Returns [{item, box, x, y (baseline), leader: [x1, y1, x2, y2] | null}].
+function placeLabels(items, obstacles, bounds) {
+  const placed = [], taken = obstacles.slice();
+  for (const item of items) {
+    const [dx, dy, w, h] = item.size, pad = 0.05 * h;
+    for (const c of candidateBoxes(item, w + 2 * pad, h + 2 * pad)) {
+      const b = c.box;
+      if (b[0] < bounds[0] || b[1] < bounds[1] || b[2] > bounds[2] || b[3] > bounds[3]) continue;
+      if (taken.some((o) => boxesOverlap(b, o))) continue;
+      taken.push(b);
+      placed.push({ item, box: b, x: b[0] + pad - dx, y: b[1] + pad - dy, leader: c.leader ? leaderLine(item, b) : null });
+      break;
+    }
+  }
+  return placed;
+}
+
+// From the marker's edge to the nearest point of the label's box.
+function leaderLine(item, b) {
+  const nx = Math.min(Math.max(item.x, b[0]), b[2]), ny = Math.min(Math.max(item.y, b[1]), b[3]);
+  const d = Math.hypot(nx - item.x, ny - item.y) || 1;
+  return [item.x + item.r * (nx - item.x) / d, item.y + item.r * (ny - item.y) / d, nx, ny];
+}
+
+// SVG nodes of placed labels: the text (its estimated box in data-box, for checks) and leaders.
+function labelNodes(placed, cls) {
+  const g = svg("g", { class: cls });
+  for (const pl of placed) {
+    if (pl.leader) {
+      const [x1, y1, x2, y2] = pl.leader;
+      g.append(svg("line", { class: "leader", x1, y1, x2, y2, stroke: "#777", "stroke-width": pl.item.fs / 14 }));
+    }
+    g.append(svg("text", { class: "label", x: pl.x, y: pl.y, "font-size": pl.item.fs, "font-family": LABEL_FONT,
+      fill: pl.item.colour || "#222", "data-for": pl.item.id, "data-box": pl.box.join(" ") }, pl.item.text));
+  }
+  return g;
+}
+
+// A marker's box as an obstacle for labels.
+function markerBox(x, y, r) { return [x - r, y - r, x + r, y + r]; }
+
+// ------------------------------------------------------------------------ one pointing
+
+function pointingSection(p, request, byId, tiers, list) {
+  const sec = el("div", { class: "pointing" + (p.executable ? "" : " not-executable"), "data-pointing": p.id });
+  const nAlloc = p.configurations.reduce((a, c) => a + c.assignments.filter((x) => x.target_id).length, 0);
+  const pa = pointingPa(p, request);
+  sec.append(el("h3", {}, `Pointing ${p.id}: ${radecText(p.ra_deg, p.dec_deg)}, PA ${pa.toFixed(1)}° `,
+    el("span", { class: "badge " + (p.executable ? "ok" : "failed") }, p.executable ? "executable" : "NOT executable")),
+  el("p", {}, `${plural(p.target_ids.length, "target")}, ${plural(p.configurations.length, "configuration")}, ` +
+    `${nAlloc} observed, ${p.unallocated.length} not observed.`));
+  const t = p.stats && p.stats.telescope_time;
+  if (t) sec.append(el("p", { class: "telescope-time" }, `Telescope time (h:mm): ${telescopeTimeText(t)}.`));
+  const fromOne = typeof legFromOne === "function" ? legFromOne : (r) => r;  // app.js: legs counted from 1
+  if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, fromOne(r)))));
+  if (p.changes.length) {
+    sec.append(el("p", {}, el("span", { class: "badge changed" }, "changed"),
+      " The motion planner changed the allocation so that the legs can be executed:"),
+    el("ul", { class: "changes" }, ...p.changes.map((c) => el("li", {}, `leg ${c.leg + 1}: ${c.kind} - ${fromOne(c.reason)}` +
+      (c.target_ids.length ? ` (targets ${c.target_ids.join(", ")})` : "")))));
+  }
+  const members = p.target_ids.map((id) => byId.get(id)).filter(Boolean);
+  const pos = projectTargets(members, p, pa);
+  if (p.configurations.length) sec.append(configurationViewer(p, members, pos, tiers));
+  sec.append(targetTable(p, members));
+  return sec;
+}
+
 function targetTable(p, members) {
   const where = new Map();
   p.configurations.forEach((c, k) => c.assignments.forEach((a) => { if (a.target_id) where.set(a.target_id, [`c${k + 1}`, a.arm, ""]); }));
   for (const u of p.unallocated) if (!where.has(u.target_id)) where.set(u.target_id, ["", "", u.reason]);
-  const rows = members.map((t) => [t.id, t.priority, ...(where.get(t.id) || ["", "", "?"])]);
+  const rows = members.map((t) => [t.id, priorityText(t.priority), ...(where.get(t.id) || ["", "", "?"])]);
   return el("details", { class: "targets" }, el("summary", {}, `Targets of pointing ${p.id}`),
     table(["target", "priority", "configuration", "arm", "not observed because"], rows, [0, 4]));
 }
@@ -108,9 +227,11 @@ function configurationViewer(p, members, pos, tiers) {
   const stepper = el("div", { class: "stepper" }, "Configuration: ");
   const view = el("div", { class: "viewer" });
   const legInfo = el("p", { class: "leg" });
+  const picked = el("p", { class: "picked", "aria-live": "polite" });
   const show = (k) => {
     for (const b of stepper.querySelectorAll("button")) b.setAttribute("aria-pressed", String(Number(b.dataset.k) === k));
-    view.replaceChildren(drawConfiguration(p, k, members, pos, tiers), legend(tiers));
+    const root = drawConfiguration(p, k, members, pos, tiers);
+    view.replaceChildren(root, legend(root, tiers));
     legInfo.replaceChildren(...legText(p, k));
   };
   let current = 0;
@@ -125,9 +246,17 @@ function configurationViewer(p, members, pos, tiers) {
     onclick: () => playLeg(p, current, view, legInfo, () => show(current)) }, "▶ play the leg into it");
   const save = el("button", { type: "button", class: "save-svg", title: "this picture as an SVG file",
     onclick: () => savePicture(view.querySelector("svg"), `pointing${p.id}_c${current + 1}.svg`) }, "download picture (SVG)");
-  box.append(stepper, play, " ", save, legInfo, view);
+  view.addEventListener("click", (e) => showPicked(e, picked));
+  box.append(stepper, play, " ", save, legInfo, view, picked);
   show(0);
   return box;
+}
+
+// A tap or click on a marker or an arm names it (labels left out of a crowded field included).
+function showPicked(e, out) {
+  const node = e.target.closest && e.target.closest("[data-id], g.arm, .sky-target");
+  const title = node && node.querySelector(":scope > title");
+  if (title) out.textContent = title.textContent;
 }
 
 // "failed" when a motion leg into or out of configuration k was not planned, "changed" when the
@@ -163,6 +292,7 @@ function anglesAt(motion, t) {
   return out;
 }
 
+// The leg into configuration k as an animation; labels are hidden while the arms move.
 function playLeg(p, k, view, legInfo, done) {
   const motion = p.motions[k], root = view.querySelector("svg");
   if (!motion || !root || root.dataset.playing) return;
@@ -172,6 +302,7 @@ function playLeg(p, k, view, legInfo, done) {
   const clock = el("span", { class: "clock" });
   legInfo.append(" ", clock);
   root.dataset.playing = "true";
+  for (const g of root.querySelectorAll("g.labels")) g.setAttribute("visibility", "hidden");
   const t0 = performance.now();
   const frame = (now) => {
     const t = Math.min(end, (now - t0) / wallMs * end);
@@ -187,43 +318,6 @@ function playLeg(p, k, view, legInfo, done) {
   requestAnimationFrame(frame);
 }
 
-// ------------------------------------------------------------------------ the field on the sky
-
-// Targets and pointings about the field's tangent point, North up and East left (arcmin).
-function skyView(result, request, tiers, fate) {
-  const tp = result.tangent_point || result.pointings[0];
-  const rArcmin = state.instrument.fov_diameter_mm / 2 * state.instrument.plate_scale_arcsec_per_mm / 60;
-  const sky = (ra, dec) => { const [xi, eta] = standardCoords(ra, dec, tp.ra_deg, tp.dec_deg); return [-60 * xi, -60 * eta]; };
-  const pts = request.targets.map((t) => sky(t.ra_deg, t.dec_deg));
-  const centres = result.pointings.map((p) => sky(p.ra_deg, p.dec_deg));
-  const half = 1.15 * Math.max(rArcmin, ...pts.map(([x, y]) => Math.max(Math.abs(x), Math.abs(y))),
-    ...centres.map(([x, y]) => Math.max(Math.abs(x), Math.abs(y)) + rArcmin));
-  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, class: "sky", role: "img",
-    "aria-label": "the field on the sky" });
-  const u = half / 100;  // one percent of the view, for strokes and text
-  result.pointings.forEach((p, i) => root.append(
-    svg("circle", { class: "pointing-fov", cx: centres[i][0], cy: centres[i][1], r: rArcmin, fill: "none",
-      stroke: p.executable ? "#1f4e99" : "#c62828", "stroke-width": 0.4 * u }),
-    svg("text", { x: centres[i][0] + 0.72 * rArcmin, y: centres[i][1] - 0.72 * rArcmin, "font-size": 5 * u }, p.id)));
-  request.targets.forEach((t, i) => {
-    const f = fate.get(t.id), st = f && f.configuration !== undefined ? "this" : "unallocated";
-    root.append(targetMark({ x: 0, y: 0 }, st, TIER_COLOURS[tiers.index(t.priority)],
-      { class: "sky-target", transform: `translate(${pts[i][0]},${pts[i][1]}) scale(${0.7 * u})` },
-      `${t.id} (priority ${t.priority}): ${st === "this" ? "observed" : "not observed"}`));
-  });
-  const cx = -0.72 * half, cy = -0.72 * half, L = 0.12 * half;
-  const bar = [60, 30, 20, 10, 5, 2, 1, 0.5, 0.2, 0.1].find((b) => b <= half / 2) || 0.1;  // arcmin
-  root.append(svg("line", { x1: cx, y1: cy, x2: cx, y2: cy - L, stroke: "#000", "stroke-width": 0.4 * u }),
-    svg("text", { x: cx - 2 * u, y: cy - L - 2 * u, "font-size": 6 * u }, "N"),
-    svg("line", { x1: cx, y1: cy, x2: cx - L, y2: cy, stroke: "#000", "stroke-width": 0.4 * u }),
-    svg("text", { x: cx - L - 6 * u, y: cy + 2 * u, "font-size": 6 * u }, "E"),
-    svg("line", { class: "sky-scale", x1: 0.9 * half - bar, y1: 0.9 * half, x2: 0.9 * half, y2: 0.9 * half, stroke: "#000", "stroke-width": 0.6 * u }),
-    svg("text", { x: 0.9 * half - bar, y: 0.9 * half - 2 * u, "font-size": 5 * u }, `${bar}′`));
-  return el("div", { class: "field" }, el("h3", {}, "The field on the sky"),
-    el("p", {}, `North up, East left; circles: the fields of view of the ${result.pointings.length} pointing${result.pointings.length === 1 ? "" : "s"} ` +
-      "(red: not executable); filled: observed, crosses: not observed; colour: priority."), root);
-}
-
 function legText(p, k) {
   const out = [];
   const legs = [[k, k === 0 ? "park" : `c${k}`, `c${k + 1}`]];
@@ -233,10 +327,10 @@ function legText(p, k) {
     if (!m) continue;
     const ok = m.status === "ok";
     out.push(el("span", { class: "badge " + (ok ? "ok" : "failed") },
-      `leg ${i} (${from} -> ${to}): ` + (ok ? `planned, ${m.makespan_s.toFixed(1)} s` : `NOT planned (arms ${m.failed_arms.join(", ")})`)), " ");
+      `leg ${i + 1} (${from} -> ${to}): ` + (ok ? `planned, ${m.makespan_s.toFixed(1)} s` : `NOT planned (arms ${m.failed_arms.join(", ")})`)), " ");
   }
   const c = p.configurations[k];
-  out.push(`${c.arm_yield} arms on targets, total priority ${c.total_priority}.`);
+  out.push(`${plural(c.arm_yield, "arm")} on targets, total priority ${c.total_priority}.`);
   return out;
 }
 
@@ -264,58 +358,100 @@ function targetStatus(id, k, p) {
   return "unallocated";
 }
 
+// ------------------------------------------------------------------------ configuration picture
+
+// One configuration of a pointing, sky as seen (fpSvg), its labels laid out without overlaps.
 function drawConfiguration(p, k, members, pos, tiers) {
-  const inst = state.instrument, r = inst.fov_diameter_mm / 2, half = 1.3 * r;
-  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, role: "img",
-    "aria-label": `pointing ${p.id}, configuration ${k + 1}`, "data-configuration": k + 1 });
-  const g = svg("g", { transform: "scale(1,-1)" });  // focal plane: +x right, +y up
-  g.append(svg("circle", { cx: 0, cy: 0, r, fill: "#fafafa", stroke: "#555", "stroke-width": 0.8, "stroke-dasharray": "4 3", class: "fov" }));
-  const c = p.configurations[k];
-  const arms = svg("g", { class: "arms" });
-  for (const a of c.assignments) {
+  const inst = state.instrument, r = inst.fov_diameter_mm / 2, half = 1.3 * r, pa = pointingPa(p, state.request);
+  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, role: "img", class: "configuration",
+    "text-rendering": "geometricPrecision",  // text metrics independent of the drawn scale
+    "aria-label": `pointing ${p.id}, configuration ${k + 1}`, "data-configuration": k + 1, "data-pa-deg": pa });
+  const layer = chartLayer(root, p.ra_deg, p.dec_deg, half * inst.plate_scale_arcsec_per_mm / 60, pa, half);
+  root.append(layer, svg("circle", { cx: 0, cy: 0, r, fill: "none", stroke: "#555", "stroke-width": 0.8,
+    "stroke-dasharray": "4 3", class: "fov" }));
+  const arms = svg("g", { class: "arms" }), armItems = [], obstacles = [];
+  for (const a of p.configurations[k].assignments) {
     const arm = inst.arms.find((x) => x.arm === a.arm);
-    if (arm) arms.append(drawArm(arm, a));
+    if (!arm) continue;
+    const g = drawArm(arm, a), [tx, ty] = fpSvg(+g.dataset.tipX, +g.dataset.tipY);
+    arms.append(g);
+    obstacles.push(markerBox(tx, ty, 1.5));
+    armItems.push({ id: `arm ${a.arm}`, x: tx, y: ty, r: 1.5, gap: 1, text: `arm ${a.arm}`, fs: 5, colour: g.dataset.colour });
   }
-  g.append(arms, drawTargets(p, k, members, pos, tiers));
-  root.append(g, compass(half, p), scaleBar(half));
+  const targets = drawTargets(p, k, members, pos, tiers);
+  const heads = [headerText(`Pointing ${p.id} c${k + 1}: ${raHms(p.ra_deg)} ${decDms(p.dec_deg)}, PA ${pa.toFixed(1)}°`,
+    -half + 3, -half + 7, 5.5), headerText(FOCAL_CONVENTION, -half + 3, -half + 13.5, 5, "convention")];
+  const marks = [compass(half, pa, -0.8 * half, -0.68 * half), scaleBar(half)];
+  root.append(arms, targets.g, ...heads, ...marks.map((m) => m.node));
+  const items = [...targets.items.filter((i) => i.status === "this"), ...armItems,
+    ...targets.items.filter((i) => i.status === "pending")];
+  const headBoxes = measureTexts(root, ["viewer"], items, heads);
+  const placed = placeLabels(items, [...obstacles, ...targets.obstacles, ...headBoxes, ...marks.map((m) => m.box)],
+    [-half, -half, half, half]);
+  root.insertBefore(labelNodes(placed, "labels"), heads[0]);
+  underlay(root);
   return root;
 }
 
+// A fixed line of text in the label font (measured as an obstacle for labels).
+function headerText(text, x, y, fs, cls) {
+  return svg("text", { x, y, "font-size": fs, "font-family": LABEL_FONT, class: cls || "header" }, text);
+}
+
+// Points of a capsule's outline (segment p0-p1, radius r) in SVG units.
+function capsulePoints(p0, p1, r) {
+  const a = Math.atan2(p1[1] - p0[1], p1[0] - p0[0]), pts = [];
+  for (const [c, a0] of [[p1, a - Math.PI / 2], [p0, a + Math.PI / 2]]) {
+    for (let i = 0; i <= 8; i++) pts.push([c[0] + r * Math.cos(a0 + Math.PI * i / 8), c[1] + r * Math.sin(a0 + Math.PI * i / 8)]);
+  }
+  return pts.map(([x, y]) => `${x.toFixed(2)},${y.toFixed(2)}`).join(" ");
+}
+
+// One arm: each body as its true outline with a light fill (overlapping outlines of two
+// arms do not read as one solid collision), the tip as a dot. Colour by assignment kind.
 function drawArm(arm, a) {
   const j = armJoints(arm, a.theta1_rad, a.theta2_rad);
-  const colour = !arm.enabled ? "#999" : a.target_id ? "#1f4e99" : "#7a8db3";
-  const g = svg("g", { class: "arm", "data-arm": a.arm, "data-tip-x": j.tip[0], "data-tip-y": j.tip[1] });
+  const kind = !arm.enabled ? "fixed" : a.kind || (a.target_id ? "target" : "park");
+  const colour = (ARM_KINDS[kind] || ARM_KINDS.park)[0];
+  const g = svg("g", { class: "arm", "data-arm": a.arm, "data-tip-x": j.tip[0], "data-tip-y": j.tip[1],
+    "data-kind": `arm-${kind}`, "data-colour": colour });
   for (const b of arm.bodies) {
-    const p0 = j[b.joint_from], p1 = j[b.joint_to];
-    if (!p0 || !p1) continue;
-    const width = b.shape === "capsule" ? 2 * b.radius_mm : (b.width_mm || 2 * b.radius_mm || 10);
-    g.append(svg("line", { x1: p0[0], y1: p0[1], x2: p1[0], y2: p1[1], stroke: colour, "stroke-opacity": 0.4,
-      "stroke-width": width, "stroke-linecap": b.shape === "capsule" ? "round" : "butt" }));
+    if (!j[b.joint_from] || !j[b.joint_to]) continue;
+    const p0 = fpSvg(...j[b.joint_from]), p1 = fpSvg(...j[b.joint_to]);
+    const r = b.shape === "capsule" ? b.radius_mm : (b.width_mm || 2 * b.radius_mm || 10) / 2;
+    g.append(svg("polygon", { class: "body", points: capsulePoints(p0, p1, r), fill: colour, "fill-opacity": 0.1,
+      stroke: colour, "stroke-opacity": 0.85, "stroke-width": 0.6, "stroke-linejoin": "round" }));
   }
-  g.append(svg("circle", { cx: j.tip[0], cy: j.tip[1], r: 1.5, fill: colour }));
-  const label = svg("text", { x: j.tip[0] - 6, y: -(j.tip[1] - 9), "font-size": 6, fill: colour, transform: "scale(1,-1)" }, `arm ${a.arm}`);
-  g.append(svg("title", {}, `arm ${a.arm}: ${a.kind || ""} ${a.target_id || ""}`), label);
+  const [tx, ty] = fpSvg(...j.tip);
+  g.append(svg("circle", { cx: tx, cy: ty, r: 1.5, fill: colour }),
+    svg("title", {}, `arm ${a.arm}: ${(ARM_KINDS[kind] || ARM_KINDS.park)[1]}${a.target_id ? " " + a.target_id : ""}`));
   return g;
 }
 
+// Markers of a pointing's targets in configuration k, and the label items of the targets
+// observed now or later (highest priority first).
 function drawTargets(p, k, members, pos, tiers) {
-  const g = svg("g", { class: "targets" });
+  const g = svg("g", { class: "targets" }), items = [], obstacles = [];
   for (const t of members) {
-    const q = pos.get(t.id), st = targetStatus(t.id, k, p);
-    const colour = TIER_COLOURS[tiers.index(t.priority)];
-    const attrs = { class: `target ${st}`, "data-id": t.id, "data-status": st, "data-x": q.x, "data-y": q.y };
-    g.append(targetMark(q, st, colour, attrs, `${t.id} (priority ${t.priority}): ${statusText(st, k)}`));
-    if (st === "this" || st === "pending") {
-      g.append(svg("text", { x: q.x + 3.5, y: -q.y + 1.5, "font-size": 6, fill: "#333", transform: "scale(1,-1)" }, t.id));
-    }
+    const q = pos.get(t.id), st = targetStatus(t.id, k, p), tier = tiers.index(t.priority);
+    const [x, y] = fpSvg(q.x, q.y), r = MARK_RADIUS[st];
+    const attrs = { class: `target ${st}`, "data-id": t.id, "data-status": st, "data-x": q.x, "data-y": q.y,
+      "data-kind": `target-${st}`, "data-tier": tier };
+    g.append(targetMark({ x, y }, st, TIER_COLOURS[tier], attrs,
+      `${t.id} (priority ${priorityText(t.priority)}): ${statusText(st, k)}`));
+    obstacles.push(markerBox(x, y, r));
+    if (st === "this" || st === "pending") items.push({ id: t.id, x, y, r, gap: 0.8, text: t.id, fs: 5, status: st, priority: t.priority });
   }
-  return g;
+  items.sort((a, b) => b.priority - a.priority);
+  return { g, items, obstacles };
 }
 
 function statusText(st, k) {
   return { this: `observed in configuration ${k + 1}`, earlier: "observed in an earlier configuration",
     pending: "observed in a later configuration", unallocated: "not observed" }[st];
 }
+
+const MARK_RADIUS = { this: 3.3, pending: 3.2, earlier: 1.6, unallocated: 2.5 };
 
 function targetMark(q, st, colour, attrs, title) {
   let node;
@@ -327,39 +463,214 @@ function targetMark(q, st, colour, attrs, title) {
   return node;
 }
 
-// N and E arrows: +eta (North) is (-sin PA, cos PA) and +xi (East) (cos PA, sin PA) on the
-// focal plane (models/sky.py).
-function compass(half, p) {
-  const pa = (state.request.position_angle_deg || 0) * Math.PI / 180, L = 0.12 * half;
-  const cx = -0.8 * half, cy = 0.75 * half;  // the compass centre, top left
+// N and E arrows at (cx, cy): on the focal plane North is (-sin PA, cos PA) and East
+// (cos PA, sin PA) (models/sky.py), both drawn through fpSvg like everything else.
+function compass(half, paDeg, cx, cy) {
+  const pa = paDeg * Math.PI / 180, L = 0.12 * half;
   const g = svg("g", { class: "compass" });
   for (const [name, v] of [["N", [-Math.sin(pa), Math.cos(pa)]], ["E", [Math.cos(pa), Math.sin(pa)]]]) {
-    const x2 = cx + L * v[0], y2 = -cy - L * v[1];
-    g.append(svg("line", { x1: cx, y1: -cy, x2, y2, stroke: "#000", "stroke-width": 1 }),
-      svg("text", { x: cx + 1.35 * L * v[0] - 2.5, y: -cy - 1.35 * L * v[1] + 2.5, "font-size": 8 }, name));
+    const [dx, dy] = fpSvg(...v);
+    g.append(svg("line", { x1: cx, y1: cy, x2: cx + L * dx, y2: cy + L * dy, stroke: "#000", "stroke-width": 1,
+      "data-dir": name }),
+    svg("text", { x: cx + 1.35 * L * dx - 2.5, y: cy + 1.35 * L * dy + 2.5, "font-size": 8 }, name));
   }
-  g.append(svg("text", { x: -half + 4, y: half - 4, "font-size": 7 }, `PA ${(state.request.position_angle_deg || 0).toFixed(1)}°`));
-  return g;
+  g.append(svg("text", { x: -half + 4, y: half - 4, "font-size": 7 }, `PA ${paDeg.toFixed(1)}°`));
+  return { node: g, box: [cx - 1.6 * L, cy - 1.6 * L, cx + 1.6 * L, cy + 1.6 * L] };
 }
 
 function scaleBar(half) {
   const arcsec = 60, mm = arcsec / state.instrument.plate_scale_arcsec_per_mm;
   const x0 = half - 8 - mm, y = half - 10;
-  return svg("g", { class: "scale-bar" },
+  return { node: svg("g", { class: "scale-bar" },
     svg("line", { x1: x0, y1: y, x2: x0 + mm, y2: y, stroke: "#000", "stroke-width": 1.2 }),
-    svg("text", { x: x0, y: y - 3, "font-size": 7 }, `${arcsec}″ (${mm.toFixed(0)} mm)`));
+    svg("text", { x: x0, y: y - 3, "font-size": 7 }, `${arcsec}″ (${mm.toFixed(0)} mm)`)),
+  box: [x0 - 2, y - 12, half, y + 2] };
 }
 
-function legend(tiers) {
-  const mark = (st, colour) => {
-    const s = svg("svg", { viewBox: "-5 -5 10 10" });
-    s.append(targetMark({ x: 0, y: 0 }, st, colour, {}, ""));
-    return s;
-  };
-  return el("ul", { class: "legend" },
-    el("li", {}, mark("this", "#888"), " observed in this configuration (colour: priority)"),
-    el("li", {}, mark("pending", "#888"), " pending: observed in a later configuration"),
-    el("li", {}, mark("earlier", "#888"), " observed in an earlier configuration"),
-    el("li", {}, mark("unallocated", "#888"), " not observed"),
-    ...tiers.names.map((n, i) => el("li", {}, mark("this", TIER_COLOURS[i]), ` priority ${n}`)));
+// ------------------------------------------------------------------------ legends
+
+const TARGET_KINDS = {
+  "target-this": ["this", "observed in this configuration (colour: priority)"],
+  "target-pending": ["pending", "observed in a later configuration"],
+  "target-earlier": ["earlier", "observed in an earlier configuration"],
+  "target-unallocated": ["unallocated", "not observed"],
+  "sky-observed": ["this", "observed target (colour: priority)"],
+  "sky-unobserved": ["unallocated", "target not observed"],
+};
+
+function legendSwatch(kind) {
+  const s = svg("svg", { viewBox: "-5 -5 10 10" });
+  if (TARGET_KINDS[kind]) s.append(targetMark({ x: 0, y: 0 }, TARGET_KINDS[kind][0], "#888", {}, ""));
+  else if (kind.startsWith("arm-")) {
+    const c = ARM_KINDS[kind.slice(4)][0];
+    s.append(svg("polygon", { points: capsulePoints([-3.5, 0], [3.5, 0], 1.6), fill: c, "fill-opacity": 0.1, stroke: c, "stroke-width": 0.6 }),
+      svg("circle", { cx: -3.5, cy: 0, r: 1, fill: c }));
+  } else if (kind.startsWith("fov-")) {
+    s.append(svg("circle", { r: 4, fill: "none", stroke: kind === "fov-executable" ? "#1f4e99" : "#c62828", "stroke-width": 0.8 }));
+  } else s.append(svg("text", { x: -4, y: 3, "font-size": 7 }, "P"));
+  return s;
 }
+
+const OTHER_KINDS = { "fov-executable": "field of view of a pointing", "fov-not-executable": "field of view of a pointing NOT executable",
+  "pointing-label": "pointing id (beside its field)" };
+
+// The key of a picture: every kind of mark it holds (data-kind) and its priority tiers.
+function legend(root, tiers) {
+  const kinds = new Set([...root.querySelectorAll("[data-kind]")].map((n) => n.dataset.kind));
+  const order = [...Object.keys(TARGET_KINDS), ...Object.keys(ARM_KINDS).map((k) => `arm-${k}`), ...Object.keys(OTHER_KINDS)];
+  const text = (k) => (TARGET_KINDS[k] || [])[1] || (k.startsWith("arm-") ? ARM_KINDS[k.slice(4)][1] : OTHER_KINDS[k]);
+  const present = new Set([...root.querySelectorAll("[data-tier]")].map((n) => Number(n.dataset.tier)));
+  const mark = (i) => { const s = svg("svg", { viewBox: "-5 -5 10 10" }); s.append(targetMark({ x: 0, y: 0 }, "this", TIER_COLOURS[i], {}, "")); return s; };
+  return el("ul", { class: "legend" },
+    ...order.filter((k) => kinds.has(k)).map((k) => el("li", { "data-kind": k }, legendSwatch(k), " " + text(k))),
+    ...tiers.names.map((n, i) => present.has(i) ? el("li", { "data-tier": i }, mark(i), ` priority ${n}`) : null),
+    el("li", { class: "note" }, "Labels that would overlap are left out: tap or hover a marker for its id."));
+}
+
+// ------------------------------------------------------------------------ the field on the sky
+
+// Targets and pointings about the field's tangent point (arcmin), sky as seen (skySvg).
+function skyView(result, request, tiers, fate) {
+  const tp = result.tangent_point || result.pointings[0];
+  const rArcmin = state.instrument.fov_diameter_mm / 2 * state.instrument.plate_scale_arcsec_per_mm / 60;
+  const arcmin = (ra, dec) => standardCoords(ra, dec, tp.ra_deg, tp.dec_deg).map((v) => 60 * v);
+  const far = ([x, y]) => Math.max(Math.abs(x), Math.abs(y));
+  const halfArcmin = 1.15 * Math.max(rArcmin, ...request.targets.map((t) => far(arcmin(t.ra_deg, t.dec_deg))),
+    ...result.pointings.map((p) => far(arcmin(p.ra_deg, p.dec_deg)) + rArcmin));
+  // SVG units: 1 % of the half width, so text sizes are those of the configuration viewer
+  const half = 100, u = 1, k = half / halfArcmin, r = rArcmin * k;
+  const sky = (ra, dec) => skySvg(...arcmin(ra, dec).map((v) => k * v));
+  const pts = request.targets.map((t) => sky(t.ra_deg, t.dec_deg));
+  const centres = result.pointings.map((p) => sky(p.ra_deg, p.dec_deg));
+  const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, class: "sky", role: "img",
+    "text-rendering": "geometricPrecision",
+    "aria-label": "the field on the sky", "data-arcmin-per-unit": 1 / k });
+  root.append(chartLayer(root, tp.ra_deg, tp.dec_deg, halfArcmin, 0, half));
+  const items = [], obstacles = [];
+  result.pointings.forEach((p, i) => {
+    root.append(svg("circle", { class: "pointing-fov", cx: centres[i][0], cy: centres[i][1], r, fill: "none",
+      stroke: p.executable ? "#1f4e99" : "#c62828", "stroke-width": 0.4 * u,
+      "data-kind": p.executable ? "fov-executable" : "fov-not-executable" }, svg("title", {}, `pointing ${p.id}`)));
+    const d = r / Math.SQRT2;
+    items.push({ id: p.id, x: centres[i][0] + d, y: centres[i][1] - d, r: 0, gap: 0.3 * u, text: p.id, fs: 4.5 * u,
+      colour: p.executable ? "#1f4e99" : "#c62828", priority: Infinity, kind: "pointing-label" });
+  });
+  const targetItems = skyTargets(root, request, pts, tiers, fate, u, obstacles);
+  const head = headerText(SKY_CONVENTION, -half + 2 * u, -half + 5 * u, 3.6 * u, "convention");
+  const marks = [skyCompass(half, u), skyScale(half, u, k)];
+  root.append(head, ...marks.map((m) => m.node));
+  const all = [...items, ...targetItems];
+  const headBoxes = measureTexts(root, ["field", "viewer"], all, [head]);
+  const placed = placeLabels(all, [...obstacles, ...headBoxes, ...marks.map((m) => m.box)], [-half, -half, half, half]);
+  const labels = labelNodes(placed, "labels");
+  for (const t of labels.querySelectorAll("text")) {
+    if (items.some((i) => i.id === t.dataset.for)) { t.classList.add("pointing-label"); t.dataset.kind = "pointing-label"; }
+  }
+  root.insertBefore(labels, head);
+  underlay(root);
+  return el("div", { class: "field" }, el("h3", {}, `The field on the sky about ${radecText(tp.ra_deg, tp.dec_deg)}`),
+    el("p", {}, `${SKY_CONVENTION}; circles: the fields of view of the ${plural(result.pointings.length, "pointing")} ` +
+      "(red: not executable); filled: observed, crosses: not observed; colour: priority."),
+    el("div", { class: "viewer" }, root, legend(root, tiers)), el("p", { class: "finding-note" }));
+}
+
+// The targets' markers on the sky (appended to root), their boxes in `obstacles`; returns
+// their label items, highest priority first.
+function skyTargets(root, request, pts, tiers, fate, u, obstacles) {
+  const items = [];
+  request.targets.forEach((t, i) => {
+    const f = fate.get(t.id), st = f && f.configuration !== undefined ? "this" : "unallocated";
+    const tier = tiers.index(t.priority), [x, y] = pts[i];
+    root.append(targetMark({ x: 0, y: 0 }, st, TIER_COLOURS[tier],
+      { class: "sky-target", transform: `translate(${x},${y}) scale(${0.7 * u})`, "data-id": t.id, "data-tier": tier,
+        "data-kind": st === "this" ? "sky-observed" : "sky-unobserved" },
+      `${t.id} (priority ${priorityText(t.priority)}): ${st === "this" ? "observed" : "not observed"}`));
+    obstacles.push(markerBox(x, y, 2.4 * u));
+    items.push({ id: t.id, x, y, r: 2.4 * u, gap: 0.5 * u, text: t.id, fs: 2.8 * u, priority: t.priority });
+  });
+  return items.sort((a, b) => b.priority - a.priority);
+}
+
+function skyCompass(half, u) {
+  const cx = -0.8 * half, cy = -0.68 * half, L = 0.12 * half;
+  const [nx, ny] = skySvg(0, L), [ex, ey] = skySvg(L, 0);
+  return { node: svg("g", { class: "compass" },
+    svg("line", { x1: cx, y1: cy, x2: cx + nx, y2: cy + ny, stroke: "#000", "stroke-width": 0.4 * u, "data-dir": "N" }),
+    svg("text", { x: cx + 1.3 * nx - 2 * u, y: cy + 1.3 * ny, "font-size": 6 * u }, "N"),
+    svg("line", { x1: cx, y1: cy, x2: cx + ex, y2: cy + ey, stroke: "#000", "stroke-width": 0.4 * u, "data-dir": "E" }),
+    svg("text", { x: cx + 1.3 * ex - 4 * u, y: cy + ey + 2 * u, "font-size": 6 * u }, "E")),
+  box: [cx - 1.6 * L, cy - 1.6 * L, cx + 0.3 * L, cy + 0.3 * L] };
+}
+
+// A scale bar of a round number of arcmin (k: SVG units per arcmin).
+function skyScale(half, u, k) {
+  const arcmin = [60, 30, 20, 10, 5, 2, 1, 0.5, 0.2, 0.1].find((b) => b * k <= half / 2) || 0.1, bar = arcmin * k;
+  return { node: svg("g", { class: "scale-bar" },
+    svg("line", { class: "sky-scale", x1: 0.9 * half - bar, y1: 0.9 * half, x2: 0.9 * half, y2: 0.9 * half, stroke: "#000", "stroke-width": 0.6 * u }),
+    svg("text", { x: 0.9 * half - bar, y: 0.9 * half - 2 * u, "font-size": 5 * u }, `${arcmin}′`)),
+  box: [0.9 * half - bar - u, 0.9 * half - 7 * u, half, half] };
+}
+
+// ------------------------------------------------------------------------ finding chart
+
+// The astronomer's FITS image (null: none) and the charts cut from it, by view.
+const finding = { file: null, charts: new Map() };
+
+// An empty layer under a picture, and the view a finding chart must cover: centre, half width
+// (arcmin), up position angle (deg) and half width in SVG units (the chart spans the viewBox).
+function chartLayer(root, raDeg, decDeg, halfArcmin, upPaDeg, half) {
+  Object.assign(root.dataset, { chartRa: raDeg, chartDec: decDeg, chartHalfArcmin: halfArcmin, chartUpPa: upPaDeg, chartHalf: half });
+  return svg("g", { class: "finding-chart" });
+}
+
+// POST v1/finding-charts for one view: a PNG whose up is the view's up and whose left is its left.
+async function fetchChart(file, d) {
+  const form = new FormData();
+  form.append("image", file, file.name || "image.fits");
+  for (const [k, v] of [["ra_deg", d.chartRa], ["dec_deg", d.chartDec], ["half_width_arcmin", d.chartHalfArcmin],
+    ["up_pa_deg", d.chartUpPa], ["size_px", 512]]) form.append(k, String(v));
+  const headers = typeof authHeaders === "function" ? authHeaders() : {};
+  const r = await fetch("v1/finding-charts", { method: "POST", headers, body: form });
+  if (!r.ok) {
+    let body = null;
+    try { body = await r.json(); } catch (e) { body = null; }
+    const detail = body && (body.message || (typeof body.detail === "string" ? body.detail : null) ||
+      (Array.isArray(body.detail) ? body.detail.map((e) => `${(e.loc || []).slice(-1)[0]}: ${e.msg}`).join("; ") : null));
+    throw new Error(`finding chart: ${detail || "HTTP " + r.status}`);
+  }
+  return URL.createObjectURL(await r.blob());
+}
+
+// Draw the finding chart under one picture (fetched once per view); resolves to an error
+// message or null.
+async function underlay(root) {
+  const layer = root.querySelector("g.finding-chart"), file = finding.file;
+  if (!layer) return null;
+  if (!file) { layer.replaceChildren(); return null; }
+  const d = root.dataset, key = [d.chartRa, d.chartDec, d.chartHalfArcmin, d.chartUpPa].join("|");
+  if (!finding.charts.has(key)) finding.charts.set(key, fetchChart(file, d));
+  try {
+    const url = await finding.charts.get(key);
+    if (finding.file !== file) return null;
+    const h = Number(d.chartHalf);
+    layer.replaceChildren(svg("image", { href: url, x: -h, y: -h, width: 2 * h, height: 2 * h,
+      preserveAspectRatio: "none", class: "finding-image" }));
+    return null;
+  } catch (e) {
+    if (finding.file === file) layer.replaceChildren();
+    return e.message;
+  }
+}
+
+// Use `file` (a FITS image with a celestial WCS; null: none) as the finding chart under every
+// picture, drawn now and later; resolves to the first error message, or null.
+async function setFindingImage(file) {
+  for (const p of finding.charts.values()) p.then((url) => URL.revokeObjectURL(url), () => null);
+  finding.charts.clear();
+  finding.file = file || null;
+  const errors = (await Promise.all([...document.querySelectorAll("svg[data-chart-ra]")].map(underlay))).filter(Boolean);
+  for (const n of document.querySelectorAll(".finding-note")) n.textContent = errors[0] || "";
+  return errors[0] || null;
+}
+
+window.MXSViewer = { setFindingImage, placeLabels, fpSvg, skySvg };
