@@ -190,9 +190,12 @@ def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys
     cap = capsys.readouterr()
     assert code == EXIT_NOT_EXECUTABLE == 4, cap.err
     assert "not executable" in cap.err
-    assert re.search(r"error: pointing \S+: motion legs \[\d+\] not planned", cap.err), cap.err
-    assert re.search(r"error: pointing \S+: leg (\d+) \(c\1 -> park\): arms 3, 4 not planned "
-                     r"\(arm 3: blocked by arm 4; arm 4: no path found", cap.err), cap.err
+    # legs counted from 1, like the configurations: the last leg n + 1 goes cn -> park
+    assert re.search(r"error: pointing \S+: motion leg (\d+) \(c(\d+) -> park\) not planned",
+                     cap.err), cap.err
+    m = re.search(r"error: pointing \S+: leg (\d+) \(c(\d+) -> park\): arms 3, 4 not planned "
+                  r"\(arm 3: blocked by arm 4; arm 4: no path found", cap.err)
+    assert m and int(m.group(1)) == int(m.group(2)) + 1, cap.err
     assert "1 target moved to another configuration, 1 leg through park" in cap.out
     assert (tmp_path / "o" / "plan.json").is_file()  # the plan is still written
 
