@@ -184,6 +184,22 @@ def test_an_image_in_galactic_coordinates_is_placed_by_its_own_frame() -> None:
     assert abs(col - want_col) <= 1.0 and abs(row - want_row) <= 1.0
 
 
+@pytest.mark.parametrize("ra0,dec0,up_pa_deg", [(0.005, -30.0, 0.0), (359.99, 10.0, 70.0),
+                                                (200.0, 89.98, 0.0), (20.0, -89.99, 300.0)])
+def test_across_ra_0_and_near_the_poles(ra0: float, dec0: float, up_pa_deg: float) -> None:
+    centre = SkyCoord(ra0 * u.deg, dec0 * u.deg)
+    star = centre.directional_offset_by(50 * u.deg, 1.2 * u.arcmin)
+    wcs = image_wcs(25.0, True)
+    wcs.wcs.crval = [(ra0 + 0.01) % 360.0, dec0]
+    wcs.wcs.set()
+    image = read_fits_image(fits_bytes(star_image(wcs, [(star, 500.0)]), wcs))
+    chart = render_chart(image, centre.ra.deg, centre.dec.deg, HALF_ARCMIN, up_pa_deg, SIZE_PX)
+    col, row = peak_of(chart.values)
+    want_col, want_row = expected_pixel(centre, star, up_pa_deg)
+    assert abs(col - want_col) <= 1.0 and abs(row - want_row) <= 1.0, (col, row, want_col,
+                                                                      want_row)
+
+
 def test_a_cube_with_one_plane_is_read_as_its_image() -> None:
     wcs2 = image_wcs(30.0, True)
     header = wcs2.to_header()
