@@ -1,6 +1,7 @@
-"""What a programme's plan spends per unit of need: the measurement behind
-``planner.programme.ProgrammeShares.need_effort_s`` and the limit a plan's
-``time_limit_advice`` names. Prints JSON to stdout.
+"""What a programme's plan spends per target: the measurement behind
+``planner.programme.ProgrammeShares.typical_effort_per_target_s`` and
+``enough_effort_per_target_s``, from which a plan's ``time_limit_advice`` names a limit.
+Prints JSON to stdout.
 
     python benchmarks/time_need.py                          # programmes of seeds 500..509
     python benchmarks/time_need.py --seeds 500 501 --case tests/data/m67-like-150-vizier.csv
@@ -8,11 +9,12 @@
 
 Each programme (``benchmarks/programmes.py``'s shapes, or a target table given with
 ``--case``) is planned through the call behind ``POST /v1/plans`` at the default limit
-(120 s). Per pointing: its need (targets + 12), the effort seconds of the round whose plan was
-kept, and their ratio; per programme the summed effort over the summed need, the limit
+(120 s). Per pointing: its targets, the effort seconds of the round whose plan was kept, and
+their ratio; per programme the summed effort over the summed targets, the limit
 ``planner.time_advice.needed_limit_s`` estimates from the table (before planning) and the
 wall time the plan took. The summary gives the per-programme ratios and the percentiles of
-the per-pointing ones.
+the per-pointing ones (the table's typical figure is their median, its figure of enough
+their 90th percentile).
 """
 
 from __future__ import annotations
@@ -47,13 +49,13 @@ def measure(name: str, targets: list[dict[str, Any]], seed: int) -> dict[str, An
         kept = max(p["stats"]["rounds"], key=lambda r: (r.get("attempted", True), r["executable"],
                                                         -r["failed_legs"], r["observed"]))
         rows.append({"targets": len(p["target_ids"]), "need": need, "effort_s": round(kept["effort_s"], 3),
-                     "effort_per_need": round(kept["effort_s"] / need, 4), "executable": p["executable"]})
-    need = sum(r["need"] for r in rows)
+                     "effort_per_target": round(kept["effort_s"] / len(p["target_ids"]), 4),
+                     "executable": p["executable"]})
     mode = plan["stats"]["segmentation"]["mode"]
-    expected = sum(programme.need_share_s(r["need"]) for r in rows)
+    expected = sum(programme.expected_share_s(r["need"]) for r in rows)
     return {"programme": name, "targets": len(targets), "mode": mode, "pointings": len(rows),
-            "executable": plan["executable"], "need": need,
-            "effort_per_need": round(sum(r["effort_s"] for r in rows) / need, 4),
+            "executable": plan["executable"],
+            "effort_per_target": round(sum(r["effort_s"] for r in rows) / len(targets), 4),
             "needed_limit_s": needed_limit_s(expected, mode == "fewest-exposures"),
             "wall_s": round(wall_s, 1), "pointing_rows": rows}
 
@@ -83,11 +85,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         rows.append(measure(name, targets, seed))
         print(json.dumps({k: v for k, v in rows[-1].items() if k != "pointing_rows"}),
               file=sys.stderr, flush=True)
-    per_pointing = np.array([r["effort_per_need"] for row in rows for r in row["pointing_rows"]])
+    per_pointing = np.array([r["effort_per_target"] for row in rows for r in row["pointing_rows"]])
     return {"protocol": "POST /v1/plans defaults (120 s), targets + seed only",
             "programmes": len(rows), "pointings": int(per_pointing.size),
-            "effort_per_need_by_programme": [r["effort_per_need"] for r in rows],
-            "effort_per_need_pointing_percentiles": {
+            "effort_per_target_by_programme": [r["effort_per_target"] for r in rows],
+            "effort_per_target_pointing_percentiles": {
                 str(q): round(float(np.percentile(per_pointing, q)), 4) for q in (50, 75, 90, 95, 100)},
             "rows": rows}
 

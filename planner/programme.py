@@ -51,7 +51,7 @@ from solvers.sequencing.options import SequenceOptions as AllocationSequenceOpti
 __all__ = [
     "ALLOCATION_PART", "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "SHARES", "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
-    "fitting", "need_share_s", "next_round",
+    "by_expected_share", "expected_share_s", "fitting", "next_round",
     "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
@@ -93,16 +93,22 @@ class ProgrammeShares:
     #: "fewest-exposures") may use, at most ``optimiser_max_s``: the pointings get the rest.
     optimiser_share: float = 0.08
     optimiser_max_s: float = 12.0
-    #: Effort seconds a pointing's plan takes per unit of its need (:func:`pointing_need`),
-    #: measured by ``python benchmarks/time_need.py`` (docs/programme.md): 0.08-0.21 per
-    #: programme over ten programmes of 63-181 stars and the M67-like case, 0.23 the 95th
-    #: percentile of their 93 pointings. A first round that cannot give every pointing this
-    #: (:func:`need_share_s`) plans the neediest that fit instead of starting every pointing
-    #: on too little (:func:`first_round_shares`), and the plan's answer says which limit its
-    #: field needs (:func:`planner.time_advice.needed_limit_s`).
-    need_effort_s: float = 0.22
+    #: Effort seconds a pointing's plan takes per target, measured by ``python
+    #: benchmarks/time_need.py`` (docs/programme.md: 93 pointings of ten programmes of 63-181
+    #: stars and the M67-like case; a pointing's effort follows its targets more closely than
+    #: its need): the median, a typical pointing's, and the 95th percentile, enough for all but
+    #: one in twenty (a limit asked too long costs nothing: a plan ends when it is done). A
+    #: first round whose limit cannot hold every pointing's typical share plans only the
+    #: neediest pointings whose shares of enough fit (:func:`first_round_shares`), and the
+    #: plan's answer says which limit its field needs from the shares of enough
+    #: (:func:`planner.time_advice.needed_limit_s`).
+    typical_effort_per_target_s: float = 0.18
+    enough_effort_per_target_s: float = 0.56
+    #: The least share a pointing is expected to be planned whole in: its legs need
+    #: ``MIN_LEG_S`` effort seconds (0.625 s of share at ``effort_share``) after its allocation.
+    least_planned_s: float = 0.75
     #: A pointing whose plan failed on a share is estimated to need at least this many times
-    #: that share (the estimate behind :func:`time_advice`).
+    #: that share (the estimate behind :func:`planner.time_advice.time_advice`).
     failed_growth: float = 2.0
 
 
@@ -191,48 +197,60 @@ def pointing_shares(limit_s: float | None, needs: Sequence[float],
     return _split_usable(usable_s(limit_s, table), needs, table)
 
 
-def need_share_s(need: float, table: ProgrammeShares = SHARES) -> float:
-    """The wall-clock share a pointing of need ``need`` is expected to be planned in: its
-    ``need_effort_s`` per unit of need in effort seconds over ``effort_share``, at least
-    ``min_pointing_s`` (none for a pointing of no need: it is not attempted)."""
+def expected_share_s(need: float, table: ProgrammeShares = SHARES, *, typical: bool = False) -> float:
+    """The wall-clock share a pointing of need ``need`` (:func:`pointing_need`: its targets
+    plus ``fixed_need_targets``) is expected to be planned in: its targets (at least one) times
+    ``enough_effort_per_target_s`` (``typical``: ``typical_effort_per_target_s``) in effort
+    seconds, over ``effort_share``, at least ``least_planned_s``; none for a pointing of no
+    need (it is not attempted)."""
     if need <= 0:
         return 0.0
-    return max(need * table.need_effort_s / table.effort_share, table.min_pointing_s)
+    per_target_s = table.typical_effort_per_target_s if typical else table.enough_effort_per_target_s
+    targets = max(need - table.fixed_need_targets, 1.0)
+    return max(targets * per_target_s / table.effort_share, table.least_planned_s)
 
 
 def fitting(usable: float, indices: Sequence[int], needs: Sequence[float],
             table: ProgrammeShares = SHARES, *, at_least_one: bool = True) -> list[int]:
     """Of ``indices``, the pointings a plan with ``usable`` seconds plans: the neediest first
-    (ties: the lower index), each taken when its :func:`need_share_s` still fits in what the
-    ones taken before left, so that every pointing taken can be planned whole rather than
-    every pointing started on too little. When none fits and ``at_least_one``, the least
-    needy alone (ties: the lower index; while ``usable`` reaches ``min_pointing_s``): the one
-    most likely to be planned in all there is. Sorted by index."""
+    (ties: the lower index), each taken when its :func:`expected_share_s` (enough) still fits
+    in what the ones taken before left, so that every pointing taken can be planned whole
+    rather than every pointing started on too little. When none fits and ``at_least_one``,
+    the least needy alone (ties: the lower index; while ``usable`` reaches
+    ``min_pointing_s``): the one most likely to be planned in all there is. Sorted by index."""
     left, chosen = usable, []
     wanted = sorted((i for i in indices if needs[i] > 0), key=lambda i: (-needs[i], i))
     for i in wanted:
-        if need_share_s(needs[i], table) <= left:
+        if expected_share_s(needs[i], table) <= left:
             chosen.append(i)
-            left -= need_share_s(needs[i], table)
+            left -= expected_share_s(needs[i], table)
     if at_least_one and not chosen and wanted and usable >= table.min_pointing_s:
         chosen = [min(wanted, key=lambda i: (needs[i], i))]
     return sorted(chosen)
 
 
+def by_expected_share(usable: float, chosen: Sequence[int], needs: Sequence[float],
+                      table: ProgrammeShares = SHARES) -> list[float]:
+    """``usable`` seconds split over the ``chosen`` pointings in proportion to their
+    :func:`expected_share_s` (enough): each gets at least it when they fit together."""
+    weights = [expected_share_s(needs[i], table) for i in chosen]
+    total = sum(weights)
+    return [usable * w / total for w in weights] if total > 0 else [0.0] * len(chosen)
+
+
 def first_round_shares(limit_s: float | None, needs: Sequence[float],
                        table: ProgrammeShares = SHARES) -> list[float]:
     """The first round's wall-clock share of each pointing. When the usable limit holds
-    every pointing's :func:`need_share_s`, it is :func:`pointing_shares` (split by need).
-    When it does not, only the pointings that :func:`fitting` takes are planned, the usable
-    limit split by need over them (each then gets at least its expected share); the others
-    get none (their targets ``no_time``) and wait for what the rounds leave
-    (:func:`next_round`)."""
+    every pointing's typical :func:`expected_share_s`, it is :func:`pointing_shares` (split
+    by need; the rounds give what the quick ones leave to the slow ones). When it does not,
+    the limit cannot plan them all: only the pointings that :func:`fitting` takes are
+    planned, the usable limit split over them by :func:`by_expected_share`; the others get
+    none (their targets ``no_time``) and wait for what the rounds leave (:func:`next_round`)."""
     usable = usable_s(limit_s, table)
-    if math.isinf(usable) or sum(need_share_s(w, table) for w in needs) <= usable:
+    if math.isinf(usable) or sum(expected_share_s(w, table, typical=True) for w in needs) <= usable:
         return pointing_shares(limit_s, needs, table)
-    chosen = set(fitting(usable, range(len(needs)), needs, table))
-    part = _split_usable(usable, [needs[i] for i in sorted(chosen)], table)
-    given = dict(zip(sorted(chosen), part, strict=True))
+    chosen = fitting(usable, range(len(needs)), needs, table)
+    given = dict(zip(chosen, by_expected_share(usable, chosen, needs, table), strict=True))
     return [given.get(i, 0.0) for i in range(len(needs))]
 
 
@@ -326,7 +344,7 @@ def next_round(needs: Sequence[float], limit_s: float | None,
     least needy left out when there is not enough for all; its search runs on another seed,
     :func:`pointing_seed`). When none has a failed leg, the pointings not attempted yet (a
     short limit's first round left them out) whose expected shares fit in what is left
-    (:func:`fitting`; none when none fits), split by need. Empty when no round is due: every pointing is executable, ``rounds`` are
+    (:func:`fitting`; none when none fits), split by :func:`by_expected_share`. Empty when no round is due: every pointing is executable, ``rounds`` are
     done, or less than ``min_pointing_s`` is left."""
     r = len(history) + 1
     if r > table.rounds or not history:
@@ -349,7 +367,7 @@ def next_round(needs: Sequence[float], limit_s: float | None,
         return [RoundTask(i, r, share) for i, share in sorted(_by_need(left, failed, needs, table).items())]
     waiting = fitting(left, sorted(i for i, o in best.items() if not o.attempted), needs, table,
                       at_least_one=False)
-    shares = _split_usable(left, [needs[i] for i in waiting], table)
+    shares = by_expected_share(left, waiting, needs, table)
     return [RoundTask(i, r, share) for i, share in zip(waiting, shares, strict=True)]
 
 

@@ -1,11 +1,11 @@
 """What limit a programme needs, and what to tell the astronomer when theirs was too short.
 
 A plan's limit is shared over its pointings by need (:mod:`planner.programme`). A pointing
-of need ``w`` is expected to be planned in :func:`planner.programme.need_share_s` of it
-(``ProgrammeShares.need_effort_s`` effort seconds per unit of need, the effort clock's
-reference seconds: :mod:`planner.effort`, :mod:`solvers.effort`); the limit a programme
-needs is the least one whose pointings' part (the limit less the programme optimiser's
-share and the answer's reserve) holds every pointing's expected share
+is expected to be planned in :func:`planner.programme.expected_share_s` (its targets times
+``ProgrammeShares.enough_effort_per_target_s`` effort seconds, the effort clock's reference
+seconds: :mod:`planner.effort`, :mod:`solvers.effort`, over the effort share); the limit a
+programme needs is the least one whose pointings' part (the limit less the programme
+optimiser's share and the answer's reserve) holds every pointing's expected share
 (:func:`needed_limit_s`). After the rounds, :func:`time_advice` estimates it again from what
 the pointings spent, and says which pointings the limit left unplanned.
 """
@@ -21,7 +21,7 @@ from planner.programme import (
     PointingOutcome,
     ProgrammeShares,
     better,
-    need_share_s,
+    expected_share_s,
     optimiser_s,
     usable_s,
 )
@@ -83,7 +83,7 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     The estimate of each pointing: what its executable plan spent (effort over
     ``effort_share``); for one with a failed leg, ``failed_growth`` times the largest share it
     failed on (at least its expected share); for one not attempted, its expected share
-    (:func:`planner.programme.need_share_s`). A limit at least that of the estimate but too
+    (:func:`planner.programme.expected_share_s`). A limit at least that of the estimate but too
     short all the same is estimated at ``failed_growth`` times itself."""
     if limit_s is None or math.isinf(limit_s):
         return None
@@ -98,11 +98,11 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     estimate = 0.0
     for i, o in best.items():
         if i in largest:
-            estimate += max(table.failed_growth * largest[i], need_share_s(needs[i], table))
+            estimate += max(table.failed_growth * largest[i], expected_share_s(needs[i], table))
         elif o.attempted:
             estimate += o.spent_s(table)
         else:
-            estimate += need_share_s(needs[i], table)
+            estimate += expected_share_s(needs[i], table)
     needed = needed_limit_s(estimate, optimiser, table)
     if needed <= limit_s:
         needed = float(math.ceil(table.failed_growth * limit_s))

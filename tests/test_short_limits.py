@@ -21,16 +21,18 @@ from planner.programme import SHARES, PointingOutcome
 DATA = Path(__file__).parent / "data"
 
 
-def expected_share_s(need: float) -> float:
-    """What a pointing of ``need`` is expected to be planned in, from the table's definition."""
-    return 0.0 if need <= 0 else max(need * SHARES.need_effort_s / SHARES.effort_share,
-                                     SHARES.min_pointing_s)
+def expected_share_s(need: float, typical: bool = False) -> float:
+    """What a pointing of ``need`` (its targets + 12) is expected to be planned in, from the
+    table's definition."""
+    rate = SHARES.typical_effort_per_target_s if typical else SHARES.enough_effort_per_target_s
+    return 0.0 if need <= 0 else max(max(need - SHARES.fixed_need_targets, 1) * rate / SHARES.effort_share,
+                                     SHARES.least_planned_s)
 
 
 def short_compute(log: list):
     """Fake rounds: a pointing is planned whole (executable, spending 60 % of its effort
-    budget) when its share reaches 0.9 of its expected share, else it fails on all of it;
-    a share of 0 is not attempted."""
+    budget) when its share reaches its expected share, else it fails on all of it; a share
+    of 0 is not attempted."""
     def compute(tasks):
         log.append(list(tasks))
         out = []
@@ -40,7 +42,7 @@ def short_compute(log: list):
                 out.append(PointingOutcome(t.index, t.round, 0.0, 0.0, True, 0, 0, attempted=False))
                 continue
             budget = SHARES.effort_share * t.share_s
-            ok = t.share_s >= 0.9 * expected_share_s(need)
+            ok = t.share_s >= expected_share_s(need) - 1e-9
             out.append(PointingOutcome(t.index, t.round, t.share_s, 0.6 * budget if ok else budget,
                                        ok, 0 if ok else 3, int(need) - 12))
         return out
@@ -83,25 +85,25 @@ def test_a_short_limit_finishes_pointings_where_an_even_split_finishes_none() ->
     planned = [i for i, o in best.items() if o.attempted and o.executable]
     assert planned and not [i for i, o in best.items() if o.attempted and not o.executable]
     even = pp.pointing_shares(12.0, NEEDS)
-    assert not [i for i, s in enumerate(even) if s >= 0.9 * expected_share_s(NEEDS[i])]
+    assert not [i for i, s in enumerate(even) if s >= expected_share_s(NEEDS[i])]
 
 
-def test_a_long_enough_limit_keeps_the_split_by_need() -> None:
-    limit = ta.needed_limit_s(sum(expected_share_s(w) for w in NEEDS), optimiser=False)
+def test_a_limit_that_holds_the_typical_shares_keeps_the_split_by_need() -> None:
+    limit = ta.needed_limit_s(sum(expected_share_s(w, typical=True) for w in NEEDS), optimiser=False)
     assert pp.first_round_shares(limit, NEEDS) == pp.pointing_shares(limit, NEEDS)
     assert pp.first_round_shares(None, NEEDS) == pp.pointing_shares(None, NEEDS)
     assert pp.first_round_shares(limit - 1.0, NEEDS) != pp.pointing_shares(limit - 1.0, NEEDS)
 
 
 def test_time_left_by_the_first_round_plans_the_pointings_still_waiting() -> None:
-    needs = [24.0, 24.0, 13.0]
+    needs = [24.0, 24.0, 20.0]
     first = [PointingOutcome(0, 1, 7.0, 0.5, True, 0, 12), PointingOutcome(1, 1, 0.0, 0.0, True, 0, 0,
                                                                             attempted=False),
              PointingOutcome(2, 1, 0.0, 0.0, True, 0, 0, attempted=False)]
     left = pp.usable_s(10.0) - first[0].spent_s()
     tasks = pp.next_round(needs, 10.0, [first])
     assert [t.index for t in tasks] == [1] and tasks[0].share_s == pytest.approx(left)
-    assert left >= expected_share_s(24.0) > left - expected_share_s(13.0)
+    assert left >= expected_share_s(24.0) > left - expected_share_s(20.0)
     # a pointing with a failed leg comes first: the waiting ones wait
     failed = [PointingOutcome(0, 1, 7.0, 0.5, False, 1, 12), *first[1:]]
     assert [t.index for t in pp.next_round(needs, 10.0, [failed])] == [0]
