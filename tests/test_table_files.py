@@ -18,6 +18,7 @@ from astropy import units as u
 from astropy.coordinates import SkyCoord
 from astropy.table import Table
 from fastapi.testclient import TestClient
+from test_browser import browser, page, server  # noqa: F401 - the Chromium harness's fixtures
 
 from service.app import create_app
 from service.cli import main
@@ -387,3 +388,25 @@ def test_row_lists_say_row_or_rows(tmp_path: Path) -> None:
     p.write_text("ra,dec\n250.4235,36.4613\n", encoding="utf-8")
     (notice,) = [n for n in read_target_table(p).notices if "no id column" in n]
     assert notice.endswith("named by their row number (1)")
+
+
+# ----------------------------------------------------------------- the page, in Chromium
+
+
+def test_the_page_reads_a_vizier_tsv_and_refuses_a_png(page, server, tmp_path: Path) -> None:  # noqa: F811
+    """The page's upload (Chromium, the harness of tests/test_browser.py): the TSV's six stars
+    with their names and priorities; a PNG is one line, "not a table: a PNG image"."""
+    tsv = tmp_path / "asu.tsv"
+    tsv.write_text(vizier_tsv(), encoding="utf-8")
+    page.goto(server + "/")
+    page.set_input_files("#file", str(tsv))
+    page.wait_for_function("document.querySelector('#table-info').textContent.includes('read from')")
+    info = page.inner_text("#table-info")
+    assert "6 targets read from asu.tsv" in info and "ra_deg <- _RAJ2000" in info, info
+    assert "priority <- prio" in info and page.is_hidden("#error")
+    png = tmp_path / "chart.png"
+    _png(png)
+    page.set_input_files("#file", str(png))
+    page.wait_for_selector("#error:not([hidden])")
+    said = page.inner_text("#error").strip()
+    assert "chart.png: not a table: a PNG image" in said and "codec" not in said, said
