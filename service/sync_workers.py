@@ -48,6 +48,7 @@ from fastapi.responses import JSONResponse
 from pydantic import BaseModel
 
 from models.errors import InputError, TimeLimitExceeded
+from models.instrument import InstrumentError
 from service.errors import ServiceError
 from service.executor import Cancelled, Overloaded
 
@@ -106,7 +107,7 @@ class RemoteError:
 # ------------------------------------------------------------------- worker process
 
 
-_EXPECTED = (InputError, TimeLimitExceeded, ServiceError)
+_EXPECTED = (InputError, InstrumentError, TimeLimitExceeded, ServiceError)
 
 
 def worker_main(conn: Connection, cancel: Any, parent_pid: int, instrument_file: str | None,
@@ -126,9 +127,15 @@ def worker_main(conn: Connection, cancel: Any, parent_pid: int, instrument_file:
     conn.send(("ready", os.getpid()))
     while True:
         try:
-            call = conn.recv()
+            raw = conn.recv_bytes()
         except (EOFError, OSError):
             return
+        try:
+            call = pickle.loads(raw)  # the stage function is imported here, by name
+        except Exception as exc:  # noqa: BLE001 - answered, the worker goes on
+            log.exception("a call could not be read in a worker")
+            conn.send(("error", RemoteError.of(exc)))
+            continue
         conn.send(_answer(call, inst, cancel))
 
 

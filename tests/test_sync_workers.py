@@ -89,6 +89,19 @@ def _bug(*_: Any, **__: Any) -> dict[str, Any]:
     raise KeyError("a bug")
 
 
+def _refuse_in_worker() -> Any:
+    if multiprocessing.parent_process() is not None:
+        raise ImportError("this stage cannot be imported here")
+    return _where
+
+
+class _Unreadable:
+    """A stage that pickles in the server and cannot be unpickled in a worker."""
+
+    def __reduce__(self) -> Any:
+        return (_refuse_in_worker, ())
+
+
 def _app(tmp_path: Path, **settings: Any) -> Any:
     return create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, **settings))
 
@@ -165,6 +178,19 @@ def test_a_bug_in_a_worker_is_503_not_500(tmp_path, monkeypatch) -> None:
         r = c.post("/v1/segmentations", json=SEG)
         assert r.status_code == 503, r.text
         assert r.json()["error"] == "internal_error"
+
+
+def test_a_call_a_worker_cannot_read_is_503_and_the_worker_goes_on(tmp_path,
+                                                                  monkeypatch) -> None:
+    monkeypatch.setattr(pipeline, "segmentation", _where)
+    app = _app(tmp_path)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        pid = c.post("/v1/segmentations", json=SEG).json()["stats"]["pid"]
+        monkeypatch.setattr(pipeline, "segmentation", _Unreadable())
+        r = c.post("/v1/segmentations", json=SEG)
+        assert r.status_code == 503, r.text
+        assert r.json()["error"] == "internal_error"
+        assert app.state.mxs.workers.pids() == [pid]
 
 
 def test_a_hung_worker_is_killed_past_the_time_limit_and_replaced(tmp_path,
