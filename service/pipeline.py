@@ -464,14 +464,16 @@ def limit_advice(req: PlanRequest, seg: Segmentation, pointings: Sequence[dict[s
     ids = [pointings[i]["id"] for i in advice.not_attempted]
     missed = sum(len(pointings[i]["target_ids"]) for i in advice.not_attempted)
     use_job = sync_s is not None and needed > sync_s
-    planned = sum(1 for p in pointings if p["executable"] and p.get("not_planned") is None)
+    planned = sum(1 for p in pointings if p["executable"] and p["configurations"])
     parts = [f"The time limit of {limit_s:g} s is too short for this field: it needs about "
              f"{needed:g} s (time_limit_s; --time-limit on the command line)."]
     if ids:
-        parts.append(f"Within {limit_s:g} s, {planned} of {len(pointings)} pointings were planned; "
-                     f"{len(ids)} were not ({missed} targets no_time).")
+        parts.append(f"Within {limit_s:g} s, {planned} of {_count(len(pointings), 'pointing')} "
+                     f"{'was' if planned == 1 else 'were'} planned whole; {len(ids)} "
+                     f"{'was' if len(ids) == 1 else 'were'} not ({_count(missed, 'target')} no_time).")
     if advice.failed:
-        parts.append(f"{len(advice.failed)} pointings kept a failed leg when the limit ran out.")
+        parts.append(f"{_count(len(advice.failed), 'pointing')} kept a failed leg when the limit "
+                     "ran out.")
     if use_job:
         parts.append(f"That is more than a synchronous plan's {sync_s:g} s: submit it as a plan "
                      "job (POST /v1/jobs, kind 'plan').")
@@ -481,6 +483,10 @@ def limit_advice(req: PlanRequest, seg: Segmentation, pointings: Sequence[dict[s
             "pointings_failed": [pointings[i]["id"] for i in advice.failed],
             "targets_not_planned": missed, "message": " ".join(parts)}
 
+
+def _count(n: int, word: str) -> str:
+    """``n`` and ``word``, plural unless ``n`` is 1."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,

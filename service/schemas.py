@@ -604,7 +604,8 @@ class TimeLimitAdvice(Response):
     use_job: bool = Field(description="The needed limit is beyond a synchronous plan's: "
                           "submit the plan as a job (POST /v1/jobs, kind 'plan').")
     pointings_total: int = Field(ge=0)
-    pointings_planned: int = Field(ge=0, description="Pointings planned whole (every leg).")
+    pointings_planned: int = Field(ge=0, description="Pointings planned whole: an exposure or "
+                                   "more, every leg planned.")
     pointings_not_planned: list[str] = Field(description="Pointings the limit left no time "
                                              "for (their targets 'no_time').")
     pointings_failed: list[str] = Field(description="Pointings left with a failed leg when "

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from planner import programme as pp
 from planner import time_advice as ta
 from planner.programme import SHARES, PointingOutcome
+from service.schemas import PlanResponse
 
 DATA = Path(__file__).parent / "data"
 
@@ -179,3 +180,6 @@ def test_the_m67_case_at_10_s_plans_what_fits_and_says_what_it_needs(m67_short) 
     assert out["stats"]["motion_plans_failed"] == 0 and advice["pointings_failed"] == []
     assert advice["pointings_planned"] == len(started)
     assert out["stats"]["elapsed_s"] <= 10.0
+    typed = PlanResponse.model_validate(out)  # the typed fields of the answer's schema
+    assert typed.time_limit_advice is not None and typed.time_limit_advice.use_job
+    assert [p.not_planned is not None for p in typed.pointings] == [p in waiting for p in out["pointings"]]
