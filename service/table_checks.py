@@ -190,7 +190,7 @@ def _not_text(head: bytes, complete: bool, xml: bool) -> str | None:
     table text, or None. Control bytes make binary data; other text must be UTF-8 (a VOTable's
     XML may declare another encoding, which its parser reads)."""
     odd = sum(head.count(bytes([b])) for b in _CONTROL_BYTES)
-    if b"\x00" in head or odd > len(head) // 100:
+    if b"\x00" in head or odd > 8 + len(head) // 100:  # a stray one is text
         return ("binary data, not text (give a CSV, TSV, ECSV or VOTable file, or a FITS "
                 "table)")
     if xml:

@@ -349,6 +349,18 @@ def test_text_that_no_reader_recognises_is_not_a_table(tmp_path: Path) -> None:
         read_target_table(p)
 
 
+def test_control_bytes_make_binary_data_but_a_stray_one_is_text(tmp_path: Path) -> None:
+    """Valid UTF-8 without a NUL is still binary when control bytes are common; a stray one
+    (an escape byte pasted into a name) in a short CSV is text, read as written."""
+    p = tmp_path / "controls.csv"
+    p.write_bytes(b"id,ra,dec\n" + bytes(range(1, 9)) * 200)
+    with pytest.raises(TargetFileError, match="controls.csv: not a table: binary data"):
+        read_target_table(p)
+    p.write_bytes(b"id,ra,dec\na\x1bb,10.5,20.25\n")
+    (t,) = read_target_table(p).targets
+    assert (t.id, t.ra_deg, t.dec_deg) == ("a\x1bb", 10.5, 20.25)
+
+
 # ----------------------------------------------------------------- echoed values
 
 
