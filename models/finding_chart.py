@@ -162,14 +162,17 @@ def read_fits_image(raw: bytes, *, max_pixels: int = MAX_IMAGE_PIXELS,
     decompressed first, to at most the bytes of ``max_pixels`` 64-bit pixels and their
     headers."""
     raw = _gunzip(raw, max_pixels, field)
+    if not raw.startswith(b"SIMPLE  ="):
+        raise InputError(field, "not a FITS image: the file does not start with a FITS header "
+                         "('SIMPLE  =' in its first bytes)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # astropy's notes on non-standard headers
         try:
             hdus = fits.open(io.BytesIO(raw), memmap=False, lazy_load_hdus=True)
             found = _first_image(hdus, max_pixels, field)
-        except InputError:
+        except (InputError, MemoryError):
             raise
-        except (OSError, ValueError, TypeError, IndexError, KeyError) as exc:
+        except Exception as exc:  # noqa: BLE001 - astropy refuses odd files with many kinds
             raise InputError(field, f"not a FITS image: {_reason(exc)}") from exc
     if found is None:
         raise InputError(field, "not a FITS image: no HDU holds a 2-D image")
@@ -302,7 +305,11 @@ def _world_to_pixel(wcs: WCS, ra_deg: np.ndarray, dec_deg: np.ndarray
     world = (lon, lat) if wcs.wcs.lng == 0 else (lat, lon)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        col, row = wcs.all_world2pix(*world, 0, quiet=True)
+        try:
+            col, row = wcs.all_world2pix(*world, 0, quiet=True)
+        except Exception as exc:  # noqa: BLE001 - wcslib's errors on degenerate headers
+            raise InputError("image", f"its WCS cannot place the chart's pixels: "
+                             f"{_reason(exc)}") from exc
     return np.asarray(col).reshape(ra_deg.shape), np.asarray(row).reshape(ra_deg.shape)
 
 

@@ -284,8 +284,23 @@ def test_the_png_is_inverted_grey() -> None:
 
 
 def test_bytes_that_are_not_fits_are_refused_naming_the_field() -> None:
-    with pytest.raises(InputError, match="not a FITS image") as info:
+    with pytest.raises(InputError, match="not a FITS image: the file does not start with a "
+                       "FITS header") as info:
         read_fits_image(b"id,ra_deg,dec_deg\nA,1,2\n")
+    assert info.value.field == "image"
+
+
+def test_a_wcs_that_cannot_place_pixels_is_an_input_error(monkeypatch: pytest.MonkeyPatch
+                                                           ) -> None:
+    wcs = image_wcs(0.0, True, n_px=20)
+    image = read_fits_image(fits_bytes(np.zeros((20, 20)), wcs))
+
+    def broken(*_: object, **__: object) -> None:
+        raise ValueError("singular matrix")
+
+    monkeypatch.setattr(image.wcs, "all_world2pix", broken)
+    with pytest.raises(InputError, match="its WCS cannot place the chart's pixels") as info:
+        render_chart(image, RA0, DEC0, 1.0, 0.0, 16)
     assert info.value.field == "image"
 
 
