@@ -335,4 +335,4 @@ def test_finding_chart_under_the_targets(page, server, tmp_path: Path) -> None:
     err = page.evaluate("""async () => await MXSViewer.setFindingImage(new File(['no image'], 'x.fits'))""")
     assert err and err.startswith("finding chart: ")
     assert page.locator("image.finding-image").count() == 0
-    assert page.inner_text(".field .finding-note") == err
+    assert page.locator(".field .finding-note").text_content() == err

@@ -91,99 +91,6 @@ function standardCoords(raDeg, decDeg, ra0Deg, dec0Deg) {
           (Math.cos(de0) * Math.sin(de) - Math.sin(de0) * Math.cos(de) * Math.cos(ra - ra0)) / cosc / d2r];
 }
 
-// ------------------------------------------------------------------------ label layout
-
-// Measure label texts (and a picture's fixed texts) as the browser draws them: a picture not
-// yet on the page goes for a moment into an off-screen host styled like its place there
-// (`hostClasses`, outermost first), because text metrics depend on the drawn scale. Sets each
-// item's size = [dx, dy, w, h] (its box from the baseline's left end); returns the fixed
-// texts' boxes [x0, y0, x1, y1].
-function measureTexts(root, hostClasses, items, fixedNodes) {
-  const probe = svg("g", { class: "label-probe" });
-  const nodes = items.map((it) => svg("text", { x: 0, y: 0, "font-size": it.fs, "font-family": LABEL_FONT }, it.text));
-  probe.append(...nodes);
-  root.append(probe);
-  let host = null;
-  if (!root.isConnected && document.body) {
-    host = el("div", { style: "position:absolute;left:-10000px;top:0;width:80em;visibility:hidden" });
-    let inner = host;
-    for (const c of hostClasses) { const d = el("div", { class: c }); inner.append(d); inner = d; }
-    inner.append(root);
-    document.body.append(host);
-  }
-  items.forEach((it, i) => {
-    const b = nodes[i].getBBox();
-    it.size = b.width > 0 ? [b.x, b.y, b.width, b.height] : [0, -0.95 * it.fs, 0.62 * it.fs * it.text.length, 1.25 * it.fs];
-  });
-  const fixed = fixedNodes.map((t) => { const b = t.getBBox(); return [b.x, b.y, b.x + b.width, b.y + b.height]; });
-  probe.remove();
-  if (host) { root.remove(); host.remove(); }
-  return fixed;
-}
-
-function boxesOverlap(a, b) { return a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]; }
-
-// Where a label may go around a marker: the 8 directions next to it, then the same directions
-// further out (drawn with a leader line).
-const LABEL_DIRECTIONS = [[1, 0], [-1, 0], [0, -1], [0, 1], [1, -1], [-1, -1], [1, 1], [-1, 1]];
-
-function candidateBoxes(item, w, h) {
-  const out = [];
-  for (const ring of [0, 1.6, 3.4]) {
-    for (const [dx, dy] of LABEL_DIRECTIONS) {
-      const d = item.r + item.gap + ring * h, n = Math.hypot(dx, dy);
-      const px = item.x + d * dx / n, py = item.y + d * dy / n;
-      const x0 = dx > 0 ? px : dx < 0 ? px - w : px - w / 2, y0 = dy > 0 ? py : dy < 0 ? py - h : py - h / 2;
-      out.push({ box: [x0, y0, x0 + w, y0 + h], leader: ring > 0 });
-    }
-  }
-  return out;
-}
-
-// Greedy collision-avoiding layout: items (in priority order: {x, y, r, gap, text, fs, size}) take
-// the first candidate box that overlaps no obstacle (markers, fixed texts), no label already
-// placed, and stays inside `bounds`; an item with no such box gets no label (its marker keeps
-// the id as a tooltip). Returns [{item, box, x, y (baseline), leader: [x1, y1, x2, y2] | null}].
-function placeLabels(items, obstacles, bounds) {
-  const placed = [], taken = obstacles.slice();
-  for (const item of items) {
-    const [dx, dy, w, h] = item.size, pad = 0.05 * h;
-    for (const c of candidateBoxes(item, w + 2 * pad, h + 2 * pad)) {
-      const b = c.box;
-      if (b[0] < bounds[0] || b[1] < bounds[1] || b[2] > bounds[2] || b[3] > bounds[3]) continue;
-      if (taken.some((o) => boxesOverlap(b, o))) continue;
-      taken.push(b);
-      placed.push({ item, box: b, x: b[0] + pad - dx, y: b[1] + pad - dy, leader: c.leader ? leaderLine(item, b) : null });
-      break;
-    }
-  }
-  return placed;
-}
-
-// From the marker's edge to the nearest point of the label's box.
-function leaderLine(item, b) {
-  const nx = Math.min(Math.max(item.x, b[0]), b[2]), ny = Math.min(Math.max(item.y, b[1]), b[3]);
-  const d = Math.hypot(nx - item.x, ny - item.y) || 1;
-  return [item.x + item.r * (nx - item.x) / d, item.y + item.r * (ny - item.y) / d, nx, ny];
-}
-
-// SVG nodes of placed labels: the text (its estimated box in data-box, for checks) and leaders.
-function labelNodes(placed, cls) {
-  const g = svg("g", { class: cls });
-  for (const pl of placed) {
-    if (pl.leader) {
-      const [x1, y1, x2, y2] = pl.leader;
-      g.append(svg("line", { class: "leader", x1, y1, x2, y2, stroke: "#777", "stroke-width": pl.item.fs / 14 }));
-    }
-    g.append(svg("text", { class: "label", x: pl.x, y: pl.y, "font-size": pl.item.fs, "font-family": LABEL_FONT,
-      fill: pl.item.colour || "#222", "data-for": pl.item.id, "data-box": pl.box.join(" ") }, pl.item.text));
-  }
-  return g;
-}
-
-// A marker's box as an obstacle for labels.
-function markerBox(x, y, r) { return [x - r, y - r, x + r, y + r]; }
-
 // ------------------------------------------------------------------------ one pointing
 
 function pointingSection(p, request, byId, tiers, list) {
@@ -227,7 +134,7 @@ function configurationViewer(p, members, pos, tiers) {
   const stepper = el("div", { class: "stepper" }, "Configuration: ");
   const view = el("div", { class: "viewer" });
   const legInfo = el("p", { class: "leg" });
-  const picked = el("p", { class: "picked", "aria-live": "polite" });
+  const picked = el("p", { class: "picked", "aria-live": "polite", style: "margin: 0.2em 0" });
   const show = (k) => {
     for (const b of stepper.querySelectorAll("button")) b.setAttribute("aria-pressed", String(Number(b.dataset.k) === k));
     const root = drawConfiguration(p, k, members, pos, tiers);
@@ -610,67 +517,3 @@ function skyScale(half, u, k) {
     svg("text", { x: 0.9 * half - bar, y: 0.9 * half - 2 * u, "font-size": 5 * u }, `${arcmin}′`)),
   box: [0.9 * half - bar - u, 0.9 * half - 7 * u, half, half] };
 }
-
-// ------------------------------------------------------------------------ finding chart
-
-// The astronomer's FITS image (null: none) and the charts cut from it, by view.
-const finding = { file: null, charts: new Map() };
-
-// An empty layer under a picture, and the view a finding chart must cover: centre, half width
-// (arcmin), up position angle (deg) and half width in SVG units (the chart spans the viewBox).
-function chartLayer(root, raDeg, decDeg, halfArcmin, upPaDeg, half) {
-  Object.assign(root.dataset, { chartRa: raDeg, chartDec: decDeg, chartHalfArcmin: halfArcmin, chartUpPa: upPaDeg, chartHalf: half });
-  return svg("g", { class: "finding-chart" });
-}
-
-// POST v1/finding-charts for one view: a PNG whose up is the view's up and whose left is its left.
-async function fetchChart(file, d) {
-  const form = new FormData();
-  form.append("image", file, file.name || "image.fits");
-  for (const [k, v] of [["ra_deg", d.chartRa], ["dec_deg", d.chartDec], ["half_width_arcmin", d.chartHalfArcmin],
-    ["up_pa_deg", d.chartUpPa], ["size_px", 512]]) form.append(k, String(v));
-  const headers = typeof authHeaders === "function" ? authHeaders() : {};
-  const r = await fetch("v1/finding-charts", { method: "POST", headers, body: form });
-  if (!r.ok) {
-    let body = null;
-    try { body = await r.json(); } catch (e) { body = null; }
-    const detail = body && (body.message || (typeof body.detail === "string" ? body.detail : null) ||
-      (Array.isArray(body.detail) ? body.detail.map((e) => `${(e.loc || []).slice(-1)[0]}: ${e.msg}`).join("; ") : null));
-    throw new Error(`finding chart: ${detail || "HTTP " + r.status}`);
-  }
-  return URL.createObjectURL(await r.blob());
-}
-
-// Draw the finding chart under one picture (fetched once per view); resolves to an error
-// message or null.
-async function underlay(root) {
-  const layer = root.querySelector("g.finding-chart"), file = finding.file;
-  if (!layer) return null;
-  if (!file) { layer.replaceChildren(); return null; }
-  const d = root.dataset, key = [d.chartRa, d.chartDec, d.chartHalfArcmin, d.chartUpPa].join("|");
-  if (!finding.charts.has(key)) finding.charts.set(key, fetchChart(file, d));
-  try {
-    const url = await finding.charts.get(key);
-    if (finding.file !== file) return null;
-    const h = Number(d.chartHalf);
-    layer.replaceChildren(svg("image", { href: url, x: -h, y: -h, width: 2 * h, height: 2 * h,
-      preserveAspectRatio: "none", class: "finding-image" }));
-    return null;
-  } catch (e) {
-    if (finding.file === file) layer.replaceChildren();
-    return e.message;
-  }
-}
-
-// Use `file` (a FITS image with a celestial WCS; null: none) as the finding chart under every
-// picture, drawn now and later; resolves to the first error message, or null.
-async function setFindingImage(file) {
-  for (const p of finding.charts.values()) p.then((url) => URL.revokeObjectURL(url), () => null);
-  finding.charts.clear();
-  finding.file = file || null;
-  const errors = (await Promise.all([...document.querySelectorAll("svg[data-chart-ra]")].map(underlay))).filter(Boolean);
-  for (const n of document.querySelectorAll(".finding-note")) n.textContent = errors[0] || "";
-  return errors[0] || null;
-}
-
-window.MXSViewer = { setFindingImage, placeLabels, fpSvg, skySvg };
