@@ -16,7 +16,8 @@ function chartLayer(root, raDeg, decDeg, halfArcmin, upPaDeg, half) {
 async function fetchChart(file, d) {
   const form = new FormData();
   form.append("image", file, file.name || "image.fits");
-  for (const [k, v] of [["ra_deg", d.chartRa], ["dec_deg", d.chartDec], ["half_width_arcmin", d.chartHalfArcmin],
+  const ra = ((Number(d.chartRa) % 360) + 360) % 360;
+  for (const [k, v] of [["ra_deg", ra], ["dec_deg", d.chartDec], ["half_width_arcmin", d.chartHalfArcmin],
     ["up_pa_deg", d.chartUpPa], ["size_px", 512]]) form.append(k, String(v));
   const headers = typeof authHeaders === "function" ? authHeaders() : {};
   const r = await fetch("v1/finding-charts", { method: "POST", headers, body: form });
