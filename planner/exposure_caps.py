@@ -1,17 +1,28 @@
-"""A programme's ``max_exposures`` split over its pointings (:func:`exposure_caps`), on the
-pointings' estimated exposures (:func:`estimated_exposures`); :mod:`planner.programme`
-re-exports both."""
+"""A programme's exposure rules: its ``max_exposures`` split over its pointings
+(:func:`exposure_caps`, on the pointings' estimated exposures, :func:`estimated_exposures`;
+:mod:`planner.programme` re-exports both), and a pointing's allocation under its cap and the
+request's exposure thresholds (:func:`apply_exposure_rules`, :func:`split_by_thresholds`)."""
 
 from __future__ import annotations
 
 import heapq
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 from models.errors import InputError
+from models.types import (
+    AllocationResult,
+    Configuration,
+    PlaneTargets,
+    Unallocated,
+    UnallocatedReason,
+)
+from planner.telescope_time import ObservingRules
 
-__all__ = ["TARGETS_PER_EXPOSURE", "estimated_exposures", "exposure_caps"]
+__all__ = ["TARGETS_PER_EXPOSURE", "apply_exposure_rules", "estimated_exposures", "exposure_caps",
+           "split_by_thresholds"]
 
 #: Targets one exposure observes at most (the arms of MIRADAS): a pointing's exposures are
 #: estimated as ceil(members / this) when the segmentation gives no estimate of its own.
@@ -66,3 +77,47 @@ def exposure_caps(max_exposures: int, estimates: Sequence[int]) -> list[int]:
         caps[i] += 1
         heapq.heappush(heap, (-(m * w[i] - caps[i] * total), neg_w, i))
     return caps
+
+
+def _observed(config: Configuration, priority_of: dict[str, int]) -> tuple[str, ...]:
+    return tuple(a.target_id for a in config.assignments if a.kind == "target" and a.target_id is not None
+                 and a.target_id in priority_of)
+
+
+def split_by_thresholds(configs: Sequence[Configuration], targets: PlaneTargets, rules: ObservingRules,
+           reason: UnallocatedReason = "below_exposure_threshold",
+           ) -> tuple[tuple[Configuration, ...], tuple[Unallocated, ...]]:
+    """The configurations that meet ``rules``' thresholds (renumbered from 0, in order) and
+    the targets of the others, each ``reason``. An exposure's targets and summed priority are
+    counted from its own assignments."""
+    priority_of = {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
+    index_of = {t: i for i, t in enumerate(targets.ids)}
+    kept: list[Configuration] = []
+    out: list[Unallocated] = []
+    for c in configs:
+        ids = _observed(c, priority_of)
+        if rules.keeps(len(ids), sum(priority_of[t] for t in ids)):
+            kept.append(replace(c, index=len(kept)) if c.index != len(kept) else c)
+        else:
+            out.extend(Unallocated(index_of[t], t, reason) for t in ids)
+    return tuple(kept), tuple(out)
+
+
+def apply_exposure_rules(result: AllocationResult, targets: PlaneTargets, max_configurations: int | None,
+                         rules: ObservingRules) -> tuple[AllocationResult, dict]:
+    """The allocation under the request's rules: the targets the cap left out are
+    ``beyond_max_exposures`` (the allocator's ``not_scheduled``), and the exposures below a
+    threshold are not opened (the greedy sequence puts the weakest last), their targets
+    ``below_exposure_threshold``. ``max_configurations``: the pointing's cap (None: none).
+    Returns the allocation and what was dropped."""
+    capped = max_configurations is not None
+    unallocated = tuple(replace(u, reason="beyond_max_exposures") if capped and u.reason == "not_scheduled"
+                        else u for u in result.unallocated)
+    kept, below = split_by_thresholds(result.configurations, targets, rules)
+    stats = {"max_configurations": max_configurations,
+             "dropped_configurations": len(result.configurations) - len(kept),
+             "below_exposure_threshold": len(below),
+             "beyond_max_exposures": sum(u.reason == "beyond_max_exposures" for u in unallocated)}
+    if not below and unallocated == result.unallocated:
+        return result, stats  # the rules changed nothing: the allocator's own result
+    return AllocationResult(kept, unallocated + below, result.stats), stats

@@ -39,9 +39,14 @@ from models.types import (
     Configuration,
     PlaneTargets,
     Unallocated,
-    UnallocatedReason,
 )
-from planner.exposure_caps import TARGETS_PER_EXPOSURE, estimated_exposures, exposure_caps
+from planner.exposure_caps import (
+    TARGETS_PER_EXPOSURE,
+    apply_exposure_rules,
+    estimated_exposures,
+    exposure_caps,
+    split_by_thresholds,
+)
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
@@ -519,7 +524,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     given = given_allocation(options, targets)
     if given is not None and _allocation_rank(given) > _allocation_rank(result):
         result = given
-    result, below = _exposure_rules(result, targets, options)
+    result, below = apply_exposure_rules(result, targets, options.max_configurations, options.rules)
     progress(ALLOCATION_PART)
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
@@ -589,49 +594,6 @@ def _not_attempted(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         "allocation": {"skipped": "the plan's time limit left this pointing no share"}, "motion": motion})
 
 
-def _observed(config: Configuration, priority_of: dict[str, int]) -> tuple[str, ...]:
-    return tuple(a.target_id for a in config.assignments if a.kind == "target" and a.target_id is not None
-                 and a.target_id in priority_of)
-
-
-def _split(configs: Sequence[Configuration], targets: PlaneTargets, rules: ObservingRules,
-           reason: UnallocatedReason = "below_exposure_threshold",
-           ) -> tuple[tuple[Configuration, ...], tuple[Unallocated, ...]]:
-    """The configurations that meet ``rules``' thresholds (renumbered from 0, in order) and
-    the targets of the others, each ``reason``. An exposure's targets and summed priority are
-    counted from its own assignments."""
-    priority_of = {t: int(p) for t, p in zip(targets.ids, targets.priority, strict=True)}
-    index_of = {t: i for i, t in enumerate(targets.ids)}
-    kept: list[Configuration] = []
-    out: list[Unallocated] = []
-    for c in configs:
-        ids = _observed(c, priority_of)
-        if rules.keeps(len(ids), sum(priority_of[t] for t in ids)):
-            kept.append(replace(c, index=len(kept)) if c.index != len(kept) else c)
-        else:
-            out.extend(Unallocated(index_of[t], t, reason) for t in ids)
-    return tuple(kept), tuple(out)
-
-
-def _exposure_rules(result: AllocationResult, targets: PlaneTargets,
-                    options: PointingOptions) -> tuple[AllocationResult, dict]:
-    """The allocation under the request's rules: the targets the cap left out are
-    ``beyond_max_exposures`` (the allocator's ``not_scheduled``), and the exposures below a
-    threshold are not opened (the greedy sequence puts the weakest last), their targets
-    ``below_exposure_threshold``. Returns the allocation and what was dropped."""
-    capped = options.max_configurations is not None
-    unallocated = tuple(replace(u, reason="beyond_max_exposures") if capped and u.reason == "not_scheduled"
-                        else u for u in result.unallocated)
-    kept, below = _split(result.configurations, targets, options.rules)
-    stats = {"max_configurations": options.max_configurations,
-             "dropped_configurations": len(result.configurations) - len(kept),
-             "below_exposure_threshold": len(below),
-             "beyond_max_exposures": sum(u.reason == "beyond_max_exposures" for u in unallocated)}
-    if not below and unallocated == result.unallocated:
-        return result, stats  # the rules changed nothing: the allocator's own result
-    return AllocationResult(kept, unallocated + below, result.stats), stats
-
-
 def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: PlaneTargets,
                              options: PointingOptions, budget: Budget, progress: Progress,
                              ) -> tuple[SequencePlan, str | None, tuple[Unallocated, ...]]:
@@ -644,7 +606,7 @@ def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: Plane
     weak_all: list[Unallocated] = []
     cap = options.max_configurations
     while True:
-        kept, weak = _split(seq.configurations, targets, options.rules)
+        kept, weak = split_by_thresholds(seq.configurations, targets, options.rules)
         if not weak:
             return seq, None, tuple(weak_all)
         weak_all.extend(weak)
