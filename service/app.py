@@ -100,7 +100,7 @@ LIST_NOT_FOUND: dict[str, Any] = {
                    "the retention); `detail` names the field and the id."}
 #: the routes whose work takes a heavy slot (refused before their body is read when all are taken)
 HEAVY_PATHS = frozenset({"/v1/segmentations", "/v1/allocations", "/v1/motion-plans", "/v1/plans",
-                         "/v1/target-lists"})
+                         "/v1/target-lists", "/v1/finding-charts"})
 QUEUE_FULL: dict[str, Any] = {"model": ErrorResponse, "headers": RETRY_AFTER,
                               "description": "The job queue is full (`MXS_MAX_QUEUED_JOBS`): retry after "
                                              "`Retry-After` seconds."}

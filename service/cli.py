@@ -108,6 +108,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     pictures = write_pictures(result, req, inst, out, quiet=args.quiet, image=image)
     overview = overview_or_none(result, req, inst, out, image)
     print_summary(result, req, out, len(pictures), overview)
+    for notice in result.get("notices", []):
+        print(f"notice: {notice}", file=sys.stderr)
     if result["executable"]:
         return EXIT_OK
     print_failed_legs(result)

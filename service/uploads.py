@@ -42,8 +42,8 @@ from service.upload_child import MEMORY_EXIT, ParsedList, ParseJob, ParseLimits,
 log = logging.getLogger("service.uploads")
 
 #: Modules the fork server imports once, so that each child starts without importing them.
-PRELOAD = ["service.upload_child", "astropy.table", "astropy.io.ascii", "astropy.io.fits",
-           "astropy.io.votable", "astropy.coordinates", "astropy.units"]
+PRELOAD = ["service.upload_child", "service.chart_child", "models.finding_chart", "astropy.table",
+           "astropy.io.ascii", "astropy.io.fits", "astropy.io.votable", "astropy.coordinates", "astropy.units"]
 _POLL_S = 0.05
 #: Exit codes of a reader that ran out of memory before it could answer: its own report, or
 #: a signal (the kernel's OOM killer, or C code that failed an allocation).

@@ -201,3 +201,25 @@ def test_cli_plans_the_m13_example_executably(tmp_path: Path, capsys) -> None:
             rep = verify_trajectories(inst, trajs, start, goal, max_start_stop=None)
             assert rep.ok, rep.violations[:3]
             start = np.array([[t.theta1_rad[-1], t.theta2_rad[-1]] for t in trajs])
+
+
+def test_cli_prints_the_plans_notices(tmp_path: Path, capsys, monkeypatch) -> None:
+    """The plan's notices (the time-limit advice among them) reach the CLI user on stderr."""
+    from service import pipeline
+
+    real_plan = pipeline.plan
+    advice = "The time limit of 5 s is too short for this field: it needs about 40 s."
+
+    def plan_with_advice(*args, **kwargs):
+        return {**real_plan(*args, **kwargs), "notices": [advice]}
+
+    monkeypatch.setattr(pipeline, "plan", plan_with_advice)
+    rows = json.loads((EXAMPLES / "requests" / "plan.json").read_text())["targets"][:4]
+    src = tmp_path / "four.csv"
+    src.write_text("id,ra_deg,dec_deg,priority\n" + "".join(
+        f"{r['id']},{r['ra_deg']},{r['dec_deg']},{r['priority']}\n" for r in rows))
+    code = main(["plan", str(src), "--out", str(tmp_path / "o"), "--seed", "1", "--time-limit", "30",
+                 "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert f"notice: {advice}" in err.splitlines()

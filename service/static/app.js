@@ -296,7 +296,13 @@ function legFromOne(reason) {
 function showBanner(result) {
   const b = $("banner");
   b.replaceChildren();
-  if (result.executable) {
+  const advice = result.time_limit_advice;
+  if (result.executable && advice && advice.pointings_not_planned.length) {
+    b.className = "warn";
+    b.append(`Planned and executable: ${plural(advice.pointings_planned, "pointing")}; ` +
+      `${plural(advice.pointings_not_planned.length, "pointing")} did not fit in the time limit ` +
+      `(${advice.pointings_not_planned.join(", ")}).`);
+  } else if (result.executable) {
     b.className = "good";
     b.append("Every motion leg of every pointing was planned: the plan is executable.");
   } else {
@@ -306,6 +312,9 @@ function showBanner(result) {
       result.reasons.length <= BANNER_REASONS ? reasons :
         el("details", {}, el("summary", {}, `the ${result.reasons.length} reasons`), reasons));
   }
+  // what the plan left out for its time limit, and the limit the field needs
+  const notices = result.notices || [];
+  if (notices.length) b.append(el("ul", { class: "notices" }, ...notices.map((n) => el("li", {}, n))));
   b.hidden = false;
 }
 
@@ -454,6 +463,6 @@ async function resumeJob(saved) {
   }
 }
 
-window.mxs = { showResult, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
+window.mxs = { showResult, showBanner, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
   cliLine, progressText, legFromOne, CONTROLS, state };
 start();
