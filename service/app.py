@@ -144,7 +144,7 @@ class ServiceState:
                     lease_s=s.job_lease_s, max_attempts=s.job_max_attempts,
                     max_queued=s.max_queued_jobs, retention_s=s.job_retention_s,
                     retention_count=s.job_retention_count, retry_after_s=s.retry_after_s,
-                    dask_scheduler=s.dask_scheduler,
+                    dask_scheduler=s.dask_scheduler, nice=s.heavy_nice,
                 ))
             return self._jobs
 

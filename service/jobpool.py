@@ -54,6 +54,9 @@ class PoolOptions:
     retry_after_s: int = 5
     poll_s: float = 0.2
     dask_scheduler: str | None = None
+    #: niceness added to the job workers: the same as the heavy request workers', so that
+    #: the two share the CPU evenly and the server's event loop wins it over both
+    nice: int = 0
 
     def __post_init__(self) -> None:
         if self.workers < 1 or self.lease_s <= 0 or self.max_attempts < 1:
@@ -118,10 +121,13 @@ def _watch(store: JobStore, job_id: str, owner: str, lease_s: float,
 
 
 def worker_main(db_path: str, instance: str, parent_pid: int, instrument_file: str | None,
-                lease_s: float, poll_s: float, dask_scheduler: str | None = None) -> None:
+                lease_s: float, poll_s: float, dask_scheduler: str | None = None,
+                nice: int = 0) -> None:
     """A worker process: claim, run, record; forever (until its server stops it). The
     pointings of its plan jobs run on the engine the settings chose (:func:`make_runner`)."""
     die_with_parent(parent_pid)
+    if nice > 0:
+        os.nice(nice)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle
     from service import pipeline  # import the domain and its compiled kernels before the first job
     from service.runners import make_runner
@@ -216,7 +222,7 @@ class JobManager:
         o = self.options
         p = ctx.Process(target=worker_main, name="mxs-job-worker", daemon=True, args=(
             str(self.store.db_path), self.instance, os.getpid(), o.instrument_file, o.lease_s,
-            o.poll_s, o.dask_scheduler))
+            o.poll_s, o.dask_scheduler, o.nice))
         p.start()
         return p
 

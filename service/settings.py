@@ -91,8 +91,9 @@ class Settings(BaseSettings):
         "the server process."
     )
     heavy_nice: int = Field(
-        10, ge=0, le=19, description="Niceness added to the heavy worker processes, so that "
-        "the server's event loop (health checks, cheap routes) wins a busy CPU."
+        10, ge=0, le=19, description="Niceness added to the heavy request workers and the job "
+        "workers alike, so that the two share a busy CPU evenly and the server's event loop "
+        "(health checks, cheap routes) wins it over both."
     )
     heavy_kill_grace_s: float = Field(
         5.0, gt=0, description="Seconds a heavy worker process may run past its request's "

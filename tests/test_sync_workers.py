@@ -295,3 +295,19 @@ def _ignore(fn: Any) -> None:
         fn()
     except httpx.HTTPError:
         pass
+
+
+def test_job_workers_are_niced_as_the_request_workers(tmp_path) -> None:
+    """Jobs and heavy requests share a busy CPU evenly: both worker kinds run at the server's
+    niceness + MXS_HEAVY_NICE (read from the kernel, not from the worker)."""
+    app = create_app(Settings(job_db=tmp_path / "j.db", heavy_threads=1, workers=1, heavy_nice=7))
+    with TestClient(app) as c:
+        assert c.post("/v1/jobs", json={"kind": "segmentation", "request": SEG}).status_code == 202
+        want = min(os.nice(0) + 7, 19)
+        deadline = time.monotonic() + 60
+        while True:
+            pids = app.state.mxs.jobs.worker_pids()
+            if pids and os.getpriority(os.PRIO_PROCESS, pids[0]) == want:
+                break
+            assert time.monotonic() < deadline, (pids, [os.getpriority(os.PRIO_PROCESS, p) for p in pids])
+            time.sleep(0.1)
