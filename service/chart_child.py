@@ -18,14 +18,13 @@ back through a pipe:
 from __future__ import annotations
 
 import errno
-import math
 import os
 from dataclasses import dataclass
 from typing import Any
 
 from models.errors import InputError
 from service.parent_death import kill_with_parent
-from service.upload_child import MEMORY_EXIT, _address_space_bytes
+from service.upload_child import MEMORY_EXIT, limit_resources
 
 
 @dataclass(frozen=True)
@@ -54,17 +53,6 @@ def draw(job: ChartJob) -> bytes:
     return chart.to_png()
 
 
-def _limit_resources(job: ChartJob) -> None:
-    try:
-        import resource
-    except ImportError:  # pragma: no cover - not Unix: the wall-clock limit alone
-        return
-    mem = _address_space_bytes() + job.memory_bytes
-    resource.setrlimit(resource.RLIMIT_AS, (mem, mem))
-    cpu_s = math.ceil(job.time_limit_s) + 2
-    resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 1))
-
-
 def _preload() -> None:
     """Import the chart's libraries before the limits apply: their code is not the file's
     doing and must not count against the memory the file may take."""
@@ -85,7 +73,7 @@ def child_main(conn: Any, job: ChartJob) -> None:
     outcome: tuple[str, Any]
     try:
         _preload()
-        _limit_resources(job)
+        limit_resources(job.memory_bytes, job.time_limit_s)
         outcome = ("ok", draw(job))
     except InputError as exc:
         outcome = ("invalid", (exc.field, exc.message))

@@ -133,14 +133,16 @@ def _address_space_bytes() -> int:
     return pages * os.sysconf("SC_PAGE_SIZE")
 
 
-def _limit_resources(limits: ParseLimits) -> None:
+def limit_resources(memory_bytes: int, time_limit_s: float) -> None:
+    """Bound this process: its address space to what it holds + ``memory_bytes``
+    (``RLIMIT_AS``) and its CPU time to ``time_limit_s`` + 2 s (``RLIMIT_CPU``)."""
     try:
         import resource
     except ImportError:  # pragma: no cover - not Unix: the wall-clock limit alone
         return
-    mem = _address_space_bytes() + limits.memory_bytes
+    mem = _address_space_bytes() + memory_bytes
     resource.setrlimit(resource.RLIMIT_AS, (mem, mem))
-    cpu_s = math.ceil(limits.time_limit_s) + 2
+    cpu_s = math.ceil(time_limit_s) + 2
     resource.setrlimit(resource.RLIMIT_CPU, (cpu_s, cpu_s + 1))
 
 
@@ -153,7 +155,7 @@ def child_main(conn: Any, job: ParseJob) -> None:
     kill_with_parent()
     outcome: tuple[str, Any]
     try:
-        _limit_resources(job.limits)
+        limit_resources(job.limits.memory_bytes, job.limits.time_limit_s)
         outcome = ("ok", parse(job))
     except TargetFileError as exc:
         outcome = ("invalid", str(exc))
