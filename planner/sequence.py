@@ -93,7 +93,8 @@ class SequencePlan:
 
     @property
     def reasons(self) -> tuple[str, ...]:
-        """One line per failed leg: which leg, which arms, why."""
+        """One line per failed leg: which leg (counted from 1, like the configurations: leg 1
+        goes park -> c1), which arms, why."""
         out = []
         n = len(self.legs)
         for i in self.failed_legs:
@@ -102,7 +103,7 @@ class SequencePlan:
             dst = "park" if i == n - 1 else f"c{i + 1}"
             why = "; ".join(f"arm {a}: {r}" for a, r in sorted(leg.stats.get("reasons", {}).items()))
             arms = ", ".join(str(a) for a in leg.failed_arms)
-            out.append(f"leg {i} ({src} -> {dst}): arms {arms} not planned" + (f" ({why})" if why else ""))
+            out.append(f"leg {i + 1} ({src} -> {dst}): arms {arms} not planned" + (f" ({why})" if why else ""))
         return tuple(out)
 
 

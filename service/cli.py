@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -161,15 +160,6 @@ def leg_name(i: int, n_legs: int) -> str:
     return f"leg {i + 1} ({src} -> {dst})"
 
 
-_LEG_REASON = re.compile(r"^leg (\d+) \([^)]*\)")
-
-
-def leg_reason(reason: str, n_legs: int) -> str:
-    """A plan's reason line (``leg <index> (a -> b): ...``, the index into ``motions``) with the
-    leg counted from 1 as :func:`leg_name` writes it."""
-    return _LEG_REASON.sub(lambda m: leg_name(int(m.group(1)), n_legs), reason, count=1)
-
-
 def print_failed_legs(result: Mapping[str, Any]) -> None:
     """On stderr: each pointing's failed legs (counted from 1) and why."""
     for p in result["pointings"]:
@@ -183,7 +173,7 @@ def print_failed_legs(result: Mapping[str, Any]) -> None:
             f"{leg_name(i, len(motions))}: arms {motions[i].get('failed_arms')} not planned"
             for i in failed
         ]:
-            print(f"error: pointing {p['id']}: {leg_reason(reason, len(motions))}", file=sys.stderr)
+            print(f"error: pointing {p['id']}: {reason}", file=sys.stderr)
     print("error: the plan is not executable; do not execute the failed legs (see 'reasons' "
           "in plan.json)", file=sys.stderr)
 

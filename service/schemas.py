@@ -572,8 +572,9 @@ class PlanPointing(PointingOut):
     )
     executable: bool = Field(description="Every motion leg of this pointing was planned "
                              "(status 'ok').")
-    reasons: list[str] = Field(description="One line per failed motion leg: which leg, which "
-                               "arms, why. Empty when `executable`.")
+    reasons: list[str] = Field(description="One line per failed motion leg: which leg (counted "
+                               "from 1 like the configurations: 'leg 1 (park -> c1)' is "
+                               "`motions[0]`), which arms, why. Empty when `executable`.")
     not_planned: str | None = Field(None, description="Why this pointing was not planned (the "
                                     "plan's time limit left it no time: its targets 'no_time'); "
                                     "null when it was.")

@@ -230,7 +230,7 @@ def _telescope_time_is_shown(page, result) -> None:
 
 def _not_executable_is_flagged(page, result) -> None:
     """The same answer with a failed leg: a banner with the reasons, the pointing flagged."""
-    reason = "leg 0 (park -> c1): arms 5 not planned"
+    reason = "leg 1 (park -> c1): arms 5 not planned"
     page.evaluate("""([reason]) => {
         const r = structuredClone(mxs.state.result);
         r.executable = false; r.pointings[0].executable = false;

@@ -476,14 +476,12 @@ def test_counts_priorities_and_legs_read_right(tmp_path: Path, capsys) -> None:
     assert priority_text(-5.0) == "-5" and priority_text(500) == "500"
     assert cli.leg_name(0, 3) == "leg 1 (park -> c1)"
     assert cli.leg_name(2, 3) == "leg 3 (c2 -> park)"
-    assert cli.leg_reason("leg 1 (c1 -> c2): arms 5 not planned (arm 5: blocked)", 3) == \
-        "leg 2 (c1 -> c2): arms 5 not planned (arm 5: blocked)"
     pointing = {"id": "P0001", "ra_deg": 132.82698, "dec_deg": 11.78075, "target_ids": ["a"],
                 "position_angle_deg": None, "executable": False,
                 "configurations": [{"index": 0, "arm_yield": 1, "total_priority": 7,
                                     "assignments": []}],
                 "motions": [{"status": "failed", "failed_arms": [5]}, {"status": "ok"}],
-                "reasons": ["leg 0 (park -> c1): arms 5 not planned"]}
+                "reasons": ["leg 1 (park -> c1): arms 5 not planned"]}
     result = {"executable": False, "pointings": [pointing],
               "stats": {"targets": 1, "pointings": 1, "configurations": 1, "allocated_targets": 1,
                         "unallocated_by_reason": {"unreachable": 1},

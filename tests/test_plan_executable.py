@@ -90,7 +90,8 @@ def check_failed(out: dict[str, Any]) -> None:
     assert [m["status"] for m in p["motions"]] == ["ok"] * n + ["failed"]
     assert p["motions"][-1]["failed_arms"] == list(FAILED_ARMS)
     (reason,) = p["reasons"]
-    assert reason.startswith(f"leg {n} (c{n} -> park): arms 3, 4 not planned")
+    # legs counted from 1, like the configurations: leg n + 1 goes cn -> park (motions[n])
+    assert reason.startswith(f"leg {n + 1} (c{n} -> park): arms 3, 4 not planned")
     assert "arm 3: blocked by arm 4" in reason
     assert out["reasons"] == [f"pointing {p['id']}: {reason}"]
     assert [c["kind"] for c in p["changes"]] == ["via_park", "moved_target"]
@@ -116,7 +117,7 @@ def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail
     # heavy_processes=False: the plan computes in this process, where the fake applies
     app = create_app(Settings(job_db=tmp_path / "j.db", api_token=TOKEN, heavy_processes=False))
     with TestClient(app) as c:
-        r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3},
+        r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 10},
                    headers=AUTH)
     assert r.status_code == 200, r.text
     out = r.json()
@@ -146,7 +147,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
     monkeypatch.setattr(programme, "plan_sequence", broken)
     app = create_app(Settings(job_db=tmp_path / "j.db", heavy_processes=False))
     with TestClient(app) as c:
-        r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 3})
+        r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 10})
     assert r.status_code == 200, r.text
     out = r.json()
     PlanResponse.model_validate(out)
@@ -163,7 +164,7 @@ def test_plan_job_result_carries_executable(tmp_path: Path, monkeypatch) -> None
     db = tmp_path / "j.db"
     app = create_app(Settings(job_db=db))
     with TestClient(app) as c:
-        request = {"targets": targets(), "seed": 1, "time_limit_s": 3}
+        request = {"targets": targets(), "seed": 1, "time_limit_s": 10}
         job_id = jobs.JobStore(db).create("plan", request)
         assert jobs.run_job(str(db), job_id, "plan", request, None, 3.0, 60.0) == "done"
         r = c.get(f"/v1/jobs/{job_id}")
@@ -186,7 +187,7 @@ def _target_file(tmp_path: Path) -> Path:
 def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=True))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
-                 "--seed", "1", "--time-limit", "3", "--quiet"])
+                 "--seed", "1", "--time-limit", "10", "--quiet"])
     cap = capsys.readouterr()
     assert code == EXIT_NOT_EXECUTABLE == 4, cap.err
     assert "not executable" in cap.err
@@ -203,7 +204,7 @@ def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys
 def test_cli_exit_code_0_when_executable(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=False))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
-                 "--seed", "1", "--time-limit", "3", "--quiet"])
+                 "--seed", "1", "--time-limit", "10", "--quiet"])
     cap = capsys.readouterr()
     assert code == 0, cap.err
     assert "not executable" not in cap.err and "not planned" not in cap.err

@@ -137,7 +137,7 @@ def test_unplannable_configuration_is_changed_not_returned_unverified():
     start = PARK
     for i, leg in enumerate(sp.legs):
         if leg.status != "ok":
-            assert not sp.executable and any(r.startswith(f"leg {i} ") for r in sp.reasons)
+            assert not sp.executable and any(r.startswith(f"leg {i + 1} ") for r in sp.reasons)
             start = seq[i + 1]
             continue
         rep = verify_trajectories(inst, leg.trajectories, start, seq[i + 1], max_start_stop=None)

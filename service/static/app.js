@@ -287,12 +287,6 @@ function clearResult() {
 // sky view stay on the first screen.
 const BANNER_REASONS = 3;
 
-// A reason of the plan ("... leg 0 (park -> c1): ...", the index into `motions`) with its leg
-// counted from 1, as configurations are: "leg 1 (park -> c1)".
-function legFromOne(reason) {
-  return reason.replace(/\bleg (\d+) \(/g, (_, i) => `leg ${Number(i) + 1} (`);
-}
-
 function showBanner(result) {
   const b = $("banner");
   b.replaceChildren();
@@ -307,7 +301,7 @@ function showBanner(result) {
     b.append("Every motion leg of every pointing was planned: the plan is executable.");
   } else {
     b.className = "bad";
-    const reasons = el("ul", {}, ...result.reasons.map((r) => el("li", {}, legFromOne(r))));
+    const reasons = el("ul", {}, ...result.reasons.map((r) => el("li", {}, r)));
     b.append("This plan is NOT executable: some motion legs could not be planned. Do not execute the failed legs.",
       result.reasons.length <= BANNER_REASONS ? reasons :
         el("details", {}, el("summary", {}, `the ${result.reasons.length} reasons`), reasons));
@@ -464,5 +458,5 @@ async function resumeJob(saved) {
 }
 
 window.mxs = { showResult, showBanner, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
-  cliLine, progressText, legFromOne, CONTROLS, state };
+  cliLine, progressText, CONTROLS, state };
 start();

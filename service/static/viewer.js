@@ -103,12 +103,11 @@ function pointingSection(p, request, byId, tiers, list) {
     `${nAlloc} observed, ${p.unallocated.length} not observed.`));
   const t = p.stats && p.stats.telescope_time;
   if (t) sec.append(el("p", { class: "telescope-time" }, `Telescope time (h:mm): ${telescopeTimeText(t)}.`));
-  const fromOne = typeof legFromOne === "function" ? legFromOne : (r) => r;  // app.js: legs counted from 1
-  if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, fromOne(r)))));
+  if (p.reasons.length) sec.append(el("ul", { class: "changes" }, ...p.reasons.map((r) => el("li", { class: "failed" }, r))));
   if (p.changes.length) {
     sec.append(el("p", {}, el("span", { class: "badge changed" }, "changed"),
       " The motion planner changed the allocation so that the legs can be executed:"),
-    el("ul", { class: "changes" }, ...p.changes.map((c) => el("li", {}, `leg ${c.leg + 1}: ${c.kind} - ${fromOne(c.reason)}` +
+    el("ul", { class: "changes" }, ...p.changes.map((c) => el("li", {}, `leg ${c.leg + 1}: ${c.kind} - ${c.reason}` +
       (c.target_ids.length ? ` (targets ${c.target_ids.join(", ")})` : "")))));
   }
   const members = p.target_ids.map((id) => byId.get(id)).filter(Boolean);
