@@ -37,12 +37,11 @@ from service.errors import (
     parse_loc,
 )
 from service.executor import (
-    Cancelled,
     HeavyExecutor,
     Overloaded,
     RefuseWhenFull,
     Ticket,
-    wait_or_cancel,
+    run_heavy,
 )
 from service.job_schemas import JOB_STATUS, JobCreated, JobRequest, JobStatus
 from service.jobpool import JobManager, PoolOptions
@@ -297,13 +296,7 @@ async def _heavy(request: Request, st: ServiceState, model: type[BaseModel], fn:
         result = call.fn(call.request, st.instrument, _cancelling(ticket), **call.kwargs)
         return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
 
-    heavy = st.heavy
-    ticket = heavy.submit(work)
-    try:
-        return await wait_or_cancel(heavy, ticket, request.is_disconnected)
-    except Cancelled:
-        raise Overloaded("the request was cancelled (client gone or server shutting down)",
-                         st.settings.retry_after_s) from None
+    return await run_heavy(st.heavy, work, request.is_disconnected, st.settings.retry_after_s)
 
 
 def _on_sigterm(action: Callable[[], None]) -> Callable[[], None]:

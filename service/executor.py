@@ -256,3 +256,16 @@ async def wait_or_cancel(executor: HeavyExecutor, ticket: Ticket,
     except asyncio.CancelledError:
         executor.cancel(ticket)
         raise
+
+
+async def run_heavy(executor: HeavyExecutor, work: Callable[[Ticket], Any],
+                    disconnected: Callable[[], Any], retry_after_s: int,
+                    what: str = "request") -> Any:
+    """``work`` run in a heavy slot and awaited (:func:`wait_or_cancel`); a cancelled ``what``
+    (the client gone, or the server shutting down) is answered 503 with ``Retry-After``."""
+    ticket = executor.submit(work)
+    try:
+        return await wait_or_cancel(executor, ticket, disconnected)
+    except Cancelled:
+        raise Overloaded(f"the {what} was cancelled (client gone or server shutting down)",
+                         retry_after_s) from None

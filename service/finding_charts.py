@@ -33,7 +33,7 @@ from fastapi.responses import Response
 from service.auth import Auth
 from service.chart_child import ChartJob, child_main
 from service.errors import FieldError, ServiceError
-from service.executor import Cancelled, Overloaded, Ticket, wait_or_cancel
+from service.executor import Ticket, run_heavy
 from service.schemas import ErrorResponse, ValidationErrorResponse
 from service.settings import Settings, env_name
 from service.upload_child import MEMORY_EXIT
@@ -115,13 +115,7 @@ async def create_finding_chart(
         png = draw_chart(image.file, job, ticket.cancel)
         return Response(png, media_type="image/png")
 
-    heavy = st.heavy
-    ticket = heavy.submit(work)
-    try:
-        return await wait_or_cancel(heavy, ticket, request.is_disconnected)
-    except Cancelled:
-        raise Overloaded("the request was cancelled (client gone or server shutting down)",
-                         settings.retry_after_s) from None
+    return await run_heavy(st.heavy, work, request.is_disconnected, settings.retry_after_s)
 
 
 def draw_chart(src: IO[bytes], job: ChartJob, cancel: threading.Event) -> bytes:

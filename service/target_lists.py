@@ -35,7 +35,7 @@ from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
 from service.errors import NotFound, clip
-from service.executor import Cancelled, HeavyExecutor, Overloaded, Ticket, wait_or_cancel
+from service.executor import HeavyExecutor, Ticket, run_heavy
 from service.schemas import ErrorResponse, SkyTarget
 from service.settings import Settings, env_name
 from service.tables import COMPRESSED, table_suffix
@@ -305,13 +305,8 @@ def install_target_lists(app: FastAPI, store_of: Callable[[Request], TargetListS
             list_id, created_at = store.put(parsed)
             return created_out(store, parsed, list_id, created_at, include_targets)
 
-        heavy = heavy_of(request)
-        ticket = heavy.submit(work)
-        try:
-            return await wait_or_cancel(heavy, ticket, request.is_disconnected)
-        except Cancelled:
-            raise Overloaded("the upload was cancelled (client gone or server shutting down)",
-                             settings.retry_after_s) from None
+        return await run_heavy(heavy_of(request), work, request.is_disconnected,
+                               settings.retry_after_s, what="upload")
 
     @app.get("/v1/target-lists/{target_list_id}", operation_id="get_target_list",
              response_model=TargetList, tags=["targets"], dependencies=[auth],
