@@ -16,6 +16,7 @@ what it costs is the allocator's to say (:data:`solvers.effort.INCOMPATIBILITY_W
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -32,6 +33,7 @@ from models.collision import (
 from models.errors import StructureTooLarge, TimeLimitExceeded
 from models.instrument import Instrument
 from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
+from models.locks import allowed_columns
 
 TIE_MM = 1e-6  # clearances within this of the buffer count as collisions in the structure
 FLOAT32_BAND_MM = 0.05  # float32 segment distances are good to ~1e-4 mm at FOV scale
@@ -148,8 +150,15 @@ def build_assignments(
     blank_per_arm: int = 0,
     seed: int = 0,
     park_move_limit_s: float | None = None,
+    locks: Mapping[int, tuple[int, int | None]] | None = None,
+    excluded: Sequence[int] | np.ndarray | None = None,
 ) -> Reachability:
     """Every (arm, target, IK branch) assignment plus park/current locations (thesis 5.4).
+
+    ``locks``: target index -> (arm, IK branch or None): such a target keeps only the
+    columns of that arm (and branch), so no engine or post-pass reading the structure can
+    put it on another; ``excluded``: target indices that keep no column (reported
+    unreachable here; the allocator names them ``excluded``). See :mod:`models.locks`.
 
     ``park_move_limit_s``: keep only the target and blank-sky locations an arm reaches from
     park within that time, turning theta2 the positive way
@@ -180,7 +189,7 @@ def build_assignments(
     beyond = None
     if n_t:
         sol = inverse_fov(instrument, arms[:, None], x[None, :], y[None, :])  # (n_arms, n_t, 4)
-        valid = sol.valid & active[:, None, None]
+        valid = sol.valid & active[:, None, None] & allowed_columns(instrument.n_arms, n_t, locks, excluded)
         if park_move_limit_s is not None:
             reached = valid.any(axis=(0, 2))
             q = np.stack([sol.theta1_rad, sol.theta2_rad], axis=-1)
@@ -578,16 +587,19 @@ def incompatibility_for_targets(
     max_pairs: int = MAX_PAIRS,
     park_move_limit_s: float | None = None,
     budget: Budget | None = None,
+    locks: Mapping[int, tuple[int, int | None]] | None = None,
+    excluded: Sequence[int] | np.ndarray | None = None,
 ) -> Incompatibility:
     """Reachability plus incompatibility for FOV targets, with per-phase timings.
 
     ``budget`` / ``deadline_s`` / ``time_limit_s`` / ``max_pairs``: see
     :func:`compute_incompatibility`;
-    ``park_move_limit_s``: see :func:`build_assignments`.
+    ``park_move_limit_s``, ``locks``, ``excluded``: see :func:`build_assignments`.
     """
     t0 = clock.now()
     reach = build_assignments(instrument, x_mm, y_mm, include_park=include_park, current=current, fixed=fixed,
-                              blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s)
+                              blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s,
+                              locks=locks, excluded=excluded)
     t1 = clock.now()
     inc = compute_incompatibility(instrument, reach, buffer_mm, time_limit_s=time_limit_s, max_pairs=max_pairs,
                                   budget=_call_budget(budget, deadline_s))

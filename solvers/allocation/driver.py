@@ -12,9 +12,10 @@ the rotation with the fewest configurations, then highest priority completeness,
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -25,6 +26,14 @@ from models.budget import Budget
 from models.errors import InputError, TimeLimitExceeded
 from models.incompatibility import build_assignments, incompatibility_for_targets
 from models.instrument import Instrument
+from models.locks import (
+    LockColumns,
+    TargetLock,
+    check_exclusions,
+    check_locks,
+    lock_columns,
+    lock_reason,
+)
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation.backends import Backend, get_backend
 from solvers.allocation.options import (
@@ -67,13 +76,14 @@ def rotate_targets(targets: PlaneTargets, angle_deg: float) -> PlaneTargets:
 
 def timed_out_result(instrument: Instrument, targets: PlaneTargets,
                      fixed: dict[int, tuple[float, float]] | None, elapsed_s: float,
-                     park_move_limit_s: float | None = None) -> AllocationResult:
+                     park_move_limit_s: float | None = None, locks: LockColumns | None = None,
+                     excluded: Sequence[int] | None = None) -> AllocationResult:
     """The partial answer of a call whose time ran out while the incompatibility structure
     was built: no configuration; each target ``unreachable`` (no enabled arm reaches it,
     cheap to know), ``beyond_park_move_limit`` or ``no_time``;
     ``stats["stop_reason"] == "no_time"``."""
     reach = build_assignments(instrument, targets.x_mm, targets.y_mm, fixed=fixed,
-                              park_move_limit_s=park_move_limit_s)
+                              park_move_limit_s=park_move_limit_s, locks=locks, excluded=excluded)
     unreachable = set(reach.unreachable.tolist())
     beyond = set(reach.beyond_limit.tolist())
     n = len(targets)
@@ -85,6 +95,19 @@ def timed_out_result(instrument: Instrument, targets: PlaneTargets,
              "field_completeness": 0.0 if n else 1.0, "priority_completeness": 0.0 if n else 1.0, "stop_reason": "no_time",
              "timed_out_in": "incompatibility", "timers_s": {"incompatibility_s": elapsed_s}}
     return AllocationResult((), unalloc, stats)
+
+
+def with_lock_reasons(result: AllocationResult, locks: LockColumns, excluded: Sequence[int]) -> AllocationResult:
+    """``result`` with its excluded targets' reason ``excluded`` and its unobserved locked
+    targets' reason prefixed ``locked_`` (:func:`models.locks.lock_reason`);
+    ``stats["n_excluded"]`` counts the excluded ones."""
+    if not locks and not excluded:
+        return result
+    out = set(int(i) for i in excluded)
+    unalloc = tuple(dataclasses.replace(u, reason="excluded") if u.target_index in out
+                    else dataclasses.replace(u, reason=lock_reason(u.reason)) if u.target_index in locks
+                    else u for u in result.unallocated)
+    return AllocationResult(result.configurations, unalloc, dict(result.stats, n_excluded=len(out)))
 
 
 def _check_inputs(instrument: Instrument, configurations: str, time_limit_s, seed, collision_buffer_mm,
@@ -142,6 +165,8 @@ def allocate(
     position_angles_deg: tuple[float, ...] | None = None,
     options: AllocationOptions | None = None,
     budget: Budget | None = None,
+    locked: Sequence[TargetLock] | None = None,
+    excluded_targets: Sequence[str] | None = None,
 ) -> AllocationResult:
     """Allocate arms to targets: ``configurations="one"`` (best single configuration) or
     ``"all"`` (sequence to full completeness).  ``budget`` (on the caller's clock) bounds
@@ -152,6 +177,13 @@ def allocate(
     sequence (:class:`~solvers.allocation.options.AllocationOptions`; default: every
     default).  With ``position_angles_deg`` the returned stats hold ``position_angle_deg``:
     the returned x/y of assignments are in the rotated frame of that angle.
+
+    ``locked`` (:class:`~models.locks.TargetLock`): each such target is observed only by its
+    arm (and IK branch), in the structure every engine and post-pass reads; a lock that
+    cannot be honoured is an ``InputError`` naming ``locked[i]``. Locked targets take
+    precedence in the engines' objective; one left unobserved is reported with its reason
+    prefixed ``locked_``. ``excluded_targets`` (ids): observed by no arm, reported
+    ``excluded``. See :mod:`models.locks`.
     """
     name = backend_name(method, solver)
     if budget is not None and not isinstance(budget, Budget):
@@ -165,6 +197,11 @@ def allocate(
     solve_one = backend.solver(opts.engine_for(name))
     sequencing = opts.sequencing(configurations, float(limit_s), backend.sequencing)
     exact_one, engines = stage_engines(backend)
+    check_exclusions(targets.ids, excluded_targets)
+    check_locks(instrument, targets, locked, excluded_targets, fixed=fixed,
+                park_move_limit_s=sequencing.sequence.park_move_limit_s, buffer_mm=collision_buffer_mm)
+    locks = lock_columns(targets.ids, locked)
+    excluded = [targets.ids.index(t) for t in excluded_targets or ()]
 
     def run(tgts: PlaneTargets, call: Budget) -> AllocationResult:
         # the structure build counts against the call's budget; the sequence gets a budget
@@ -174,15 +211,18 @@ def allocate(
                 instrument, tgts.x_mm, tgts.y_mm, buffer_mm=collision_buffer_mm, fixed=fixed,
                 blank_per_arm=sequencing.sequence.blank_per_arm, seed=int(seed),
                 budget=call,
-                park_move_limit_s=sequencing.sequence.park_move_limit_s)
+                park_move_limit_s=sequencing.sequence.park_move_limit_s, locks=locks, excluded=excluded)
         except TimeLimitExceeded:
-            return timed_out_result(instrument, tgts, fixed, call.elapsed_s(),
-                                    sequencing.sequence.park_move_limit_s)
+            return with_lock_reasons(timed_out_result(instrument, tgts, fixed, call.elapsed_s(),
+                                                      sequencing.sequence.park_move_limit_s, locks, excluded),
+                                     locks, excluded)
         rest = Budget.start(max(call.left_s(), 1e-3))
-        return sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
-                                       buffer_mm=collision_buffer_mm, budget=rest, seed=int(seed),
-                                       progress=progress, incompatibility=inc, exact_one=exact_one,
-                                       engines=engines)
+        return with_lock_reasons(
+            sequence_configurations(instrument, tgts, solve_one, sequencing, start_q=start_q, fixed=fixed,
+                                    buffer_mm=collision_buffer_mm, budget=rest, seed=int(seed),
+                                    progress=progress, incompatibility=inc, exact_one=exact_one,
+                                    engines=engines, locks=locks, excluded=excluded),
+            locks, excluded)
 
     if not position_angles_deg:
         return run(targets, Budget.start(limit_s) if budget is None else budget)

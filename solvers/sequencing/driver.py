@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -34,6 +34,7 @@ from models import clock
 from models.budget import Budget
 from models.incompatibility import Incompatibility, incompatibility_for_targets
 from models.instrument import Instrument
+from models.locks import LockColumns
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.problem import ConfigProblem, ConfigSolution
 from solvers.sequencing.bounds import matching_lower_bound
@@ -47,6 +48,7 @@ from solvers.sequencing.state import (
     hard_to_place,
     joint_speeds,
     make_configuration,
+    observed,
     verify,
 )
 
@@ -56,8 +58,20 @@ Progress = Callable[[float, str], None]
 PROGRESS_READY, PROGRESS_LOOP = 0.05, 0.85  # progress after the structure; the loop's share
 
 
+def precedence(priority: np.ndarray, locked: Sequence[int]) -> np.ndarray:
+    """The priorities the engines weigh: a locked target counts its own priority plus the
+    field's largest, so that it outweighs any one unlocked target it competes with (for its
+    arm, or for room next to it) and is observed as early as it can be. Reported priorities
+    stay the targets' own (:func:`_result`)."""
+    p = np.asarray(priority, dtype=np.int64).copy()
+    if len(locked) and len(p):
+        p[np.asarray(locked, int)] += int(p.max())
+    return p
+
+
 def _initial_state(instrument: Instrument, targets: PlaneTargets, inc: Incompatibility,
-                   start_q: np.ndarray | None, seed: int, options: SequencingOptions) -> SequenceState:
+                   start_q: np.ndarray | None, seed: int, options: SequencingOptions,
+                   locked: Sequence[int] = ()) -> SequenceState:
     n = len(targets)
     x = np.asarray(targets.x_mm, float)
     y = np.asarray(targets.y_mm, float)
@@ -71,7 +85,7 @@ def _initial_state(instrument: Instrument, targets: PlaneTargets, inc: Incompati
         else lower_bound
     q = instrument.park_configuration.copy() if start_q is None else np.asarray(start_q, float).copy()
     tie = hard_to_place(inc, instrument.n_arms) if options.sequence.tie_break else None
-    return SequenceState(instrument, targets, inc, np.asarray(targets.priority, dtype=np.int64), unreachable,
+    return SequenceState(instrument, targets, inc, precedence(targets.priority, locked), unreachable,
                          pending, n_reachable, n_active, lower_bound, flow_bound, joint_speeds(instrument),
                          np.column_stack([x, y]), tie, q, q.copy(), seed, options.sequence.threads)
 
@@ -129,9 +143,12 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
 def _result(s: SequenceState, budget: Budget, engines: dict[str, str] | None) -> AllocationResult:
     """The configurations (main, then rescue), the unallocated targets with their reason, the stats."""
     targets, n = s.targets, len(s.targets)
+    own = np.asarray(targets.priority, dtype=np.int64)
     out = [make_configuration(i, st.problem, st.chosen, targets, st.status, st.stats)
            for i, st in enumerate(s.steps)]
     out += [dataclasses.replace(c, index=len(s.steps) + i) for i, c in enumerate(s.extra)]
+    if not np.array_equal(own, s.priority):  # locked targets weighed more: report their own
+        out = [dataclasses.replace(c, total_priority=sum(int(own[t]) for t in observed(c))) for c in out]
     allocated = np.zeros(n, bool)
     for c in out:
         for a in c.assignments:
@@ -145,8 +162,8 @@ def _result(s: SequenceState, budget: Budget, engines: dict[str, str] | None) ->
     unalloc = [Unallocated(int(i), targets.ids[i], "beyond_park_move_limit" if beyond[i]
                            else "unreachable" if s.unreachable[i] else reason_left)
                for i in np.flatnonzero(~allocated)]
-    total_p = sum(int(p) for p in s.priority)
-    got_p = sum(int(p) for p in s.priority[allocated])
+    total_p = sum(int(p) for p in own)
+    got_p = sum(int(p) for p in own[allocated])
     s.timers["total_s"] = budget.elapsed_s()
     stats = {
         "n_targets": n,
@@ -194,6 +211,8 @@ def sequence_configurations(
     exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
     engines: dict[str, str] | None = None,
     budget: Budget | None = None,
+    locks: LockColumns | None = None,
+    excluded: Sequence[int] | None = None,
 ) -> AllocationResult:
     """Configurations until every reachable target is allocated or nothing more can be.
 
@@ -212,7 +231,10 @@ def sequence_configurations(
     longer than ``SequenceOptions.park_move_limit_s``; counted in ``n_unreachable`` too).  ``incompatibility``: the structure, when the caller built it;
     ``exact_one``: the exact single-configuration solve the rescue uses for one leftover
     target at a time (default: CP-SAT); ``engines`` (which engine did which part) is
-    returned as ``stats["engines"]``.
+    returned as ``stats["engines"]``.  ``locks`` (target index -> (arm, branch or None)) and
+    ``excluded`` (target indices) restrict the structure when it is built here (a caller's
+    ``incompatibility`` must be built with them) and the rescue's; locked targets take
+    precedence (:func:`precedence`).
     """
     budget = Budget.start(time_limit_s) if budget is None else budget
     opts = (SequencingOptions() if options is None else options).resolved()
@@ -221,13 +243,14 @@ def sequence_configurations(
     if incompatibility is None:
         incompatibility = incompatibility_for_targets(instrument, x, y, buffer_mm=buffer_mm, fixed=fixed,
                                                       blank_per_arm=opts.sequence.blank_per_arm, seed=seed,
-                                                      park_move_limit_s=opts.sequence.park_move_limit_s)
+                                                      park_move_limit_s=opts.sequence.park_move_limit_s,
+                                                      locks=locks, excluded=excluded)
     t_inc = budget.elapsed_s()
     if progress:
         progress(PROGRESS_READY, "incompatibility ready")
-    s = _initial_state(instrument, targets, incompatibility, start_q, seed, opts)
+    s = _initial_state(instrument, targets, incompatibility, start_q, seed, opts, sorted(locks or {}))
     s.timers["incompatibility_s"] = t_inc
-    ctx = PassContext(opts, budget, solve_one, exact_one, fixed, buffer_mm)
+    ctx = PassContext(opts, budget, solve_one, exact_one, fixed, buffer_mm, dict(locks or {}))
     _greedy(s, ctx, progress)
     for post_pass in POST_PASSES:
         if post_pass.applies(s, ctx):

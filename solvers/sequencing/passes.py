@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,6 +52,8 @@ class PassContext:
     exact_one: Callable[[ConfigProblem], ConfigSolution] | None
     fixed: dict[int, tuple[float, float]] | None
     buffer_mm: float | None
+    #: target index -> (arm, branch or None): the rescue's structure keeps them (models.locks)
+    locks: dict[int, tuple[int, int | None]] = field(default_factory=dict)
 
 
 class RescuePass:
@@ -71,7 +73,7 @@ class RescuePass:
                                    s.speeds, len(s.steps), ctx.budget,
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
                                    None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one,
-                                   park_move_limit_s=ctx.options.sequence.park_move_limit_s)
+                                   park_move_limit_s=ctx.options.sequence.park_move_limit_s, locks=ctx.locks)
         s.timers["rescue_s"] = clock.now() - tr
         for c in s.extra:
             s.pending[observed(c)] = False

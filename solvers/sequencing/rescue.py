@@ -33,7 +33,8 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
                       n_fill: int = SHARES.rescue_fill_targets,
                       blank_per_arm: int = SHARES.rescue_blank_per_arm,
                       exact_one: Callable[[ConfigProblem], ConfigSolution] | None = None,
-                      park_move_limit_s: float | None = None) -> list[Configuration]:
+                      park_move_limit_s: float | None = None,
+                      locks: dict[int, tuple[int, int | None]] | None = None) -> list[Configuration]:
     """Configurations for targets no configuration of the main structure can take.
 
     Their only reaching arms collide with a neighbour's park (the park spot of an arm sits
@@ -45,7 +46,8 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     configuration like the main loop (same back-end, verified); stops when a configuration
     takes no leftover target.  When a joint configuration takes none, each leftover target
     is tried alone with ``exact_one`` (the chosen engine's exact solve; default CP-SAT).
-    ``park_move_limit_s`` limits the rest locations as it does the main structure's. Each
+    ``park_move_limit_s`` limits the rest locations as it does the main structure's, and
+    ``locks`` (field target index -> (arm, branch or None)) keep a locked leftover on its arm. Each
     solve gets at most ``config_time_limit_s`` of what is left of ``budget``; none starts
     with ``SHARES.min_solve_s`` or less left.
     """
@@ -61,7 +63,8 @@ def rescue_conflicts(instrument, targets, priority, left, done, q, solve_one, fi
     sub = np.r_[left, fill].astype(np.int64)
     nl = len(left)
     inc = incompatibility_for_targets(instrument, x[sub], y[sub], buffer_mm=buffer_mm, fixed=fixed,
-                                      blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s)
+                                      blank_per_arm=blank_per_arm, seed=seed, park_move_limit_s=park_move_limit_s,
+                                      locks={j: locks[int(t)] for j, t in enumerate(left) if int(t) in (locks or {})})
     pr = np.r_[priority[left], np.zeros(len(fill), np.int64)]
     pend = np.zeros(len(sub), bool)
     pend[:nl] = True
