@@ -26,7 +26,8 @@ from models.instrument import Instrument
 from models.kinematics import inverse_fov, positive_turn_move_time_s
 from models.types import PlaneTargets
 
-__all__ = ["N_BRANCHES", "LockColumns", "TargetLock", "allowed_columns", "check_exclusions", "check_locks", "lock_columns",
+__all__ = ["N_BRANCHES", "LockColumns", "TargetLock", "allowed_columns", "branch_of", "check_exclusions", "check_lock_targets",
+           "check_locks", "lock_columns",
            "lock_reason", "locked_ids"]
 
 N_BRANCHES = 4  # IK solutions per (arm, point), thesis eqs. 3.17-3.27
@@ -116,25 +117,15 @@ def _reach_problem(instrument: Instrument, lk: TargetLock, x_mm: float, y_mm: fl
     return None
 
 
-def check_locks(instrument: Instrument, targets: PlaneTargets, locks: Sequence[TargetLock] | None,
-                excluded: Sequence[str] | None = None, *,
-                fixed: Mapping[int, tuple[float, float]] | None = None,
-                park_move_limit_s: float | None = None, buffer_mm: float | None = None,
-                field: str = "locked", index: Sequence[int] | None = None) -> None:
-    """Every lock can be honoured: its target is one of ``targets`` and not excluded, it is the
-    only lock of that target, its arm is enabled (not in ``fixed``), and the arm (on its
-    branch) reaches the target within the park move limit without touching a disabled arm.
-    Otherwise an ``InputError`` naming ``field[i]`` (``i`` from ``index``, default the lock's
-    position) says why."""
-    fixed = dict(fixed or {})
-    buffer = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
-    pos = {t: j for j, t in enumerate(targets.ids)}
-    out = set(excluded or ())
+def check_lock_targets(instrument: Instrument, ids: Sequence[str], locks: Sequence[TargetLock] | None,
+                       excluded: Sequence[str] | None = None, field: str = "locked") -> None:
+    """The checks that need no geometry: each lock well formed, its target one of ``ids``, not
+    excluded, and locked once (``InputError`` naming ``field[i]``)."""
+    known, out = set(ids), set(excluded or ())
     first: dict[str, int] = {}
-    for n, lk in enumerate(locks or ()):
-        i = n if index is None else int(index[n])
+    for i, lk in enumerate(locks or ()):
         _check_shape(instrument, i, lk, field)
-        if lk.target_id not in pos:
+        if lk.target_id not in known:
             raise InputError(f"{field}[{i}].target_id", f"unknown target id {lk.target_id!r}")
         if lk.target_id in first:
             raise InputError(f"{field}[{i}]", f"target {lk.target_id!r} is locked twice "
@@ -142,11 +133,41 @@ def check_locks(instrument: Instrument, targets: PlaneTargets, locks: Sequence[T
         first[lk.target_id] = i
         if lk.target_id in out:
             raise InputError(f"{field}[{i}]", f"target {lk.target_id!r} is both locked and excluded")
+
+
+def check_locks(instrument: Instrument, targets: PlaneTargets, locks: Sequence[TargetLock] | None,
+                excluded: Sequence[str] | None = None, *,
+                fixed: Mapping[int, tuple[float, float]] | None = None,
+                park_move_limit_s: float | None = None, buffer_mm: float | None = None,
+                field: str = "locked", index: Sequence[int] | None = None) -> None:
+    """Every lock can be honoured: :func:`check_lock_targets`, and its arm is enabled (not in
+    ``fixed``) and reaches the target (on its branch) within the park move limit without
+    touching a disabled arm. Otherwise an ``InputError`` naming ``field[i]`` (``i`` from
+    ``index``, the locks' positions in the request, default their positions here) says why."""
+    locks = tuple(locks or ())
+    names = list(range(len(locks))) if index is None else [int(i) for i in index]
+    try:
+        check_lock_targets(instrument, targets.ids, locks, excluded, field)
+    except InputError as exc:
+        raise InputError(_renamed(str(exc.field), field, names), exc.message) from None
+    fixed = dict(fixed or {})
+    buffer = instrument.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
+    pos = {t: j for j, t in enumerate(targets.ids)}
+    for n, lk in enumerate(locks):
         j = pos[lk.target_id]
         why = _reach_problem(instrument, lk, float(targets.x_mm[j]), float(targets.y_mm[j]), fixed,
                              park_move_limit_s, buffer)
         if why is not None:
-            raise InputError(f"{field}[{i}]", f"cannot be honoured: {why}")
+            raise InputError(f"{field}[{names[n]}]", f"cannot be honoured: {why}")
+
+
+def _renamed(name: str, field: str, names: Sequence[int]) -> str:
+    """``field[n]...`` as ``field[names[n]]...``."""
+    head = f"{field}["
+    if not name.startswith(head):
+        return name
+    n, rest = name[len(head):].split("]", 1)
+    return f"{field}[{names[int(n)]}]{rest}"
 
 
 def allowed_columns(n_arms: int, n_targets: int, locks: LockColumns | None,
@@ -163,6 +184,17 @@ def allowed_columns(n_arms: int, n_targets: int, locks: LockColumns | None,
     if excluded is not None and len(excluded):
         ok[:, np.asarray(excluded, int), :] = False
     return ok
+
+
+def branch_of(instrument: Instrument, arm: int, x_mm: float, y_mm: float, theta1_rad: float,
+              theta2_rad: float, tol_rad: float = 1e-6) -> int | None:
+    """The IK branch (0..3) through which ``arm`` at (theta1, theta2) reaches (x, y), or None
+    when none of its solutions has those angles."""
+    ik = inverse_fov(instrument, int(arm), np.array([x_mm]), np.array([y_mm]))
+    d1 = np.abs(ik.theta1_rad[0] - theta1_rad)
+    d2 = np.abs((ik.theta2_rad[0] - theta2_rad + np.pi) % (2 * np.pi) - np.pi)
+    hit = np.flatnonzero(ik.valid[0] & (d1 < tol_rad) & (d2 < tol_rad))
+    return int(hit[0]) if len(hit) else None
 
 
 def lock_columns(ids: Sequence[str], locks: Sequence[TargetLock] | None) -> dict[int, tuple[int, int | None]]:

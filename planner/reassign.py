@@ -74,12 +74,14 @@ def _fits(instrument: Instrument, q: np.ndarray, arm: int, cand: np.ndarray, buf
 
 
 def try_place(instrument: Instrument, config: Configuration, target: Placed, buffer_mm: float,
-              exclude_arms: Sequence[int] = (), park_move_limit_s: float | None = None) -> Configuration | None:
+              exclude_arms: Sequence[int] = (), park_move_limit_s: float | None = None,
+              branch: int | None = None) -> Configuration | None:
     """``config`` with ``target`` on one of its idle arms (any IK branch that fits), or None.
 
     Arms are tried nearest first (the arm whose base is closest to the target moves least);
     arms in ``exclude_arms`` (e.g. the arm the target was taken from) are not used; only
-    branches within ``park_move_limit_s`` of park (None: any).
+    branches within ``park_move_limit_s`` of park (None: any), and only IK ``branch`` when given
+    (a target locked to it, :mod:`models.locks`).
     """
     q = config.q
     enabled = set(instrument.enabled_arms) - set(exclude_arms)
@@ -90,7 +92,8 @@ def try_place(instrument: Instrument, config: Configuration, target: Placed, buf
     for i in order:
         k = idle[i]
         ik = inverse_fov(instrument, k, np.array([target.x_mm]), np.array([target.y_mm]))
-        cand = np.column_stack([ik.theta1_rad[0][ik.valid[0]], ik.theta2_rad[0][ik.valid[0]]])
+        ok_b = ik.valid[0] & ((np.arange(ik.valid.shape[-1]) == branch) if branch is not None else True)
+        cand = np.column_stack([ik.theta1_rad[0][ok_b], ik.theta2_rad[0][ok_b]])
         cand = cand[within_park_move_limit(instrument, k, cand, park_move_limit_s)]
         if len(cand) == 0:
             continue
