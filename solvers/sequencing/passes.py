@@ -74,10 +74,31 @@ class RescuePass:
                                    ctx.options.sequence.config_time_limit_s, s.threads, s.seed,
                                    None if mc is None else mc - len(s.steps), exact_one=ctx.exact_one,
                                    park_move_limit_s=ctx.options.sequence.park_move_limit_s, locks=ctx.locks)
-        s.timers["rescue_s"] = clock.now() - tr
         for c in s.extra:
             s.pending[observed(c)] = False
+        self._locked_again(s, ctx)
+        s.timers["rescue_s"] = clock.now() - tr
         s.stop_reason = "complete" if not s.pending.any() else "conflict"
+
+    def _locked_again(self, s: SequenceState, ctx: PassContext) -> None:
+        """Locked targets the rescue left: tried again, each alone, with four times the blank-sky
+        rests on another sample. A locked target has one arm (and branch), so it cannot go to an
+        arm whose neighbours have room: the neighbours must make room, and the rescue's
+        sample of rest locations is what decides whether they can."""
+        mc = ctx.options.sequence.max_configurations
+        for t in [int(t) for t in np.flatnonzero(s.pending) if int(t) in ctx.locks]:
+            if mc is not None and s.n_configurations >= mc:
+                break
+            q_last = s.extra[-1].q if s.extra else (
+                s.steps[-1].problem.assignments.q[s.steps[-1].chosen] if s.steps else s.q)
+            more = rescue_conflicts(s.instrument, s.targets, s.priority, np.array([t]), ~s.pending & ~s.unreachable,
+                                    q_last, ctx.solve_one, ctx.fixed, ctx.buffer_mm, s.speeds, s.n_configurations,
+                                    ctx.budget, ctx.options.sequence.config_time_limit_s, s.threads, s.seed + 1, 1,
+                                    exact_one=ctx.exact_one, blank_per_arm=4 * SHARES.rescue_blank_per_arm,
+                                    park_move_limit_s=ctx.options.sequence.park_move_limit_s, locks=ctx.locks)
+            for c in more:
+                s.pending[observed(c)] = False
+            s.extra += more
 
 
 class RepairPass:
