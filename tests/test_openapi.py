@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, settings
 from service.app import create_app
 from service.export_openapi import DEFAULT_PATH, openapi_document, render
 from service.settings import Settings
+from solvers.allocation.options import DEFAULT_SOLVER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,7 +38,7 @@ def test_contract_names() -> None:
     s = doc["components"]["schemas"]
     alloc = s["AllocationRequest"]["properties"]
     assert alloc["method"]["default"] == "ilp"
-    assert alloc["solver"]["default"] == "bnb"
+    assert alloc["solver"]["default"] == DEFAULT_SOLVER
     assert alloc["configurations"]["default"] == "one"
     assert set(s["SkyTarget"]["properties"]) == {"id", "ra_deg", "dec_deg", "priority"}
     assert s["SkyTarget"]["properties"]["priority"]["maximum"] == 2**32 - 1

@@ -23,7 +23,7 @@ from solvers.problem import ConfigProblem, ConfigSolution
 if TYPE_CHECKING:
     from solvers.sequencing.options import SequencingOptions
 
-__all__ = ["BACKEND_MODULES", "Backend", "backend_names", "get_backend"]
+__all__ = ["BACKEND_MODULES", "Backend", "backend_names", "get_backend", "note_incumbent"]
 
 Solve = Callable[..., ConfigSolution]
 
@@ -66,6 +66,21 @@ class Backend:
             return self.solve(problem, options, hint=hint, columns=columns)
 
         return solve_one
+
+
+def note_incumbent(solution: ConfigSolution, caller_hint: np.ndarray | None) -> ConfigSolution:
+    """Say in ``solution.stats["incumbent"]`` where an exact-model engine's start came from:
+    ``"caller"`` (the hint it was given), ``"bnb"`` (the staged model's branch-and-bound dive,
+    :func:`solvers.allocation.exact.presolve_columns`, which also fixed the columns and is the
+    answer whenever the engine does not beat it) or ``"none"``.  The staged stats say
+    ``hint`` when the model had a start."""
+    if caller_hint is not None:
+        solution.stats["incumbent"] = "caller"
+    elif solution.stats.get("hint") and "incumbent_s" in solution.stats:
+        solution.stats["incumbent"] = "bnb"
+    else:
+        solution.stats["incumbent"] = "none"
+    return solution
 
 
 BACKEND_MODULES = {

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from models import clock
-from solvers.allocation.backends import Backend
+from solvers.allocation.backends import Backend, note_incumbent
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
 from solvers.allocation.options import ENGINE_SEQUENCING, CpsatOptions
@@ -50,9 +50,11 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
                                                                 [int(ticks[j]) for j in cols]))
             model.Minimize(xl)
         start = hint_vector(m, hint)
-        if start is not None:
+        if start is not None:  # a complete hint: every variable (x_l too), never a partial one
             for j in range(m.n_vars):
                 model.AddHint(x[j], bool(start[j]))
+            if stage != 1:
+                model.AddHint(xl, int(ticks[start > 0.5].max(initial=0)))
         # the Python loops above: one literal per column, row member and hint (twice in stage 2)
         charge_literals(m.n_vars * (2 if start is not None else 1) + len(m.eq_indices) + len(m.le_indices)
                         + (0 if stage == 1 else 2 * m.n_vars))
@@ -65,7 +67,8 @@ def cpsat_stage_solver(problem: ConfigProblem, workers: int | None, linearizatio
         p.relative_gap_limit = float(problem.mip_rel_gap)
         code = cpsat_solve(solver, model, max(time_limit_s, 0.001))
         s = {"solve_s": clock.now() - t0 - build_s, "cp_build_s": build_s,
-             "solver_status": solver.StatusName(code), "branches": int(solver.NumBranches())}
+             "solver_status": solver.StatusName(code), "branches": int(solver.NumBranches()),
+             "workers": int(p.num_workers)}
         if code == cp_model.INFEASIBLE or code == cp_model.MODEL_INVALID:
             return "infeasible", None, None, s
         if code not in (cp_model.OPTIMAL, cp_model.FEASIBLE):
@@ -107,9 +110,10 @@ def solve_ilp_cpsat(problem: ConfigProblem, *, form: str = "aggregated", workers
 
 def _solve(problem: ConfigProblem, options: CpsatOptions, *, hint: np.ndarray | None = None,
            columns: np.ndarray | None = None) -> ConfigSolution:
-    return solve_ilp_cpsat(problem, form=options.form, workers=options.workers,
-                           linearization_level=options.linearization_level, minimize_move=options.minimize_move,
-                           candidates_per_arm=options.candidates_per_arm, hint=hint, columns=columns)
+    sol = solve_ilp_cpsat(problem, form=options.form, workers=options.workers,
+                          linearization_level=options.linearization_level, minimize_move=options.minimize_move,
+                          candidates_per_arm=options.candidates_per_arm, hint=hint, columns=columns)
+    return note_incumbent(sol, hint)
 
 
 BACKEND = Backend(name="cpsat", method="ilp", options_type=CpsatOptions, solve=_solve, exact=True,

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from models import clock
-from solvers.allocation.backends import Backend
+from solvers.allocation.backends import Backend, note_incumbent
 from solvers.allocation.exact import ExactOptions, solve_staged
 from solvers.allocation.lazy import lazy_solve
 from solvers.allocation.options import ENGINE_SEQUENCING, HighsOptions
@@ -198,9 +198,10 @@ def solve_ilp_highs(problem: ConfigProblem, *, form: str = "aggregated", interfa
 
 def _solve(problem: ConfigProblem, options: HighsOptions, *, hint: np.ndarray | None = None,
            columns: np.ndarray | None = None) -> ConfigSolution:
-    return solve_ilp_highs(problem, form=options.form, interface=options.interface,
-                           minimize_move=options.minimize_move, candidates_per_arm=options.candidates_per_arm,
-                           hint=hint, columns=columns)
+    sol = solve_ilp_highs(problem, form=options.form, interface=options.interface,
+                          minimize_move=options.minimize_move, candidates_per_arm=options.candidates_per_arm,
+                          hint=hint, columns=columns)
+    return note_incumbent(sol, hint)
 
 
 BACKEND = Backend(name="highs", method="ilp", options_type=HighsOptions, solve=_solve, exact=True,

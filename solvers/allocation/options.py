@@ -42,7 +42,13 @@ __all__ = ["CONFIG_MODES", "DEFAULT_SOLVER", "ENGINE_SEQUENCING", "FORMS", "METH
 
 METHODS = ("ilp", "semigreedy")
 SOLVERS = ("highs", "cpsat", "bnb")
-DEFAULT_SOLVER = "bnb"
+#: The exact engine of the library, the API, the CLI and the page (which reads it from the served
+#: /openapi.json): the single place it is set.  CP-SAT, the customer's engine: on whole programmes
+#: and dense sequences it loses nothing against ``bnb`` (docs/allocation.md, "Why CP-SAT is the
+#: default").  It runs the staged model (:mod:`solvers.allocation.exact`): a branch-and-bound dive
+#: gives the incumbent, which fixes the columns no better solution uses, settles stage 1 when it
+#: meets the per-arm bound and is CP-SAT's complete hint (>= 2 workers).  ``"bnb"`` stays available.
+DEFAULT_SOLVER = "cpsat"
 CONFIG_MODES = ("one", "all")
 FORMS = ("aggregated", "pairwise")
 ArmSelection = Literal["gas", "pbas"]

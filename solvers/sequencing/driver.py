@@ -124,6 +124,8 @@ def _greedy(s: SequenceState, ctx: PassContext, progress: Progress | None) -> No
             break
         stats = {"solve_s": dt, "status": sol.status, "gap": sol.gap, "longest_move_s": sol.longest_move_s,
                  "time_limit_s": limit_i}
+        if "incumbent" in sol.stats:  # where an exact-model engine's start came from (backends.note_incumbent)
+            stats["incumbent"] = sol.stats["incumbent"]
         s.steps.append(Step(prob, sol.chosen, sol.status, stats))
         s.pending[tg] = False
         s.q = prob.assignments.q[sol.chosen]
