@@ -34,6 +34,7 @@ from models import clock
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import CONFIGURATION_TIME_GOAL_S, Instrument
+from models.locks import TargetLock
 from models.types import (
     AllocationResult,
     Configuration,
@@ -47,6 +48,7 @@ from planner.exposure_caps import (
     exposure_caps,
     split_by_thresholds,
 )
+from planner.locks import honours, member_locks, motion_locks, plain_reasons, with_lock_reasons
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
@@ -431,6 +433,9 @@ class PointingOptions:
     #: :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced by the
     #: pointing's own, by index)
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    #: the locks of the pointing's members (:mod:`models.locks`): the allocation keeps each on
+    #: its arm (and branch), and so do the motion planner's changes (:mod:`planner.locks`)
+    locked: tuple[TargetLock, ...] = ()
 
     def __post_init__(self) -> None:
         cap = self.max_configurations
@@ -518,13 +523,16 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
     result = allocate(inst, targets, method=options.method, solver=options.solver,
                       configurations="all", seed=options.seed,
+                      locked=member_locks(options.locked, targets.ids),
                       budget=budget.share(table.allocation_share),
                       progress=lambda p, _m="": progress(ALLOCATION_PART * min(max(float(p), 0.0), 1.0)),
                       options=allocation_options(options.park_move_limit_s, options.max_configurations))
     given = given_allocation(options, targets)
-    if given is not None and _allocation_rank(given) > _allocation_rank(result):
+    if given is not None and _allocation_rank(given) > _allocation_rank(result) and \
+            honours(inst, given, options.locked):
         result = given
-    result, below = apply_exposure_rules(result, targets, options.max_configurations, options.rules)
+    result, below = apply_exposure_rules(plain_reasons(result), targets, options.max_configurations,
+                                         options.rules)
     progress(ALLOCATION_PART)
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
@@ -543,6 +551,9 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     stats = {"allocation": result.stats,
              "motion": {"legs": len(seq.legs) if err is None else legs, "budget_s": motion_s},
              "exposure_rules": below}
+    if options.locked:  # a locked target left out says so (after the rules read its reason)
+        result = replace(result, unallocated=with_lock_reasons(result.unallocated, options.locked))
+        seq = replace(seq, dropped=with_lock_reasons(seq.dropped, options.locked))
     return PointingPlan(targets, result, seq, err, stats)
 
 
@@ -640,7 +651,8 @@ def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: Plane
     leg_s = budget.limit_s if math.isfinite(budget.limit_s) else 60.0
     seq_options = SequenceOptions(seed=options.seed, leg_time_limit_s=float(leg_s),
                                   park_move_limit_s=options.park_move_limit_s,
-                                  max_configurations=options.max_configurations)
+                                  max_configurations=options.max_configurations,
+                                  locked=motion_locks(options.locked))
     try:
         return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress,
                              budget=budget), None

@@ -124,6 +124,9 @@ class SequenceOptions:
     # no configuration is added beyond this many (None: no limit); a moved target that fits in
     # no later configuration but would in a new one is then dropped as "beyond_max_exposures"
     max_configurations: int | None = None
+    # (target id, arm, IK branch or None): a locked target moved or put on another branch stays
+    # on that arm (and branch) (models.locks)
+    locked: tuple[tuple[str, int, int | None], ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.seed, int) or isinstance(self.seed, bool):
@@ -334,8 +337,16 @@ class _Sequencer:
             self.from_park[_key(changed)] = leg
         return leg
 
+    def _lock(self, target_id: str | None) -> tuple[int, int | None] | None:
+        """The (arm, branch or None) a target is locked to, or None."""
+        return next(((k, b) for t, k, b in self.opt.locked if t == target_id), None)
+
     def _other_branch(self, i: int, k: int, start_q: np.ndarray) -> MotionPlan | None:
-        """Arm k of configuration i on the same target through another IK branch, if that plans."""
+        """Arm k of configuration i on the same target through another IK branch, if that plans
+        (never for a target locked to its branch)."""
+        lock = self._lock(self.configs[i].assignments[k].target_id)
+        if lock is not None and lock[1] is not None:
+            return None
         for changed in other_branches(self.ins, self.configs[i], k, self.buffer_mm,
                                       self.opt.park_move_limit_s):
             if self.edits >= self.opt.max_changes or self.budget.left_s() <= MIN_LEG_S:
@@ -372,14 +383,18 @@ class _Sequencer:
                                                 else "conflict"))
 
     def _place(self, p: Placed, after: int, exclude: tuple[int, ...]) -> bool:
+        lock = self._lock(p.target_id)
+        branch = None
+        if lock is not None:  # a locked target goes only to its own arm (and branch)
+            exclude, branch = tuple(k for k in range(self.ins.n_arms) if k != lock[0]), lock[1]
         for j in range(after + 1, len(self.configs)):
-            c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude,
+            c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude, branch=branch,
                           park_move_limit_s=self.opt.park_move_limit_s)
             if c is not None:
                 self.configs[j] = c
                 return True
         c = try_place(self.ins, new_configuration(self.ins, len(self.configs)), p, self.buffer_mm,
-                      exclude_arms=exclude, park_move_limit_s=self.opt.park_move_limit_s)
+                      exclude_arms=exclude, branch=branch, park_move_limit_s=self.opt.park_move_limit_s)
         if c is None:
             return False
         cap = self.opt.max_configurations

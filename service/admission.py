@@ -20,7 +20,7 @@ from typing import Any
 
 from models.errors import InputError
 from models.instrument import Instrument
-from service import adapters, pipeline
+from service import adapters, pipeline, plan_locks
 from service.errors import FieldError, parse_loc
 from service.schemas import (
     AllocationRequest,
@@ -38,6 +38,7 @@ def _segmentation(req: SegmentationRequest, inst: Instrument) -> None:
 
 
 def _plan(req: PlanRequest, inst: Instrument) -> None:
+    req, _ = plan_locks.without_excluded(req, inst)  # the locks' and exclusions' own checks
     _segmentation(pipeline.plan_segmentation(req), inst)
 
 

@@ -61,7 +61,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         for notice in table.notices:
             print(f"notice: {notice}", file=sys.stderr)
         rows = table.rows()
-        req = PlanRequest(targets=rows, method=args.method, solver=args.solver,
+        req = PlanRequest(locked=args.lock or None, excluded_targets=args.exclude or None,
+                          targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm,
                           segmentation_mode=args.segmentation_mode,
@@ -212,6 +213,18 @@ def changes_summary(stats: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def lock_arg(text: str) -> dict[str, Any]:
+    """``TARGET:ARM[:BRANCH]`` as a ``locked`` entry (a target id may hold ':'; the last one or
+    two integer fields are the arm and the branch)."""
+    parts = text.split(":")
+    ints = [p.strip().lstrip("-").isdigit() for p in parts]
+    if len(parts) >= 3 and ints[-1] and ints[-2]:
+        return {"target_id": ":".join(parts[:-2]), "arm": int(parts[-2]), "branch": int(parts[-1])}
+    if len(parts) >= 2 and ints[-1] and parts[0]:
+        return {"target_id": ":".join(parts[:-1]), "arm": int(parts[-1]), "branch": None}
+    raise argparse.ArgumentTypeError(f"{text!r}: expected TARGET:ARM or TARGET:ARM:BRANCH (integers)")
+
+
 def _api_default(name: str) -> Any:
     """The default of ``POST /v1/plans``' field ``name`` (:class:`service.schemas.PlanRequest`),
     so ``plan`` and the API cannot drift apart."""
@@ -291,6 +304,12 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
                    default=_api_default("min_targets_per_exposure"), metavar="N",
                    help="stop rule: no exposure observing fewer than N targets; their targets: "
                    "'below_exposure_threshold' (default: none)")
+    p.add_argument("--lock", type=lock_arg, action="append", default=None, metavar="TARGET:ARM[:BRANCH]",
+                   help="observe TARGET only with ARM (0..11), through IK BRANCH (0..3) when given, in "
+                   "every exposure that observes it (repeatable; a lock that cannot be honoured is an "
+                   "error naming it; default: none)")
+    p.add_argument("--exclude", action="append", default=None, metavar="TARGET",
+                   help="never observe TARGET: it is reported 'excluded' (repeatable; default: none)")
     p.add_argument("--image", default=None, metavar="FITS",
                    help="a FITS image with a celestial WCS (a 2MASS or Pan-STARRS cut-out, say): "
                    f"drawn as a finding chart under {OVERVIEW_NAME} and under every configuration "

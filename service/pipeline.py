@@ -10,6 +10,7 @@ values between its stages — ``Segmentation`` -> ``PlaneTargets`` per pointing 
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import re
 import time
@@ -48,8 +49,9 @@ from planner.programme import (
 from planner.telescope_time import ObservingRules
 from planner.telescope_time import total as total_time
 from planner.time_advice import time_advice
-from service import adapters
+from service import adapters, plan_locks
 from service.errors import FieldError
+from service.lock_schemas import target_locks
 from service.schemas import (
     REQUEST_TYPES,
     AllocationRequest,
@@ -206,6 +208,7 @@ def allocate_request(req: AllocationRequest, inst: Instrument, *, time_limit_s: 
         time_limit_s=float(time_limit_s), seed=int(req.seed or 0),
         collision_buffer_mm=req.collision_buffer_mm,
         start_q=adapters.start_configuration(req.start, inst, fixed), fixed=fixed or None,
+        locked=target_locks(req.locked), excluded_targets=req.excluded_targets,
         progress=_report(progress),
     )
 
@@ -330,6 +333,8 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
                               observing_rules(req), p.allocation)
+    options = dataclasses.replace(options, locked=plan_locks.member_locks(
+        req, [req.targets[int(k)] for k in p.target_indices]))
     pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         pa, options, float(task.share_s), task.round)
@@ -412,6 +417,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     stage = Stages(on_stage)
     stage(stages.segmentation_stage(plan_mode(req)))
     seg = segment_plan(req, inst, limit)
+    plan_locks.check_pointing_locks(req, seg, inst)
     progress(plan_progress(1, 0, 1))
     answers: dict[int, dict[str, Any]] = {}
 
@@ -495,7 +501,9 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     returned with status "failed", never as an exception; the pointing and the plan then say
     ``executable: false`` with the reasons. ``on_stage`` hears the stages
     (:mod:`planner.stages`)."""
+    req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
+    stats = {**stats, **excluded}
     out = plan_out(seg, pointings, req.targets, stats)
     progress(1.0)
     return out
@@ -553,12 +561,17 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             reasons[u["reason"]] = reasons.get(u["reason"], 0) + 1
     motions = [m for p in out for m in p["motions"]]
     stats = dict(stats)
+    unallocated, excluded = plan_locks.excluded_out(stats)  # targets in no pointing
+    if excluded:
+        reasons["excluded"] = len(excluded)
+        targets = (*targets, *excluded)
     advice = stats.pop("time_limit_advice", None)
     return {
         "time_limit_advice": advice,
         "notices": [] if advice is None else [advice["message"]],
         "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
         "pointings": list(out),
+        "unallocated": unallocated,
         "executable": all(p["executable"] for p in out),
         "reasons": [f"pointing {p['id']}: {r}" for p in out for r in p["reasons"]],
         "stats": adapters.plain({

@@ -26,7 +26,7 @@ from typing import Any
 from models.instrument import Instrument
 from planner import stages
 from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
-from service import adapters, pipeline
+from service import adapters, pipeline, plan_locks
 from service.jobs import JobStore
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
@@ -56,10 +56,12 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     again."""
     t0 = time.monotonic()
     req = request if isinstance(request, PlanRequest) else PlanRequest.model_validate(request)
+    req, excluded = plan_locks.without_excluded(req, inst)
     limit = pipeline.plan_limit_s(req, budget_s)
     stage = pipeline.Stages(on_stage)
     stage(stages.segmentation_stage(pipeline.plan_mode(req)))
     seg = pipeline.segment_plan(req, inst, limit)
+    plan_locks.check_pointing_locks(req, seg, inst)
     n = len(seg.pointings)
     if not store.start_pointings(job_id, owner, n):
         return None
@@ -126,7 +128,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     return pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": computed[0],
+        "pointings_resumed": resumed, "pointings_computed": computed[0], **excluded,
         **({} if advice is None else {"time_limit_advice": advice})})
 
 

@@ -26,6 +26,7 @@ from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 from planner.programme import DEFAULT_SEGMENTATION_MODE
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
+from service.lock_schemas import EXCLUDED_DOC, LOCKED_DOC, ExcludedTargets, Locked
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
     SKY_NEEDS_POINTING,
@@ -209,6 +210,8 @@ class AllocationRequest(Request):
         None, max_length=N_ARMS, json_schema_extra=UNIQUE_ARMS,
         description="Arms out of service, fixed at these angles, each arm at most once."
     )
+    locked: Locked | None = Field(None, description=LOCKED_DOC)
+    excluded_targets: ExcludedTargets | None = Field(None, description=EXCLUDED_DOC)
 
     @field_validator("targets", mode="wrap")
     @classmethod
@@ -291,6 +294,8 @@ class PlanRequest(SkyTargetSource):
         "is under 0.5 s reports its targets `no_time`; plan big fields with POST /v1/jobs."
     )
     seed: Seed | None = None
+    locked: Locked | None = Field(None, description=LOCKED_DOC)
+    excluded_targets: ExcludedTargets | None = Field(None, description=EXCLUDED_DOC)
     threshold_mm: Annotated[float, Field(gt=0.0, le=1e4, strict=True, allow_inf_nan=False)] | None = Field(
         None, description="Segmentation threshold, mm (default sqrt(3) * FOV radius)."
     )
@@ -483,7 +488,9 @@ class Unallocated(Response):
                         "exposure for it), 'below_exposure_threshold' (in a plan: the exposure "
                         "that would observe it is below min_priority_per_exposure or "
                         "min_targets_per_exposure), ...; in a plan also the reason a target was "
-                        "dropped so that every motion leg can be executed.")
+                        "dropped so that every motion leg can be executed; 'excluded' (the "
+                        "request's excluded_targets); a locked target's reason is prefixed "
+                        "'locked_' (e.g. 'locked_no_time': its lock kept it from every other arm).")
 
 
 COMPLETENESS = (
@@ -632,6 +639,9 @@ class PlanResponse(Response):
     time_limit_advice: TimeLimitAdvice | None = Field(
         None, description="Set when the time limit left a pointing unplanned: the limit this "
         "field needs and whether to plan it as a job.")
+    unallocated: list[Unallocated] = Field(default_factory=list, description="Targets of "
+                                           "the request in no pointing: those of `excluded_targets` "
+                                           "(reason 'excluded').")
     notices: list[str] = Field(default_factory=list, description="Sentences for the "
                                "astronomer about the plan as a whole (e.g. the time limit it "
                                "needs), shown by the page's banner and the CLI's summary.")
