@@ -9,7 +9,13 @@ const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation
   solver: "solver", segmentation_mode: "segmentation", time_limit_s: "time limit",
   targets: "targets", threshold_mm: "segmentation threshold", park_move_limit_s: "longest move from park", seed: "seed",
   exposure_time_s: "exposure time", acquisition_s: "acquisition per pointing", max_exposures: "most exposures",
-  min_priority_per_exposure: "least priority per exposure", min_targets_per_exposure: "fewest targets per exposure" };
+  min_priority_per_exposure: "least priority per exposure", min_targets_per_exposure: "fewest targets per exposure",
+  obs_date: "observation date", position_angle_range_deg: "position angle range",
+  position_angle_step_deg: "position angle step", sky_positions: "sky positions",
+  sky_radius_arcsec: "least distance of sky from a target", locked: "locks", excluded_targets: "exclusions",
+  keep_configurations: "kept configurations" };
+// Controls that change no plan by themselves (the lock form adds a lock only on its buttons).
+const NOT_PLAN_INPUTS = new Set(["token", "lock-target", "lock-arm", "keep-k"]);
 // The plan shown: `origin` says which input it was made from and when (null: none shown).
 const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null,
   origin: null, defaults: null, touched: new Set() };
@@ -47,8 +53,24 @@ function describeLoc(loc, list) {
     return `${list.filename}: row ${t.row}${line}` + (column ? `, column '${column}'` : "") +
       ` (target ${t.id})`;
   }
+  const lock = lockLoc(parts);
+  if (lock) return lock;
   const last = parts.filter((p) => typeof p === "string").pop();
   return FIELD_LABELS[last] || parts.join(".") || "request";
+}
+
+// A loc in the locks, exclusions or sky positions: "lock of b to arm 3 (locked[0])".
+function lockLoc(parts) {
+  const field = ["locked", "excluded_targets", "sky_positions"].find((f) => parts.includes(f));
+  if (!field) return null;
+  const i = parts[parts.indexOf(field) + 1];
+  if (typeof i !== "number") return FIELD_LABELS[field];
+  let sent = [];
+  try { sent = extraFields()[field] || []; } catch (e) { sent = []; }
+  const name = `${field}[${i}]`;
+  if (field === "locked" && sent[i]) return `lock of ${sent[i].target_id} to arm ${sent[i].arm} (${name})`;
+  if (field === "excluded_targets" && sent[i] !== undefined) return `exclusion of ${sent[i]} (${name})`;
+  return `${FIELD_LABELS[field]} ${i + 1} (${name})`;
 }
 
 function validationMessages(body, list) {
@@ -77,6 +99,7 @@ async function readTargetList() {
     throw new Error(msgs ? msgs.map((m) => m.replace(/^file: /, "")).join("\n") : errorText(r.status, r.body));
   }
   showTableInfo(r.body);
+  offerTargetIds(r.body.targets);
   return r.body;
 }
 
@@ -245,6 +268,7 @@ function showResult(result, request, list, origin = state.origin) {
   $("pointings").replaceChildren(...result.pointings.map((p) => pointingSection(p, request, byId, tiers, list)));
   $("every-target").replaceChildren(everyTarget(request, fate));
   $("raw-json").textContent = JSON.stringify(result, null, 1);
+  renderLocks();
 }
 
 // "Plan of m67.csv (150 targets), finished at 02:41:07 on 2026-12-05", saying so when the plan
@@ -377,11 +401,12 @@ function csvCell(v) {
 function assignmentsCsv(result, request) {
   const prio = new Map(request.targets.map((t) => [t.id, t.priority]));
   const head = ["pointing", "pointing_ra_deg", "pointing_dec_deg", "configuration", "arm", "kind",
-    "target_id", "priority", "theta1_rad", "theta2_rad", "x_mm", "y_mm", "reason"];
+    "target_id", "priority", "theta1_rad", "theta2_rad", "x_mm", "y_mm", "reason", "sky_ra_deg", "sky_dec_deg"];
   const rows = [head];
   for (const p of result.pointings) {
     p.configurations.forEach((c, k) => c.assignments.forEach((a) => rows.push([p.id, p.ra_deg, p.dec_deg, k + 1,
-      a.arm, a.kind, a.target_id, a.target_id ? prio.get(a.target_id) : "", a.theta1_rad, a.theta2_rad, a.x_mm, a.y_mm, ""])));
+      a.arm, a.kind, a.target_id, a.target_id ? prio.get(a.target_id) : "", a.theta1_rad, a.theta2_rad, a.x_mm, a.y_mm, "",
+      a.sky_ra_deg, a.sky_dec_deg])));
     for (const u of p.unallocated) rows.push([p.id, p.ra_deg, p.dec_deg, "", "", "unallocated", u.target_id,
       prio.get(u.target_id), "", "", "", "", u.reason]);
   }
@@ -409,6 +434,10 @@ async function start() {
   $("options").addEventListener("input", optionChanged);
   $("options").addEventListener("change", optionChanged);
   $("finding-image").onchange = chooseFindingImage;
+  $("pa-auto").addEventListener("change", syncPaMode);
+  $("sky-file").onchange = readSkyFile;
+  startLocks();
+  startValidation();
   $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
   $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
   $("dl-commands").onclick = () => download("commands.csv", commandsCsv(state.result), "text/csv");
@@ -428,7 +457,7 @@ async function start() {
 // A control the user set: the API's defaults, read while the page loads, leave it alone; the
 // plan shown no longer answers the form (the token changes no plan).
 function optionChanged(e) {
-  if (e.target.id === "token") return;
+  if (NOT_PLAN_INPUTS.has(e.target.id) || e.target.closest("#lock-menu")) return;
   state.touched.add(e.target.id);
   markStale();
 }
@@ -445,6 +474,7 @@ async function resumeJob(saved) {
   state.list = saved.list;
   state.request = saved.request;
   setControls(saved.request);
+  setLockState(saved.request);
   state.running = true;
   $("go").disabled = true;
   try { await followJob(saved.id, true); } catch (e) {
@@ -458,5 +488,6 @@ async function resumeJob(saved) {
 }
 
 window.mxs = { showResult, showBanner, describeLoc, projectTargets, armJoints, anglesAt, assignmentsCsv, commandsCsv, planRequest,
-  cliLine, progressText, CONTROLS, state };
+  cliLine, progressText, CONTROLS, state, parseSkyLine, parseAngle, keptConfigurations, locks, lockFields, showValidation,
+  atObsDate };
 start();

@@ -18,6 +18,8 @@ const CONTROLS = [
   { id: "max-exposures", field: "max_exposures", flag: "--max-exposures", number: true },
   { id: "min-priority", field: "min_priority_per_exposure", flag: "--min-priority-per-exposure", number: true },
   { id: "min-targets", field: "min_targets_per_exposure", flag: "--min-targets-per-exposure", number: true },
+  { id: "obs-date", field: "obs_date", flag: "--obs-date" },
+  { id: "sky-radius", field: "sky_radius_arcsec", flag: "--sky-radius", number: true },
 ];
 
 // PlanRequest's default of every control, from the API's own OpenAPI document (a field without
@@ -44,21 +46,23 @@ function setControls(values, skip = new Set()) {
       document.getElementById("park-unlimited").checked = v === null;
       if (v === null) continue;
     }
+    if (c.id === "pa" && typeof v !== "number" && v !== null && v !== undefined) continue;  // "auto": setExtraControls
     document.getElementById(c.id).value = v === null || v === undefined ? "" : String(v);
   }
+  if (!skip.has("pa-auto")) setExtraControls(values);
 }
 
 // The PlanRequest of the form for a target list; an empty control is left out (the API's default).
+// The position-angle search, sky positions, locks and kept configurations come from
+// controls.js and locks.js (extraFields); an unreadable one throws an error naming it.
 function planRequest(list) {
-  const req = {
-    targets: list.targets.map((t) => ({ id: t.id, ra_deg: t.ra_deg, dec_deg: t.dec_deg, priority: t.priority })),
-  };
+  const req = { targets: list.targets.map(requestTarget) };
   for (const c of CONTROLS) {
     const v = document.getElementById(c.id).value.trim();
     if (v) req[c.field] = c.number ? Number(v) : v;
   }
   if (document.getElementById("park-unlimited").checked) req.park_move_limit_s = null;
-  return req;
+  return Object.assign(req, extraFields());
 }
 
 // A word for a POSIX shell: quoted when it holds anything but plain characters.
@@ -76,7 +80,7 @@ function cliLine(request, filename, stats) {
     if (c.field === "park_move_limit_s" && v === null) { words.push("--no-park-move-limit"); continue; }
     if (v !== undefined && v !== null) words.push(c.flag, shellWord(String(v)));
   }
-  return words.join(" ");
+  return words.concat(extraFlags(request)).join(" ");
 }
 
 // What a plan job is doing, from its status: the stage the server names (`stage`) or, without

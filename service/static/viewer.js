@@ -13,8 +13,9 @@ const FOCAL_CONVENTION = "Sky as seen: North up, East left (focal-plane +x drawn
 const SKY_CONVENTION = "Sky as seen: North up, East left";
 const LABEL_FONT = "DejaVu Sans Mono, Liberation Mono, monospace";
 // Arm colours by assignment kind (the legend names them).
-const ARM_KINDS = { target: ["#1f4e99", "arm on a target"], park: ["#8a8a8a", "parked arm"],
-  blank: ["#8e44ad", "arm on blank sky"], fixed: ["#b0b0b0", "disabled arm (left where it is)"] };
+const ARM_KINDS = { target: ["#1f4e99", "arm on a target"], sky: ["#00897b", "arm on sky (sky subtraction)"],
+  park: ["#8a8a8a", "parked arm (square tip)"], blank: ["#8e44ad", "arm on blank sky"],
+  fixed: ["#b0b0b0", "disabled arm (left where it is)"] };
 
 // ------------------------------------------------------------------------ DOM helpers
 
@@ -64,10 +65,16 @@ function fpSvg(x, y) { return [-x, -y]; }
 // Standard coordinates (arcmin, xi East, eta North) -> SVG user units: East left, North up.
 function skySvg(xiArcmin, etaArcmin) { return [-xiArcmin, -etaArcmin]; }
 
-// The position angle a pointing is observed at: its own when the segmentation chose one.
+// The position angle a pointing is observed at: its own when the segmentation or the search
+// ("auto") chose one, else the request's.
 function pointingPa(p, request) {
-  return p.position_angle_deg === null || p.position_angle_deg === undefined
-    ? (request.position_angle_deg || 0) : p.position_angle_deg;
+  if (p.position_angle_deg !== null && p.position_angle_deg !== undefined) return p.position_angle_deg;
+  return typeof request.position_angle_deg === "number" ? request.position_angle_deg : 0;
+}
+
+// "PA 30.0°", and " (auto)" when the plan searched the pointing's angle.
+function paText(p, pa) {
+  return `PA ${pa.toFixed(1)}°` + (p.position_angle_search ? " (auto)" : "");
 }
 
 // Gnomonic (TAN) projection about the pointing, as models/sky.py: +xi East, +eta North,
@@ -96,8 +103,9 @@ function standardCoords(raDeg, decDeg, ra0Deg, dec0Deg) {
 function pointingSection(p, request, byId, tiers, list) {
   const sec = el("div", { class: "pointing" + (p.executable ? "" : " not-executable"), "data-pointing": p.id });
   const nAlloc = p.configurations.reduce((a, c) => a + c.assignments.filter((x) => x.target_id).length, 0);
-  const pa = pointingPa(p, request);
-  sec.append(el("h3", {}, `Pointing ${p.id}: ${radecText(p.ra_deg, p.dec_deg)}, PA ${pa.toFixed(1)}° `,
+  const pa = pointingPa(p, request), search = p.position_angle_search;
+  sec.append(el("h3", { title: search ? `angles tried: ${search.tried_deg.join(", ")}°; ${search.objective}` : "" },
+    `Pointing ${p.id}: ${radecText(p.ra_deg, p.dec_deg)}, ${paText(p, pa)} `,
     el("span", { class: "badge " + (p.executable ? "ok" : "failed") }, p.executable ? "executable" : "NOT executable")),
   el("p", {}, `${plural(p.target_ids.length, "target")}, ${plural(p.configurations.length, "configuration")}, ` +
     `${nAlloc} observed, ${p.unallocated.length} not observed.`));
@@ -111,10 +119,35 @@ function pointingSection(p, request, byId, tiers, list) {
       (c.target_ids.length ? ` (targets ${c.target_ids.join(", ")})` : "")))));
   }
   const members = p.target_ids.map((id) => byId.get(id)).filter(Boolean);
-  const pos = projectTargets(members, p, pa);
+  const pos = targetPositions(p, members, request, pa);
   if (p.configurations.length) sec.append(configurationViewer(p, members, pos, tiers));
-  sec.append(targetTable(p, members));
+  sec.append(targetTable(p, members), assignmentTable(p));
   return sec;
+}
+
+// Focal-plane positions (mm) of a pointing's targets: the server's (`targets`, at the
+// observation date) where the plan gives them, else the page's projection.
+function targetPositions(p, members, request, pa) {
+  const pos = projectTargets(members.map((t) => atObsDate(t, request)), p, pa);
+  for (const t of p.targets || []) if (pos.has(t.id)) pos.set(t.id, { x: t.x_mm, y: t.y_mm });
+  return pos;
+}
+
+// Sky positions of the plan's targets where it is observed: the server's (`targets` of the
+// pointings, at the observation date), else the request's moved by atObsDate.
+function observedSky(result, request) {
+  const at = new Map();
+  for (const p of result.pointings) for (const t of p.targets || []) at.set(t.id, t);
+  return request.targets.map((t) => at.get(t.id) || atObsDate(t, request));
+}
+
+// Every arm of every configuration: what it does (kind: target, sky, park, fixed) and where.
+function assignmentTable(p) {
+  const rows = p.configurations.flatMap((c, k) => c.assignments.map((a) => [`c${k + 1}`, a.arm,
+    a.kind || (a.target_id ? "target" : "park"), a.target_id || "",
+    a.sky_ra_deg === null || a.sky_ra_deg === undefined ? "" : `${raHms(a.sky_ra_deg)} ${decDms(a.sky_dec_deg)}`]));
+  return el("details", { class: "assignments" }, el("summary", {}, `Arms of pointing ${p.id}: target, sky or park`),
+    table(["configuration", "arm", "kind", "target", "sky position"], rows, [0, 2, 3, 4]));
 }
 
 function targetTable(p, members) {
@@ -285,7 +318,7 @@ function drawConfiguration(p, k, members, pos, tiers) {
     armItems.push({ id: `arm ${a.arm}`, x: tx, y: ty, r: 1.5, gap: 1, text: `arm ${a.arm}`, fs: 5, colour: g.dataset.colour });
   }
   const targets = drawTargets(p, k, members, pos, tiers);
-  const heads = [headerText(`Pointing ${p.id} c${k + 1}: ${raHms(p.ra_deg)} ${decDms(p.dec_deg)}, PA ${pa.toFixed(1)}°`,
+  const heads = [headerText(`Pointing ${p.id} c${k + 1}: ${raHms(p.ra_deg)} ${decDms(p.dec_deg)}, ${paText(p, pa)}`,
     -half + 3, -half + 7, 5.5), headerText(FOCAL_CONVENTION, -half + 3, -half + 13.5, 5, "convention")];
   const marks = [compass(half, pa, -0.8 * half, -0.68 * half), scaleBar(half)];
   root.append(arms, targets.g, ...heads, ...marks.map((m) => m.node));
@@ -296,7 +329,7 @@ function drawConfiguration(p, k, members, pos, tiers) {
     [-half, -half, half, half]);
   root.insertBefore(labelNodes(placed, "labels"), heads[0]);
   underlay(root);
-  return root;
+  return decorateLocks(root);
 }
 
 // A fixed line of text in the label font (measured as an obstacle for labels).
@@ -329,9 +362,19 @@ function drawArm(arm, a) {
       stroke: colour, "stroke-opacity": 0.85, "stroke-width": 0.6, "stroke-linejoin": "round" }));
   }
   const [tx, ty] = fpSvg(...j.tip);
-  g.append(svg("circle", { cx: tx, cy: ty, r: 1.5, fill: colour }),
-    svg("title", {}, `arm ${a.arm}: ${(ARM_KINDS[kind] || ARM_KINDS.park)[1]}${a.target_id ? " " + a.target_id : ""}`));
+  const onSky = a.sky_ra_deg === null || a.sky_ra_deg === undefined ? "" : ` ${raHms(a.sky_ra_deg)} ${decDms(a.sky_dec_deg)}`;
+  g.append(tipMark(kind, tx, ty, colour),
+    svg("title", {}, `arm ${a.arm}: ${(ARM_KINDS[kind] || ARM_KINDS.park)[1]}${a.target_id ? " " + a.target_id : ""}${onSky}`));
   return g;
+}
+
+// An arm's tip: a dot on a target, a diamond on sky, a square when parked.
+function tipMark(kind, x, y, colour) {
+  if (kind === "sky") {
+    return svg("path", { class: "tip", d: `M${x},${y - 2.2}L${x + 2.2},${y}L${x},${y + 2.2}L${x - 2.2},${y}Z`, fill: "#fff", stroke: colour, "stroke-width": 0.9 });
+  }
+  if (kind === "park") return svg("rect", { class: "tip", x: x - 1.3, y: y - 1.3, width: 2.6, height: 2.6, fill: colour });
+  return svg("circle", { class: "tip", cx: x, cy: y, r: 1.5, fill: colour });
 }
 
 // Markers of a pointing's targets in configuration k, and the label items of the targets
@@ -342,7 +385,7 @@ function drawTargets(p, k, members, pos, tiers) {
     const q = pos.get(t.id), st = targetStatus(t.id, k, p), tier = tiers.index(t.priority);
     const [x, y] = fpSvg(q.x, q.y), r = MARK_RADIUS[st];
     const attrs = { class: `target ${st}`, "data-id": t.id, "data-status": st, "data-x": q.x, "data-y": q.y,
-      "data-kind": `target-${st}`, "data-tier": tier };
+      "data-kind": `target-${st}`, "data-tier": tier, "data-cx": x, "data-cy": y, "data-r": Math.max(r, 3) };
     g.append(targetMark({ x, y }, st, TIER_COLOURS[tier], attrs,
       `${t.id} (priority ${priorityText(t.priority)}): ${statusText(st, k)}`));
     obstacles.push(markerBox(x, y, r));
@@ -410,7 +453,11 @@ function legendSwatch(kind) {
   else if (kind.startsWith("arm-")) {
     const c = ARM_KINDS[kind.slice(4)][0];
     s.append(svg("polygon", { points: capsulePoints([-3.5, 0], [3.5, 0], 1.6), fill: c, "fill-opacity": 0.1, stroke: c, "stroke-width": 0.6 }),
-      svg("circle", { cx: -3.5, cy: 0, r: 1, fill: c }));
+      tipMark(kind.slice(4), -3.5, 0, c));
+  } else if (LOCK_KINDS[kind]) {
+    return lockSwatch(kind);
+  } else if (kind === "sky-position") {
+    s.append(skyPositionMark(0, 0, 3.5));
   } else if (kind.startsWith("fov-")) {
     s.append(svg("circle", { r: 4, fill: "none", stroke: kind === "fov-executable" ? "#1f4e99" : "#c62828", "stroke-width": 0.8 }));
   } else s.append(svg("text", { x: -4, y: 3, "font-size": 7 }, "P"));
@@ -418,13 +465,15 @@ function legendSwatch(kind) {
 }
 
 const OTHER_KINDS = { "fov-executable": "field of view of a pointing", "fov-not-executable": "field of view of a pointing NOT executable",
-  "pointing-label": "pointing id (beside its field)" };
+  "pointing-label": "pointing id (beside its field)", "sky-position": "sky position given for spare arms" };
 
 // The key of a picture: every kind of mark it holds (data-kind) and its priority tiers.
 function legend(root, tiers) {
   const kinds = new Set([...root.querySelectorAll("[data-kind]")].map((n) => n.dataset.kind));
-  const order = [...Object.keys(TARGET_KINDS), ...Object.keys(ARM_KINDS).map((k) => `arm-${k}`), ...Object.keys(OTHER_KINDS)];
-  const text = (k) => (TARGET_KINDS[k] || [])[1] || (k.startsWith("arm-") ? ARM_KINDS[k.slice(4)][1] : OTHER_KINDS[k]);
+  const order = [...Object.keys(TARGET_KINDS), ...Object.keys(ARM_KINDS).map((k) => `arm-${k}`), ...Object.keys(OTHER_KINDS),
+    ...Object.keys(LOCK_KINDS)];
+  const text = (k) => (TARGET_KINDS[k] || [])[1] || (k.startsWith("arm-") ? ARM_KINDS[k.slice(4)][1] :
+    OTHER_KINDS[k] || LOCK_KINDS[k][1]);
   const present = new Set([...root.querySelectorAll("[data-tier]")].map((n) => Number(n.dataset.tier)));
   const mark = (i) => { const s = svg("svg", { viewBox: "-5 -5 10 10" }); s.append(targetMark({ x: 0, y: 0 }, "this", TIER_COLOURS[i], {}, "")); return s; };
   return el("ul", { class: "legend" },
@@ -446,7 +495,7 @@ function skyView(result, request, tiers, fate) {
   // SVG units: 1 % of the half width, so text sizes are those of the configuration viewer
   const half = 100, u = 1, k = half / halfArcmin, r = rArcmin * k;
   const sky = (ra, dec) => skySvg(...arcmin(ra, dec).map((v) => k * v));
-  const pts = request.targets.map((t) => sky(t.ra_deg, t.dec_deg));
+  const pts = observedSky(result, request).map((t) => sky(t.ra_deg, t.dec_deg));
   const centres = result.pointings.map((p) => sky(p.ra_deg, p.dec_deg));
   const root = svg("svg", { viewBox: `${-half} ${-half} ${2 * half} ${2 * half}`, class: "sky", role: "img",
     "text-rendering": "geometricPrecision",
@@ -461,6 +510,11 @@ function skyView(result, request, tiers, fate) {
     items.push({ id: p.id, x: centres[i][0] + d, y: centres[i][1] - d, r: 0, gap: 0.3 * u, text: p.id, fs: 4.5 * u,
       colour: p.executable ? "#1f4e99" : "#c62828", priority: Infinity, kind: "pointing-label" });
   });
+  for (const s of request.sky_positions || []) {
+    const [x, y] = sky(s.ra_deg, s.dec_deg);
+    root.append(skyPositionMark(x, y, 1.6 * u, { class: "sky-position", "data-kind": "sky-position" },
+      `sky position ${radecText(s.ra_deg, s.dec_deg)}`));
+  }
   const targetItems = skyTargets(root, request, pts, tiers, fate, u, obstacles);
   const head = headerText(SKY_CONVENTION, -half + 2 * u, -half + 5 * u, 3.6 * u, "convention");
   const marks = [skyCompass(half, u), skyScale(half, u, k)];
@@ -474,6 +528,7 @@ function skyView(result, request, tiers, fate) {
   }
   root.insertBefore(labels, head);
   underlay(root);
+  decorateLocks(root);
   return el("div", { class: "field" }, el("h3", {}, `The field on the sky about ${radecText(tp.ra_deg, tp.dec_deg)}`),
     el("p", {}, `${SKY_CONVENTION}; circles: the fields of view of the ${plural(result.pointings.length, "pointing")} ` +
       "(red: not executable); filled: observed, crosses: not observed; colour: priority."),
@@ -489,12 +544,20 @@ function skyTargets(root, request, pts, tiers, fate, u, obstacles) {
     const tier = tiers.index(t.priority), [x, y] = pts[i];
     root.append(targetMark({ x: 0, y: 0 }, st, TIER_COLOURS[tier],
       { class: "sky-target", transform: `translate(${x},${y}) scale(${0.7 * u})`, "data-id": t.id, "data-tier": tier,
+        "data-cx": x, "data-cy": y, "data-r": 2.4 * u,
         "data-kind": st === "this" ? "sky-observed" : "sky-unobserved" },
       `${t.id} (priority ${priorityText(t.priority)}): ${st === "this" ? "observed" : "not observed"}`));
     obstacles.push(markerBox(x, y, 2.4 * u));
     items.push({ id: t.id, x, y, r: 2.4 * u, gap: 0.5 * u, text: t.id, fs: 2.8 * u, priority: t.priority });
   });
   return items.sort((a, b) => b.priority - a.priority);
+}
+
+// A sky position: a small plus.
+function skyPositionMark(x, y, r, attrs, title) {
+  const g = svg("g", attrs || {}, svg("path", { d: `M${x - r},${y}H${x + r}M${x},${y - r}V${y + r}`, stroke: "#00897b", "stroke-width": r / 3 }));
+  if (title) g.append(svg("title", {}, title));
+  return g;
 }
 
 function skyCompass(half, u) {
