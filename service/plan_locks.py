@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from models.errors import InputError
 from models.instrument import Instrument
 from models.locks import TargetLock, check_exclusions, check_lock_targets, check_locks
 from planner.programme import RoundTask
@@ -39,8 +40,6 @@ def without_excluded(req: PlanRequest, inst: Instrument) -> tuple[PlanRequest, d
         return req, {}
     out = set(req.excluded_targets)
     if len(out) == len(ids):
-        from models.errors import InputError
-
         raise InputError("excluded_targets", "every target of the request is excluded: nothing to plan")
     kept = [t for t in req.targets if t.id not in out]
     return req.model_copy(update={"targets": kept}), {EXCLUDED_KEY: tuple(t for t in req.targets if t.id in out)}
@@ -62,11 +61,12 @@ def check_pointing_locks(req: PlanRequest, seg: Segmentation, inst: Instrument) 
 
     where = {lk.target_id: i for i, lk in enumerate(req.locked)}
     locks = target_locks(req.locked)
-    for index in range(len(seg.pointings)):
-        task = pipeline.pointing_task(req, seg, RoundTask(index, 1, 0.0))
-        mine = [n for n, lk in enumerate(locks) if lk.target_id in {t.id for t in task.members}]
+    for index, pointing in enumerate(seg.pointings):
+        members = {req.targets[int(k)].id for k in pointing.target_indices}
+        mine = [n for n, lk in enumerate(locks) if lk.target_id in members]
         if not mine:
             continue
+        task = pipeline.pointing_task(req, seg, RoundTask(index, 1, 0.0))
         p = task.pointing
         targets = pipeline.sky_plane_targets(task.members, p.ra_deg % 360.0, p.dec_deg, inst,
                                              task.position_angle_deg)

@@ -277,7 +277,8 @@ def test_cli_lock_and_exclude_flags(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_a_plan_job_with_a_bad_exclusion_or_lock_is_refused_at_submission(live_server) -> None:
     for request, where in (({"excluded_targets": ["s0", "zz"]}, ["excluded_targets", 1]),
                            ({"locked": [{"target_id": "s0", "arm": 1}, {"target_id": "s0", "arm": 2}]},
-                            ["locked", 1])):
+                            ["locked", 1]),
+                           ({"excluded_targets": [r["id"] for r in sky_rows()]}, ["excluded_targets"])):
         r = httpx.post(live_server.url + "/v1/jobs", json={"kind": "plan", "request": {
             "targets": sky_rows(), **request}}, timeout=60)
         loc, _ = loc_and_msg(r)
