@@ -283,3 +283,17 @@ def test_a_plan_job_with_a_bad_exclusion_or_lock_is_refused_at_submission(live_s
             "targets": sky_rows(), **request}}, timeout=60)
         loc, _ = loc_and_msg(r)
         assert loc[-len(where):] == where and "request" in loc
+
+
+@pytest.mark.parametrize("method,solver", [("ilp", "highs"), ("ilp", "cpsat"), ("ilp", "bnb"), ("semigreedy", "bnb")])
+def test_a_locked_target_takes_precedence_over_a_higher_priority_one(method: str, solver: str) -> None:
+    """Two targets 1 mm apart (no two arms fit on them at once): one configuration observes
+    the priority-500 one, unless the priority-1 one is locked (it then weighs 1 + 500)."""
+    targets = PlaneTargets.from_lists(["low", "high"], [0.0, 1.0], [0.0, 0.0], [1, 500])
+    assert ik_valid(0.0, 0.0)[3].any()
+    free = allocate(INST, targets, method=method, solver=solver, time_limit_s=5.0)
+    locked = allocate(INST, targets, method=method, solver=solver, time_limit_s=5.0, locked=[TargetLock("low", 3)])
+    observed = [{a.target_id: a.arm for a in r.configurations[0].assignments if a.target_id} for r in (free, locked)]
+    assert list(observed[0]) == ["high"]
+    assert observed[1] == {"low": 3}
+    assert locked.configurations[0].total_priority == 1  # reported with its own priority
