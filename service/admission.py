@@ -47,8 +47,11 @@ def _allocation(req: AllocationRequest, inst: Instrument) -> None:
     adapters.check_arms(req.disabled_arms, inst, "disabled_arms")
     if req.sky and req.pointing is not None:
         p = req.pointing
-        pipeline.sky_to_focal(req.targets, p.ra_deg, p.dec_deg, inst,  # type: ignore[arg-type]
-                              p.position_angle_deg)
+        targets = pipeline.sky_plane_targets(req.targets, p.ra_deg, p.dec_deg, inst,  # type: ignore[arg-type]
+                                             p.position_angle_deg)
+    else:
+        targets = adapters.plane_targets_of(req.targets)  # type: ignore[arg-type]
+    plan_locks.check_allocation_locks(req, targets, inst)
 
 
 def _motion_plan(req: MotionPlanRequest, inst: Instrument) -> None:

@@ -18,12 +18,15 @@ from typing import Any
 from models.errors import InputError
 from models.instrument import Instrument
 from models.locks import TargetLock, check_exclusions, check_lock_targets, check_locks
+from models.types import PlaneTargets
 from planner.programme import RoundTask
+from service import adapters
 from service.lock_schemas import target_locks
-from service.schemas import PlanRequest, SkyTarget
+from service.schemas import AllocationRequest, PlanRequest, SkyTarget
 from solvers.segmentation import Segmentation
 
-__all__ = ["EXCLUDED_KEY", "check_pointing_locks", "excluded_out", "member_locks", "without_excluded"]
+__all__ = ["EXCLUDED_KEY", "check_allocation_locks", "check_pointing_locks", "excluded_out", "member_locks",
+           "without_excluded"]
 
 EXCLUDED_KEY = "excluded_targets"  # the stats entry plan_out pops (never part of the answer's stats)
 
@@ -79,3 +82,13 @@ def excluded_out(stats: dict[str, Any]) -> tuple[list[dict[str, Any]], tuple[Sky
     popped from a plan's ``stats``."""
     excluded = tuple(stats.pop(EXCLUDED_KEY, ()))
     return [{"target_id": t.id, "reason": "excluded"} for t in excluded], excluded
+
+
+def check_allocation_locks(req: AllocationRequest, targets: PlaneTargets, inst: Instrument) -> None:
+    """An allocation request's locks and exclusions, checked as ``allocate`` checks them, on
+    its ``targets`` (projected): at submission, so that a job is refused with the endpoint's 422."""
+    if not req.locked and not req.excluded_targets:
+        return
+    check_exclusions(targets.ids, req.excluded_targets)
+    check_locks(inst, targets, target_locks(req.locked), req.excluded_targets,
+                fixed=adapters.states_dict(req.disabled_arms), buffer_mm=req.collision_buffer_mm)

@@ -297,3 +297,10 @@ def test_a_locked_target_takes_precedence_over_a_higher_priority_one(method: str
     assert list(observed[0]) == ["high"]
     assert observed[1] == {"low": 3}
     assert locked.configurations[0].total_priority == 1  # reported with its own priority
+
+
+def test_an_allocation_job_with_a_lock_that_cannot_be_honoured_is_refused_at_submission(live_server) -> None:
+    body = {"targets": plane(POINTS), "configurations": "all", "locked": [{"target_id": "edge", "arm": 6}]}
+    loc, msg = loc_and_msg(httpx.post(live_server.url + "/v1/jobs", json={"kind": "allocation", "request": body},
+                                      timeout=60))
+    assert loc[-2:] == ["locked", 0] and "request" in loc and "cannot reach" in msg
