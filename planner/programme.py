@@ -30,6 +30,8 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
+import numpy as np
+
 from models import clock
 from models.budget import Budget
 from models.errors import InputError
@@ -47,6 +49,14 @@ from planner.exposure_caps import (
     estimated_exposures,
     exposure_caps,
     split_by_thresholds,
+)
+from planner.keep import (
+    KeptPointing,
+    allocate_rest,
+    kept_configurations,
+    kept_count,
+    split_rest,
+    with_kept,
 )
 from planner.locks import honours, member_locks, motion_locks, plain_reasons, with_lock_reasons
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
@@ -433,6 +443,9 @@ class PointingOptions:
     #: :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced by the
     #: pointing's own, by index)
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    #: a previous plan's pointing whose configurations c1..ck are kept as they were
+    #: (:mod:`planner.keep`): the plan allocates the members they leave from ck's arm states
+    kept: KeptPointing | None = field(default=None, compare=False, repr=False)
     #: the locks of the pointing's members (:mod:`models.locks`): the allocation keeps each on
     #: its arm (and branch), and so do the motion planner's changes (:mod:`planner.locks`)
     locked: tuple[TargetLock, ...] = ()
@@ -521,12 +534,8 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     if options.max_configurations == 0 or share_s < table.min_pointing_s:
         return _not_attempted(inst, targets, options)
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
-    result = allocate(inst, targets, method=options.method, solver=options.solver,
-                      configurations="all", seed=options.seed,
-                      locked=member_locks(options.locked, targets.ids),
-                      budget=budget.share(table.allocation_share),
-                      progress=lambda p, _m="": progress(ALLOCATION_PART * min(max(float(p), 0.0), 1.0)),
-                      options=allocation_options(options.park_move_limit_s, options.max_configurations))
+    kept = () if options.kept is None else kept_configurations(inst, targets, options.kept)
+    result = _allocate(inst, targets, options, kept, budget.share(table.allocation_share), progress)
     given = given_allocation(options, targets)
     if given is not None and _allocation_rank(given) > _allocation_rank(result) and \
             honours(inst, given, options.locked):
@@ -534,6 +543,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     result, below = apply_exposure_rules(plain_reasons(result), targets, options.max_configurations,
                                          options.rules)
     progress(ALLOCATION_PART)
+    result = with_kept(result, kept)
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
     if motion_s < MIN_LEG_S:
@@ -555,6 +565,24 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         result = replace(result, unallocated=with_lock_reasons(result.unallocated, options.locked))
         seq = replace(seq, dropped=with_lock_reasons(seq.dropped, options.locked))
     return PointingPlan(targets, result, seq, err, stats)
+
+
+def _allocate(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
+              kept: Sequence[Configuration], budget: Budget, progress: Progress) -> AllocationResult:
+    """The pointing's allocation (all configurations, at most ``options.max_configurations``)
+    within ``budget``; with ``kept`` configurations, of the members they leave, from the last
+    one's arm states (:func:`planner.keep.allocate_rest`; the kept ones are put in front after
+    the exposure rules, :func:`planner.keep.with_kept`)."""
+    def run(tg: PlaneTargets, start_q: np.ndarray | None, cap: int | None) -> AllocationResult:
+        return allocate(inst, tg, method=options.method, solver=options.solver, configurations="all",
+                        seed=options.seed, budget=budget, start_q=start_q,
+                        locked=member_locks(options.locked, tg.ids),
+                        progress=lambda p, _m="": progress(ALLOCATION_PART * min(max(float(p), 0.0), 1.0)),
+                        options=allocation_options(options.park_move_limit_s, cap))
+
+    if not kept:
+        return run(targets, None, options.max_configurations)
+    return allocate_rest(targets, kept, options.max_configurations, run)
 
 
 def _allocation_rank(result: AllocationResult) -> tuple[int, int]:
@@ -617,7 +645,7 @@ def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: Plane
     weak_all: list[Unallocated] = []
     cap = options.max_configurations
     while True:
-        kept, weak = split_by_thresholds(seq.configurations, targets, options.rules)
+        kept, weak = split_rest(seq.configurations, lambda cs: split_by_thresholds(cs, targets, options.rules))
         if not weak:
             return seq, None, tuple(weak_all)
         weak_all.extend(weak)
@@ -652,7 +680,8 @@ def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: Plane
     seq_options = SequenceOptions(seed=options.seed, leg_time_limit_s=float(leg_s),
                                   park_move_limit_s=options.park_move_limit_s,
                                   max_configurations=options.max_configurations,
-                                  locked=motion_locks(options.locked))
+                                  locked=motion_locks(options.locked),
+                                  kept=kept_count(configs))
     try:
         return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress,
                              budget=budget), None

@@ -124,6 +124,10 @@ class SequenceOptions:
     # no configuration is added beyond this many (None: no limit); a moved target that fits in
     # no later configuration but would in a new one is then dropped as "beyond_max_exposures"
     max_configurations: int | None = None
+    # the first ``kept`` configurations are kept as given (keep_configurations, planner.keep):
+    # their legs may go through park, but no target, arm, branch or rest of theirs changes and
+    # no moved target is put into them; a leg into one that cannot be planned stays failed
+    kept: int = 0
     # (target id, arm, IK branch or None): a locked target moved or put on another branch stays
     # on that arm (and branch) (models.locks)
     locked: tuple[tuple[str, int, int | None], ...] = ()
@@ -143,6 +147,8 @@ class SequenceOptions:
         cap = self.max_configurations
         if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 0):
             raise InputError("max_configurations", "must be an integer >= 0 or None")
+        if isinstance(self.kept, bool) or not isinstance(self.kept, int) or self.kept < 0:
+            raise InputError("kept", "must be an integer >= 0")
 
 
 
@@ -255,6 +261,8 @@ class _Sequencer:
             via = self._via_park(i, start_q)
             if via is not None:
                 return via
+        if i < self.opt.kept:  # a kept configuration is never changed
+            return leg
         return self._change(i, start_q, leg)
 
     def _to_park(self, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan:
@@ -387,7 +395,7 @@ class _Sequencer:
         branch = None
         if lock is not None:  # a locked target goes only to its own arm (and branch)
             exclude, branch = tuple(k for k in range(self.ins.n_arms) if k != lock[0]), lock[1]
-        for j in range(after + 1, len(self.configs)):
+        for j in range(max(after + 1, self.opt.kept), len(self.configs)):
             c = try_place(self.ins, self.configs[j], p, self.buffer_mm, exclude_arms=exclude, branch=branch,
                           park_move_limit_s=self.opt.park_move_limit_s)
             if c is not None:
@@ -440,7 +448,7 @@ class _Sequencer:
     def _lighten_last(self) -> bool:
         """Take one blocking target out of the last configuration (from its park -> c plan)."""
         n = len(self.configs)
-        if self.edits >= self.opt.max_changes or self.budget.left_s() <= MIN_LEG_S:
+        if self.edits >= self.opt.max_changes or self.budget.left_s() <= MIN_LEG_S or n <= self.opt.kept:
             return False
         config = self.configs[-1]
         back = self.park_to(config)

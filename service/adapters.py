@@ -25,6 +25,8 @@ from models.types import (
     PlaneTargets,
     Unallocated,
 )
+from planner.keep import FIELD as KEEP_FIELD
+from planner.keep import KeptArm, KeptPointing
 from planner.sequence import SequencePlan
 from planner.telescope_time import TelescopeTime
 from service.errors import FieldError
@@ -89,6 +91,18 @@ def check_arms(states: Sequence[ArmState] | None, inst: Instrument, field: str) 
 def states_dict(states: Sequence[ArmState] | None) -> dict[int, tuple[float, float]]:
     """``{arm: (theta1_rad, theta2_rad)}`` of the listed arms."""
     return {s.arm: (s.theta1_rad, s.theta2_rad) for s in states or ()}
+
+
+def kept_pointings(spec: Any) -> list[KeptPointing]:
+    """A request's ``keep_configurations`` (:class:`service.keep_schemas.KeepConfigurations`)
+    as the domain's :class:`planner.keep.KeptPointing` list, each naming its field."""
+    return [KeptPointing(p.id, float(p.ra_deg), float(p.dec_deg),
+                         None if p.position_angle_deg is None else float(p.position_angle_deg),
+                         tuple(p.target_ids),
+                         tuple(tuple(KeptArm(a.arm, a.target_id, float(a.theta1_rad), float(a.theta2_rad),
+                                             a.x_mm, a.y_mm, a.kind) for a in c) for c in p.configurations),
+                         f"{KEEP_FIELD}.pointings[{i}]")
+            for i, p in enumerate(spec.pointings)]
 
 
 def start_configuration(states: Sequence[ArmState] | None, inst: Instrument,

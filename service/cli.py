@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any, get_args
 
 from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
+from service.cli_keep import keep_arg, read_keep
 from service.cli_pictures import OVERVIEW_NAME, pointing_pa_deg, write_overview, write_pictures
 from service.sky_text import plural, radec_text
 from service.tables import ALIASES, UCDS, TargetFileError, read_target_table, read_targets
@@ -61,7 +62,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         for notice in table.notices:
             print(f"notice: {notice}", file=sys.stderr)
         rows = table.rows()
+        keep = None if args.keep is None else read_keep(args.keep)
         req = PlanRequest(locked=args.lock or None, excluded_targets=args.exclude or None,
+                          keep_configurations=keep,
                           targets=rows, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm,
@@ -310,6 +313,11 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
                    "error naming it; default: none)")
     p.add_argument("--exclude", action="append", default=None, metavar="TARGET",
                    help="never observe TARGET: it is reported 'excluded' (repeatable; default: none)")
+    p.add_argument("--keep", type=keep_arg, default=None, metavar="PLAN.json:K",
+                   help="keep configurations c1..cK of every pointing of a previous plan file as they "
+                   "were (same pointing, position angle, members, arms, targets and joint angles) and "
+                   "plan the rest again from cK's arm states; the targets of no kept pointing are "
+                   "segmented as usual (default: nothing kept)")
     p.add_argument("--image", default=None, metavar="FITS",
                    help="a FITS image with a celestial WCS (a 2MASS or Pan-STARRS cut-out, say): "
                    f"drawn as a finding chart under {OVERVIEW_NAME} and under every configuration "

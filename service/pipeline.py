@@ -27,7 +27,7 @@ from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
-from planner import plan_motion, programme, stages
+from planner import keep, plan_motion, programme, stages
 from planner.clearance import compile_kernels
 from planner.options import MotionOptions
 from planner.programme import (
@@ -289,9 +289,58 @@ def plan_mode(req: PlanRequest) -> str:
 def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = None) -> Segmentation:
     """The segmentation stage of a plan limited to ``limit_s`` (deterministic for the
     request and its seed); the programme optimiser allocates as the plan will."""
+    if req.keep_configurations is not None:
+        return segment_kept(req, inst, limit_s)
     fill = FillOptions(method=req.method, solver=req.solver, seed=int(req.seed or 0),
                        park_move_limit_s=req.park_move_limit_s, position_angle_deg=req.position_angle_deg)
     return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s), "segmentation_mode")
+
+
+def segment_kept(req: PlanRequest, inst: Instrument, limit_s: float | None) -> Segmentation:
+    """The segmentation stage of a plan with ``keep_configurations``: the kept pointings as
+    they are (less the request's excluded targets), checked first (members, field of view,
+    exclusions, locks, and every kept configuration, by
+    :func:`planner.keep.kept_configurations`: a bad one is a 422 before anything is planned),
+    then the request's other targets segmented as usual (:func:`segment_plan`), after them
+    (:func:`planner.keep.kept_segmentation`)."""
+    ids = [t.id for t in req.targets]
+    excluded = set(req.excluded_targets or ())
+    kept = adapters.kept_pointings(req.keep_configurations)
+    groups = keep.member_groups(kept, ids, excluded)
+    ra = np.array([t.ra_deg for t in req.targets], float)
+    dec = np.array([t.dec_deg for t in req.targets], float)
+    for i, (p, g) in enumerate(zip(kept, groups, strict=True)):
+        kept[i] = p = p.at_angle(kept_angle_deg(req, p))
+        keep.check_excluded(p, excluded)
+        keep.kept_pointing(p, g, ra, dec, (p.ra_deg, p.dec_deg), inst)  # its field of view
+        members = [req.targets[int(k)] for k in g if k >= 0]
+        configs = keep.kept_configurations(inst, sky_plane_targets(members, p.ra_deg, p.dec_deg, inst,
+                                                                    float(p.position_angle_deg)), p)
+        keep.check_locks(inst, configs, p, target_locks(req.locked))
+    taken = {int(k) for g in groups for k in g if k >= 0}
+    rest_index = np.array([k for k in range(len(ids)) if k not in taken], dtype=np.int64)
+    rest = None if not len(rest_index) else segment_plan(req.model_copy(update={
+        "targets": [req.targets[int(k)] for k in rest_index], "keep_configurations": None}), inst, limit_s)
+    return keep.kept_segmentation(inst, kept, groups, rest, rest_index, ra, dec)
+
+
+def kept_angle_deg(req: PlanRequest, p: keep.KeptPointing) -> float:
+    """The position angle of kept pointing ``p``: its own, else the request's number (a
+    request searching its angle has none to give: 422 naming the pointing's field)."""
+    if p.position_angle_deg is not None:
+        return float(p.position_angle_deg)
+    if isinstance(req.position_angle_deg, int | float):
+        return float(req.position_angle_deg)
+    raise InputError(f"{p.field}.position_angle_deg", "give the angle the previous plan used: the "
+                     f"request's position_angle_deg is {req.position_angle_deg!r}")
+
+
+def kept_of(req: PlanRequest, pointing_id: str) -> keep.KeptPointing | None:
+    """The kept pointing of the request with id ``pointing_id`` (None: none; the segmentation
+    gives the other pointings ids no kept one has)."""
+    if req.keep_configurations is None:
+        return None
+    return next((k for k in adapters.kept_pointings(req.keep_configurations) if k.id == pointing_id), None)
 
 
 def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:
@@ -332,7 +381,7 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
-                              observing_rules(req), p.allocation)
+                              observing_rules(req), p.allocation, kept_of(req, p.id))
     options = dataclasses.replace(options, locked=plan_locks.member_locks(
         req, [req.targets[int(k)] for k in p.target_indices]))
     pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg

@@ -26,6 +26,7 @@ from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 from planner.programme import DEFAULT_SEGMENTATION_MODE
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
+from service import keep_schemas
 from service.lock_schemas import EXCLUDED_DOC, LOCKED_DOC, ExcludedTargets, Locked
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
@@ -303,6 +304,8 @@ class PlanRequest(SkyTargetSource):
         None, description=f"How the field is split into pointings (see `SegmentationRequest.mode`); "
                           f"null: '{DEFAULT_SEGMENTATION_MODE}' for programmes of at most "
                           f"{MAX_TARGETS:,} targets, 'complete-linkage' beyond.")
+    keep_configurations: keep_schemas.KeepConfigurations | None = Field(
+        None, description=keep_schemas.KEEP_DOC)
     park_move_limit_s: Annotated[float, Field(gt=0.0, le=86400.0, strict=True, allow_inf_nan=False)] | None = Field(
         CONFIGURATION_TIME_GOAL_S, description="Every target is observed from a location its arm reaches from "
         "park within this many seconds turning J2 the positive way (the way an arm leaves park without "
