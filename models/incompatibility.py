@@ -155,10 +155,8 @@ def build_assignments(
 ) -> Reachability:
     """Every (arm, target, IK branch) assignment plus park/current locations (thesis 5.4).
 
-    ``locks``: target index -> (arm, IK branch or None): such a target keeps only the
-    columns of that arm (and branch), so no engine or post-pass reading the structure can
-    put it on another; ``excluded``: target indices that keep no column (reported
-    unreachable here; the allocator names them ``excluded``). See :mod:`models.locks`.
+    ``locks`` (target index -> (arm, IK branch or None)) keep only that arm's (branch's) columns
+    of a target; ``excluded`` target indices keep none (:mod:`models.locks`).
 
     ``park_move_limit_s``: keep only the target and blank-sky locations an arm reaches from
     park within that time, turning theta2 the positive way
