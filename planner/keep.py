@@ -210,13 +210,15 @@ def _arm(inst: Instrument, targets: PlaneTargets, index: dict[str, int], a: Kept
 
 
 def _idle_kind(inst: Instrument, a: KeptArm, field: str) -> str:
-    """An idle arm's kind: the one given, else park at the park angles, else blank sky."""
+    """An idle arm's kind: the one given, else park at the park angles, else blank sky. A
+    "sky" rest is a blank-sky rest here (the answer reports it as sky again, with the RA/Dec
+    its tip points at, when it is clear of every target: :func:`planner.sky.arm_sky`)."""
     if a.kind == "target":
         raise InputError(field, f"arm {a.arm}: kind 'target' without a target_id")
     if a.kind is not None:
         if a.kind not in KIND_NAMES:
             raise InputError(field, f"arm {a.arm}: kind must be one of {', '.join(KIND_NAMES)}")
-        return a.kind
+        return "blank" if a.kind == "sky" else a.kind
     park = inst.park_configuration[a.arm]
     at_park = abs(a.theta1_rad - park[0]) <= 1e-9 and abs((a.theta2_rad - park[1] + np.pi) % (2 * np.pi)
                                                            - np.pi) <= 1e-9

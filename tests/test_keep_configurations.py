@@ -256,6 +256,9 @@ def test_kept_configurations_are_checked_in_the_domain() -> None:
     on_park = KeptPointing("P", 150.0, 20.0, 0.0, tuple(t.id for t in members), (tuple(idle),))
     (c,) = kept_configurations(INST, targets, on_park)
     assert all(a.kind == "park" for a in c.assignments) and c.stats["kept"]
+    as_sky = KeptPointing("P", 150.0, 20.0, 0.0, on_park.target_ids,
+                          ((KeptArm(0, None, float(park[0, 0]), float(park[0, 1]), kind="sky"), *idle[1:]),))
+    assert kept_configurations(INST, targets, as_sky)[0].assignments[0].kind == "blank"  # re-classified
     wrong = list(idle)
     wrong[3] = KeptArm(3, members[0].id, float(park[3, 0]), float(park[3, 1]))  # park is not on it
     with pytest.raises(ValueError, match=r"configurations\[0\]\[3\].*does not reach"):
