@@ -60,6 +60,7 @@ from planner.keep import (
 )
 from planner.locks import honours, member_locks, motion_locks, plain_reasons, with_lock_reasons
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
+from planner.sky import SkyField, place_sky
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
 from solvers.allocation.options import AllocationOptions
@@ -443,6 +444,9 @@ class PointingOptions:
     #: :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced by the
     #: pointing's own, by index)
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    #: the pointing's sky (:class:`planner.sky.SkyField`): its spare arms are placed on sky after
+    #: the allocation (:func:`planner.sky.place_sky`); None: they rest where the allocator left them
+    sky: SkyField | None = field(default=None, compare=False, repr=False)
     #: a previous plan's pointing whose configurations c1..ck are kept as they were
     #: (:mod:`planner.keep`): the plan allocates the members they leave from ck's arm states
     kept: KeptPointing | None = field(default=None, compare=False, repr=False)
@@ -542,6 +546,9 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         result = given
     result, below = apply_exposure_rules(plain_reasons(result), targets, options.max_configurations,
                                          options.rules)
+    if options.sky is not None:
+        result = replace(result, configurations=place_sky(inst, result.configurations, options.sky,
+                                                          options.park_move_limit_s))
     progress(ALLOCATION_PART)
     result = with_kept(result, kept)
     motion_s = budget.left_s()

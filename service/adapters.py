@@ -19,6 +19,7 @@ import numpy as np
 from models.instrument import Instrument
 from models.types import (
     AllocationResult,
+    ArmAssignment,
     ArmTrajectory,
     Configuration,
     MotionPlan,
@@ -28,6 +29,7 @@ from models.types import (
 from planner.keep import FIELD as KEEP_FIELD
 from planner.keep import KeptArm, KeptPointing
 from planner.sequence import SequencePlan
+from planner.sky import SkyField, arm_sky
 from planner.telescope_time import TelescopeTime
 from service.errors import FieldError
 from service.schemas import ArmState, PlaneTarget
@@ -176,20 +178,32 @@ def segmentation_out(seg: Segmentation, ids: Sequence[str]) -> dict[str, Any]:
     })
 
 
-def configuration_out(c: Configuration) -> dict[str, Any]:
-    """``models.types.Configuration`` -> ConfigurationOut dict (priorities stay exact ints)."""
+def configuration_out(c: Configuration, inst: Instrument | None = None,
+                      sky: SkyField | None = None) -> dict[str, Any]:
+    """``models.types.Configuration`` -> ConfigurationOut dict (priorities stay exact ints).
+    With ``inst`` (a plan), an idle arm resting off park is reported as
+    :func:`planner.sky.arm_sky` classifies it ("sky" with the RA/Dec it points at, or "blank")
+    and ``stats.sky_arms`` counts the "sky" arms; without it (an allocation alone) as "blank"."""
+    assignments = [assignment_out(a, inst, sky) for a in sorted(c.assignments, key=lambda a: a.arm)]
+    stats = plain(c.stats)
+    if inst is not None:
+        stats["sky_arms"] = sum(a["kind"] == "sky" for a in assignments)
     return {
         "index": int(c.index), "status": c.status, "total_priority": int(c.total_priority),
-        "arm_yield": int(c.arm_yield),
-        "assignments": [
-            {"arm": int(a.arm), "kind": a.kind,
-             "target_id": None if a.target_id is None else str(a.target_id),
-             "theta1_rad": float(a.theta1_rad), "theta2_rad": float(a.theta2_rad),
-             "x_mm": float(a.x_mm), "y_mm": float(a.y_mm)}
-            for a in sorted(c.assignments, key=lambda a: a.arm)
-        ],
-        "stats": plain(c.stats),
+        "arm_yield": int(c.arm_yield), "assignments": assignments, "stats": stats,
     }
+
+
+def assignment_out(a: ArmAssignment, inst: Instrument | None = None,
+                   sky: SkyField | None = None) -> dict[str, Any]:
+    """``models.types.ArmAssignment`` -> AssignmentOut dict (see :func:`configuration_out`)."""
+    rest = None if inst is None else arm_sky(inst, a, sky)
+    return {"arm": int(a.arm), "kind": a.kind if rest is None else rest.kind,
+            "target_id": None if a.target_id is None else str(a.target_id),
+            "theta1_rad": float(a.theta1_rad), "theta2_rad": float(a.theta2_rad),
+            "x_mm": float(a.x_mm), "y_mm": float(a.y_mm),
+            "sky_ra_deg": None if rest is None else rest.ra_deg,
+            "sky_dec_deg": None if rest is None else rest.dec_deg}
 
 
 def unallocated_out(u: Unallocated) -> dict[str, Any]:
@@ -245,9 +259,11 @@ def change_counts(changes: Sequence[dict[str, Any]], dropped: int) -> dict[str, 
     }
 
 
-def sequence_out(sp: SequencePlan) -> dict[str, Any]:
+def sequence_out(sp: SequencePlan, inst: Instrument | None = None,
+                 sky: SkyField | None = None) -> dict[str, Any]:
     """``planner.sequence.SequencePlan`` -> the motion part of a PlanPointing dict:
-    ``configurations``, ``motions``, ``changes``, ``dropped``, ``executable``, ``reasons``
+    ``configurations`` (their idle arms as :func:`configuration_out` reports them with
+    ``inst`` and ``sky``), ``motions``, ``changes``, ``dropped``, ``executable``, ``reasons``
     and ``stats`` (change counts and the planner's own statistics under ``sequence``)."""
     changes = [
         {"kind": str(c.kind), "leg": int(c.leg),
@@ -257,7 +273,7 @@ def sequence_out(sp: SequencePlan) -> dict[str, Any]:
         for c in sp.changes
     ]
     return {
-        "configurations": [configuration_out(c) for c in sp.configurations],
+        "configurations": [configuration_out(c, inst, sky) for c in sp.configurations],
         "motions": [motion_out(m) for m in sp.legs],
         "changes": changes,
         "dropped": [unallocated_out(u) for u in sp.dropped],

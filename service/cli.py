@@ -13,6 +13,7 @@ from typing import Any, get_args
 from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
 from service.cli_keep import keep_arg, read_keep
 from service.cli_pictures import OVERVIEW_NAME, pointing_pa_deg, write_overview, write_pictures
+from service.cli_sky import ASSIGNMENTS_NAME, SkyFileError, read_sky_file, write_assignments
 from service.sky_text import plural, radec_text
 from service.tables import ALIASES, UCDS, TargetFileError, read_target_table, read_targets
 from solvers.programme.segment import MAX_TARGETS
@@ -62,6 +63,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         for notice in table.notices:
             print(f"notice: {notice}", file=sys.stderr)
         rows = table.rows()
+        sky = None if args.sky is None else read_sky_file(args.sky)
         keep = None if args.keep is None else read_keep(args.keep)
         req = PlanRequest(locked=args.lock or None, excluded_targets=args.exclude or None,
                           keep_configurations=keep,
@@ -73,8 +75,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
                           exposure_time_s=args.exposure_time, acquisition_s=args.acquisition,
                           max_exposures=args.max_exposures,
                           min_priority_per_exposure=args.min_priority_per_exposure,
-                          min_targets_per_exposure=args.min_targets_per_exposure)
-    except TargetFileError as exc:
+                          min_targets_per_exposure=args.min_targets_per_exposure,
+                          sky_positions=sky, sky_radius_arcsec=args.sky_radius)
+    except (TargetFileError, SkyFileError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_INVALID_INPUT
     except ValidationError as exc:
@@ -108,6 +111,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_INVALID_INPUT
     (out / "plan.json").write_text(json.dumps(result, indent=1))
+    write_assignments(result, out)
     pictures = write_pictures(result, req, inst, out, quiet=args.quiet, image=image)
     overview = overview_or_none(result, req, inst, out, image)
     print_summary(result, req, out, len(pictures), overview)
@@ -139,13 +143,15 @@ def print_summary(result: Mapping[str, Any], req: Any, out: Path, n_pictures: in
     s = result["stats"]
     print(f"{plural(s['targets'], 'target')}, {plural(s['pointings'], 'pointing')}, "
           f"{plural(s['configurations'], 'configuration')}, "
-          f"{plural(s['allocated_targets'], 'target')} allocated; wrote {out / 'plan.json'}, "
+          f"{plural(s['allocated_targets'], 'target')} allocated; wrote {out / 'plan.json'}, {ASSIGNMENTS_NAME}, "
           f"{plural(n_pictures, 'configuration picture')} (pointing<id>_c<k>.png)"
           + (f" and the sky overview {overview}" if overview else ""))
     for p in result["pointings"]:
         print(f"pointing {p['id']} at {radec_text(p['ra_deg'], p['dec_deg'])}, PA "
               f"{pointing_pa_deg(p, req):g}°: {plural(len(p['configurations']), 'configuration')}, "
               f"{plural(len(p['target_ids']), 'target')}")
+    print(f"spare arms: {plural(s.get('sky_arms', 0), 'arm')} on sky over all configurations "
+          f"(kind 'sky' in {ASSIGNMENTS_NAME})")
     print(time_summary(s["telescope_time"]))
     summary = changes_summary(s)
     if summary:
@@ -318,6 +324,13 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
                    "were (same pointing, position angle, members, arms, targets and joint angles) and "
                    "plan the rest again from cK's arm states; the targets of no kept pointing are "
                    "segmented as usual (default: nothing kept)")
+    p.add_argument("--sky", default=None, metavar="FILE",
+                   help="sky positions for the spare arms: a CSV of RA,Dec in degrees (a header "
+                   "ra,dec optional); positions closer than --sky-radius to a target are not used "
+                   "(default: blank sky the planner picks)")
+    p.add_argument("--sky-radius", type=float, default=_api_default("sky_radius_arcsec"),
+                   metavar="ARCSEC", help="least distance of a spare arm's sky position from every "
+                   "target, arcsec (default: %(default)s)")
     p.add_argument("--image", default=None, metavar="FITS",
                    help="a FITS image with a celestial WCS (a 2MASS or Pan-STARRS cut-out, say): "
                    f"drawn as a finding chart under {OVERVIEW_NAME} and under every configuration "

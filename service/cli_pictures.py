@@ -89,6 +89,7 @@ def write_pictures(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
             target_status=sequence_states(p["configurations"], c, [t.id for t in members]),
             target_ids=[t.id for t in members], position_angle_deg=pa,
             arm_targets={a["arm"]: a.get("target_id") for a in c["assignments"]},
+            arm_kinds={a["arm"]: a.get("kind") for a in c["assignments"]},
             background=charts.get(p["id"]), title=configuration_title(p, c, pa)))
     return paths
 

@@ -46,12 +46,14 @@ from planner.programme import (
     reserve_s,
     run_rounds,
 )
+from planner.sky import SkyField, SkyRequest
 from planner.telescope_time import ObservingRules
 from planner.telescope_time import total as total_time
 from planner.time_advice import time_advice
 from service import adapters, plan_locks
 from service.errors import FieldError
 from service.lock_schemas import target_locks
+from service.plan_sky import plan_sky, sky_stats, task_sky
 from service.schemas import (
     REQUEST_TYPES,
     AllocationRequest,
@@ -265,6 +267,8 @@ class PointingTask:
     options: PointingOptions
     share_s: float
     round: int = 1
+    #: the plan's sky near this pointing (its spare arms' sky positions, :mod:`planner.sky`)
+    sky: SkyRequest | None = None
 
 
 def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
@@ -386,7 +390,8 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
         req, [req.targets[int(k)] for k in p.target_indices]))
     pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
-                        pa, options, float(task.share_s), task.round)
+                        pa, options, float(task.share_s), task.round,
+                        plan_sky(req).near(p.ra_deg % 360.0, p.dec_deg))
 
 
 def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop, *,
@@ -396,7 +401,9 @@ def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _no
     p = task.pointing
     targets = sky_plane_targets(task.members, p.ra_deg % 360.0, p.dec_deg, inst,
                                 task.position_angle_deg)
-    return programme.plan_pointing(inst, targets, task.options, task.share_s, progress,
+    sky = task_sky(task, inst)
+    options = task.options if sky is None else dataclasses.replace(task.options, sky=sky)
+    return programme.plan_pointing(inst, targets, options, task.share_s, progress,
                                    wall_limit_s=wall_limit_s)
 
 
@@ -409,7 +416,9 @@ def pointing_result(task: PointingTask, inst: Instrument,
     ids = {int(k): t.id for k, t in zip(task.pointing.target_indices, task.members, strict=True)}
     t0 = time.monotonic()
     pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
-    out = pointing_plan_out(task.pointing, pp, ids, inst)
+    out = pointing_plan_out(task.pointing, pp, ids, inst, task_sky(task, inst))
+    if task.sky is not None:
+        out["stats"]["sky"] = sky_stats(task.sky, out["configurations"])
     failed = out["stats"]["motion"]["failed_legs"]
     observed = sum(1 for c in out["configurations"] for a in c["assignments"]
                    if a["target_id"] is not None)
@@ -559,10 +568,11 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
 
 
 def pointing_plan_out(pointing: Pointing, pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],
-                      inst: Instrument) -> dict[str, Any]:
+                      inst: Instrument, sky: SkyField | None = None) -> dict[str, Any]:
     """One pointing's :class:`~planner.programme.PointingPlan` as a PlanPointing dict
-    (``ids[k]``: the id of target ``k``)."""
-    seq = adapters.sequence_out(pp.sequence)
+    (``ids[k]``: the id of target ``k``; ``sky``: the pointing's sky, which its idle arms'
+    kinds are reported against)."""
+    seq = adapters.sequence_out(pp.sequence, inst, sky)
     if pp.unplanned_reason is not None:
         legs = len(pp.sequence.configurations) + 1
         seq["motions"] = [adapters.failed_motion_out(inst, pp.unplanned_reason) for _ in range(legs)]
@@ -615,9 +625,10 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
         reasons["excluded"] = len(excluded)
         targets = (*targets, *excluded)
     advice = stats.pop("time_limit_advice", None)
+    sky_notices = list(dict.fromkeys(n for p in out for n in p["stats"].get("sky", {}).get("notices", [])))
     return {
         "time_limit_advice": advice,
-        "notices": [] if advice is None else [advice["message"]],
+        "notices": ([] if advice is None else [advice["message"]]) + sky_notices,
         "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
         "pointings": list(out),
         "unallocated": unallocated,
@@ -630,6 +641,7 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
                                      for a in c["assignments"] if a["target_id"] is not None),
             **_completeness(out, targets),
             "unallocated_by_reason": reasons,
+            "sky_arms": sum(int(c["stats"].get("sky_arms", 0)) for p in out for c in p["configurations"]),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},

@@ -25,7 +25,14 @@ from service.sky_text import priority_text
 #: Tier colours, highest priority first (no blue: the arms are drawn in blue-grey).
 TIER_COLOURS = ("#d62728", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b")
 MAX_TIERS = len(TIER_COLOURS)
-ARM_COLOURS = {"on target": "#1f4e9c", "parked": "0.45", "on blank sky": "#6b6b6b"}
+ARM_COLOURS = {"on target": "#1f4e9c", "parked": "0.45", "on blank sky": "#6b6b6b", "on sky": "#1b8a6b"}
+#: the tip of a spare arm on sky (planner.sky): a star, distinct from target markers
+SKY_MARKER = dict(marker="*", ms=9, mfc="#1b8a6b", mec="black", mew=0.5)
+
+
+def sky_handle() -> Line2D:
+    """The legend entry of a sky arm's tip."""
+    return Line2D([], [], ls="", label="sky position (spare arm)", **SKY_MARKER)
 FOCAL_ORIENTATION = "Sky as seen: North up, East left (focal-plane +x drawn leftwards)"
 SKY_ORIENTATION = "Sky as seen: North up, East left (xi, East, increases leftwards)"
 

@@ -40,11 +40,13 @@ from service.plot_labels import (  # noqa: E402
 )
 from service.plot_style import (  # noqa: E402
     ARM_COLOURS,
+    SKY_MARKER,
     arm_handles,
     compass,
     draw_capsule,
     orientation_line,
     priority_tiers,
+    sky_handle,
     target_handles,
     tier_colours,
 )
@@ -100,13 +102,16 @@ def configuration_figure(
     position_angle_deg: float = 0.0,
     title: str = "",
     arm_targets: Mapping[int, str | None] | None = None,
+    arm_kinds: Mapping[int, str | None] | None = None,
     background: np.ndarray | None = None,
 ) -> Figure:
     """The figure of one configuration (the caller closes it). ``joints`` maps arm ->
     (theta1, theta2). Each target's state is ``target_status[i]`` (one of :data:`STATES`);
     without it, ``allocated[i]`` means 'this' and the rest 'pending'. ``arm_targets`` maps arm
     -> its target id (None: blank sky) to tell arms on targets from idle ones; without it every
-    arm away from park is on a target. ``background`` holds grey levels 0..1 (1 = brightest
+    arm away from park is on a target. ``arm_kinds`` maps arm -> its plan kind (target, sky,
+    park, fixed, blank): a sky arm is drawn in its own colour with a star at its tip (legend:
+    'sky position'). ``background`` holds grey levels 0..1 (1 = brightest
     sky, NaN = no image; rows from the top) spanning the whole view, its left column on the
     focal-plane +x side: a finding chart at the pointing's PA, :func:`view_half_width_mm` wide,
     drawn inverted (stars dark) so the coloured markers stay readable."""
@@ -127,7 +132,7 @@ def configuration_figure(
     _scale_bar(ax, instrument, half)
     _arcsec_axes(ax, instrument)
     ax.apply_aspect()  # the final transforms, before any label is measured
-    arm_kinds, arm_labels, tips = _draw_arms(ax, instrument, joints, half, arm_targets)
+    drawn, arm_labels, tips = _draw_arms(ax, instrument, joints, half, arm_targets, arm_kinds)
     n = len(target_x_mm)
     x, y = np.asarray(target_x_mm, float), np.asarray(target_y_mm, float)
     pr = np.asarray(target_priority, float) if len(target_priority) else np.ones(n)
@@ -138,7 +143,8 @@ def configuration_figure(
     layout = place_labels(ax, arm_labels + _target_labels(x, y, pr, status, list(target_ids), fig.dpi),
                           _obstacles(ax, x, y, status, tips))
     kinds = {STATE_LABELS[s]: _legend_marker(s) for s in STATES if s in status}
-    _legend(fig, target_handles(tiers, kinds) + arm_handles(arm_kinds)
+    _legend(fig, target_handles(tiers, kinds) + arm_handles(drawn)
+            + ([sky_handle()] if "on sky" in drawn else [])
             + [plt.Line2D([], [], color="0.3", ls="--", label=f"FOV ({instrument.fov_diameter_mm:g} mm)")])
     _notes(fig, title, orientation_line(position_angle_deg), layout)
     return fig
@@ -160,8 +166,11 @@ def _states(n: int, status: Sequence[str], allocated: Sequence[bool]) -> list[st
     return ["pending"] * n
 
 
-def arm_kind(arm, theta: tuple[float, float], target: str | None | bool) -> str:
-    """'parked' (at the arm's park angles), else 'on target' or 'on blank sky'."""
+def arm_kind(arm, theta: tuple[float, float], target: str | None | bool, plan_kind: str | None = None) -> str:
+    """'on sky' for a plan's sky arm; else 'parked' (at the arm's park angles), else 'on
+    target' or 'on blank sky'."""
+    if plan_kind == "sky":
+        return "on sky"
     if np.allclose(theta, arm.park, atol=1e-6):
         return "parked"
     return "on target" if target else "on blank sky"
@@ -169,15 +178,16 @@ def arm_kind(arm, theta: tuple[float, float], target: str | None | bool) -> str:
 
 def _draw_arms(ax, instrument: Instrument, joints: Mapping[int, tuple[float, float]],
                half: float, arm_targets: Mapping[int, str | None] | None,
+               plan_kinds: Mapping[int, str | None] | None = None,
                ) -> tuple[list[str], list[LabelSpec], np.ndarray]:
-    """Capsule bodies to scale; returns the arm kinds drawn, the arm labels to place and the
-    tips (k, 2) in the view."""
+    """Capsule bodies to scale (a sky arm's tip marked with a star); returns the arm kinds
+    drawn, the arm labels to place and the tips (k, 2) in the view."""
     kinds, labels, tips = [], [], []
     for arm in instrument.arms:
         if arm.index not in joints:
             continue
         target = True if arm_targets is None else arm_targets.get(arm.index)
-        kind = arm_kind(arm, joints[arm.index], target)
+        kind = arm_kind(arm, joints[arm.index], target, (plan_kinds or {}).get(arm.index))
         kinds.append(kind)
         colour = ARM_COLOURS[kind]
         p = {k: np.asarray(v) for k, v in
@@ -187,11 +197,13 @@ def _draw_arms(ax, instrument: Instrument, joints: Mapping[int, tuple[float, flo
                          f"arm{arm.index}-{body.name}")
         tip = p["tip"]
         ax.plot(*tip, "o", color=colour, ms=3, gid=f"arm-tip-{arm.index}")
+        if kind == "on sky":
+            ax.plot(*tip, ls="", gid=f"arm-sky-{arm.index}", **SKY_MARKER)
         if max(abs(tip[0]), abs(tip[1])) < half:
             tips.append(tip)
             labels.append(LabelSpec(f"arm {arm.index}", float(tip[0]), float(tip[1]), 3.0,
                                     f"arm-label-{arm.index}", dict(fontsize=7, color=colour)))
-    order = ("on target", "on blank sky", "parked")
+    order = ("on target", "on sky", "on blank sky", "parked")
     return [k for k in order if k in kinds], labels, np.asarray(tips, float).reshape(-1, 2)
 
 

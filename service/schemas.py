@@ -25,6 +25,7 @@ from pydantic import (
 from models.instrument import CONFIGURATION_TIME_GOAL_S
 from models.types import MAX_PRIORITY as PRIORITY_MAX
 from planner.programme import DEFAULT_SEGMENTATION_MODE
+from planner.sky import DEFAULT_SKY_RADIUS_ARCSEC, MAX_SKY_RADIUS_ARCSEC
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service import keep_schemas
 from service.lock_schemas import EXCLUDED_DOC, LOCKED_DOC, ExcludedTargets, Locked
@@ -42,6 +43,7 @@ from solvers.programme.segment import MAX_TARGETS
 N_ARMS = 12
 UNIQUE_ARMS = unique_arms(N_ARMS)
 MAX_EXPOSURES = 10_000  # a plan's max_exposures at most
+MAX_SKY_POSITIONS = 10_000  # a plan's sky_positions at most
 
 
 def _integral(v: Any) -> Any:
@@ -340,6 +342,23 @@ class PlanRequest(SkyTargetSource):
         "exposures not opened are reported with reason 'below_exposure_threshold'. null (the default): "
         "none."
     )
+    sky_positions: Annotated[list[SkyPoint], Field(max_length=MAX_SKY_POSITIONS)] | None = Field(
+        None, description="Sky positions (ICRS RA/Dec, deg) for the spare arms: after the science targets "
+        "of a configuration are allocated, every arm without a target is placed on one of these (projected "
+        "into the pointing's focal plane; nearest its previous place first) where it fits without a "
+        "collision, else on blank sky the planner picks, else at park. A position closer than "
+        "sky_radius_arcsec to any target of the request is not used (a notice names it). null (the "
+        "default): blank sky only."
+    )
+    sky_radius_arcsec: Annotated[float, Field(ge=0.0, le=MAX_SKY_RADIUS_ARCSEC, strict=True,
+                                              allow_inf_nan=False)] = Field(
+        DEFAULT_SKY_RADIUS_ARCSEC, description="Least distance (arcsec) of a spare arm's sky position from "
+        "every target of the request (all pointings), for sky_positions and blank sky alike. Default "
+        f"{DEFAULT_SKY_RADIUS_ARCSEC:g} arcsec (5 mm at 1.2 arcsec/mm): the probe field's half-diagonal "
+        "(1.94 arcsec of 3.7 x 1.2, thesis table 2.1) plus twice the 1.2 arcsec seeing the slicer is "
+        f"built for, rounded up (docs/allocation.md, 'Sky positions'); at most {MAX_SKY_RADIUS_ARCSEC:g} "
+        "(the FOV's diameter)."
+    )
 
 
 # ------------------------------------------------------------------------ responses
@@ -464,11 +483,19 @@ class AssignmentOut(Response):
     theta2_rad: float
     x_mm: float
     y_mm: float
-    kind: Literal["target", "park", "blank", "fixed"] | None = Field(
+    kind: Literal["target", "sky", "park", "fixed", "blank"] | None = Field(
         None,
-        description="'target' (observes target_id), 'park', 'blank' (a blank-sky location), "
-        "'fixed' (a disabled arm left where it is).",
+        description="'target' (observes target_id); 'sky' (a spare arm on sky at least the plan's "
+        "sky_radius_arcsec from every target, inside the FOV: sky_ra_deg/sky_dec_deg say where); 'park'; "
+        "'fixed' (a disabled arm left where it is); 'blank' (a spare arm resting off park where no "
+        "clear sky fits: closer than the radius to a target, or an allocation alone, which has no sky "
+        "to check against).",
     )
+    sky_ra_deg: float | None = Field(None, description="A 'sky' arm: the RA (ICRS, deg) its tip points "
+                                     "at (the focal-plane tip through the pointing's projection); "
+                                     "null otherwise.")
+    sky_dec_deg: float | None = Field(None, description="A 'sky' arm: the Dec (ICRS, deg) its tip points "
+                                      "at; null otherwise.")
 
 
 class ConfigurationOut(Response):
