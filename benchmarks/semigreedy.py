@@ -15,7 +15,7 @@ Sections:
 * ``protocol``: per (distribution, size 96/192/384), over ``--instances`` fields (default
   20), configurations to 100 % completeness and completeness reached, for
 
-  - ``exact``: ``allocate(method="ilp")`` (the library default back-end, ``bnb``) with a
+  - ``exact``: ``allocate(method="ilp", solver="bnb")`` (the branch-and-bound) with a
     modest per-configuration limit ``config_time_limit_s = EXACT_CONFIG_S``, one
     configuration at a time as in the thesis protocol: no ejection repair, no repacking
     (``--exact-repack``: with the driver's repair and CP-SAT tail repacking, much slower);
@@ -88,7 +88,7 @@ def field_rng(n: int, dist: str, i: int) -> np.random.Generator:
 
 def run_exact(targets, seed: int, repack: bool = False, field_limit_s: float | None = None) -> dict:
     t0 = time.perf_counter()
-    r = allocate(INST, targets, method="ilp", configurations="all",
+    r = allocate(INST, targets, method="ilp", solver="bnb", configurations="all",
                  time_limit_s=field_limit_s or EXACT_FIELD_S, seed=seed,
                  options=AllocationOptions(sequence=SequenceOptions(config_time_limit_s=EXACT_CONFIG_S),
                                            repair=RepairOptions(enabled=repack),
@@ -213,7 +213,7 @@ def dense(n, fields, repeats, with_exact, with_repair=False):
                                     "unallocated": [u.reason for u in r.unallocated]})
         if with_exact:
             t0 = time.perf_counter()
-            r = allocate(INST, targets, method="ilp", configurations="all", time_limit_s=20.0, seed=i)
+            r = allocate(INST, targets, method="ilp", solver="bnb", configurations="all", time_limit_s=20.0, seed=i)
             out.setdefault("exact", []).append({"field_seed": 100 + i, "wall_s": time.perf_counter() - t0,
                                                 "configurations": r.stats["n_configurations"],
                                                 "field_completeness": r.stats["field_completeness"]})
