@@ -281,3 +281,28 @@ def sequence_out(sp: SequencePlan, inst: Instrument | None = None,
         "reasons": [str(r) for r in sp.reasons],
         "stats": {**change_counts(changes, len(sp.dropped)), "sequence": plain(sp.stats)},
     }
+
+
+# ------------------------------------------------------------------ plan files
+
+
+def plan_targets_out(members: Sequence[Any], plane: PlaneTargets) -> list[dict[str, Any]]:
+    """A pointing's targets as PlanTargetOut dicts: ``plane`` (their projection about the
+    pointing), each with the RA/Dec of the sky target of its id in ``members``."""
+    sky = {str(t.id): t for t in members}
+    return [{"id": str(i), "ra_deg": float(sky[str(i)].ra_deg), "dec_deg": float(sky[str(i)].dec_deg),
+             "x_mm": float(x), "y_mm": float(y)}
+            for i, x, y in zip(plane.ids, plane.x_mm, plane.y_mm, strict=True)]
+
+
+def with_content_hash(plan: Mapping[str, Any]) -> dict[str, Any]:
+    """The PlanResponse dict as the service writes it (validated and dumped as JSON values by
+    :class:`service.schemas.PlanResponse`, as the routes do) with its ``content_hash``
+    (:func:`planner.plan_file.content_hash`): the one place a plan gets its hash, at the
+    exit of the synchronous plan, the plan job and the CLI."""
+    from planner.plan_file import HASH_FIELD, content_hash
+    from service.schemas import PlanResponse
+
+    out = PlanResponse.model_validate({**plan, HASH_FIELD: None}).model_dump(mode="json", by_alias=True)
+    out[HASH_FIELD] = content_hash(out)
+    return out

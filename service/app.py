@@ -99,7 +99,7 @@ LIST_NOT_FOUND: dict[str, Any] = {
                    "the retention); `detail` names the field and the id."}
 #: the routes whose work takes a heavy slot (refused before their body is read when all are taken)
 HEAVY_PATHS = frozenset({"/v1/segmentations", "/v1/allocations", "/v1/motion-plans", "/v1/plans",
-                         "/v1/target-lists", "/v1/finding-charts"})
+                         "/v1/target-lists", "/v1/finding-charts", "/v1/validations"})
 QUEUE_FULL: dict[str, Any] = {"model": ErrorResponse, "headers": RETRY_AFTER,
                               "description": "The job queue is full (`MXS_MAX_QUEUED_JOBS`): retry after "
                                              "`Retry-After` seconds."}
@@ -377,6 +377,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     _stage_routes(app)
     _job_routes(app)
     app.include_router(__import__("service.finding_charts", fromlist=["router"]).router)
+    app.include_router(__import__("service.validations", fromlist=["router"]).router, responses=ERRORS)
     return app
 
 
@@ -385,6 +386,7 @@ def _body_limits(settings: Settings) -> dict[str, tuple[int, str]]:
     return {path: (getattr(settings, name), env_name(name)) for path, name in (
         ("/v1/segmentations", "max_segmentation_body_bytes"),
         ("/v1/jobs", "max_job_body_bytes"),
+        ("/v1/validations", "max_job_body_bytes"),
         ("/v1/target-lists", "max_upload_bytes"))}
 
 

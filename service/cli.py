@@ -14,6 +14,7 @@ from planner.programme import DEFAULT_LIMIT_S, DEFAULT_SEGMENTATION_MODE
 from service.cli_keep import keep_arg, read_keep
 from service.cli_pictures import OVERVIEW_NAME, pointing_pa_deg, write_overview, write_pictures
 from service.cli_sky import ASSIGNMENTS_NAME, SkyFileError, read_sky_file, write_assignments
+from service.cli_validate import add_validate_parser
 from service.sky_text import plural, radec_text
 from service.tables import ALIASES, UCDS, TargetFileError, read_target_table, read_targets
 from solvers.programme.segment import MAX_TARGETS
@@ -356,6 +357,7 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=EXIT_CODES, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_plan_options(p)
     p.set_defaults(func=cmd_plan)
+    add_validate_parser(sub)
     return parser
 
 

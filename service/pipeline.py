@@ -417,6 +417,7 @@ def pointing_result(task: PointingTask, inst: Instrument,
     t0 = time.monotonic()
     pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
     out = pointing_plan_out(task.pointing, pp, ids, inst, task_sky(task, inst))
+    out["targets"] = adapters.plan_targets_out(task.members, pp.targets)
     if task.sky is not None:
         out["stats"]["sky"] = sky_stats(task.sky, out["configurations"])
     failed = out["stats"]["motion"]["failed_legs"]
@@ -564,7 +565,7 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     stats = {**stats, **excluded}
     out = plan_out(seg, pointings, req.targets, stats)
     progress(1.0)
-    return out
+    return adapters.with_content_hash(out)
 
 
 def pointing_plan_out(pointing: Pointing, pp: PointingPlan, ids: Sequence[str] | Mapping[int, str],

@@ -593,6 +593,16 @@ TELESCOPE_TIME = (
     "counted: total_s is then a lower bound)")
 
 
+class PlanTargetOut(Response):
+    """A target of one pointing: sky position and focal-plane position in the pointing's frame."""
+
+    id: str
+    ra_deg: float
+    dec_deg: float
+    x_mm: float
+    y_mm: float
+
+
 class PlanPointing(PointingOut):
     configurations: list[ConfigurationOut] = Field(
         description="Configurations c1 ... cn, as changed by the motion planner (`changes`)."
@@ -612,6 +622,8 @@ class PlanPointing(PointingOut):
     reasons: list[str] = Field(description="One line per failed motion leg: which leg (counted "
                                "from 1 like the configurations: 'leg 1 (park -> c1)' is "
                                "`motions[0]`), which arms, why. Empty when `executable`.")
+    targets: list[PlanTargetOut] | None = Field(
+        None, description="The pointing's targets (`target_ids`) with their RA/Dec, deg, and focal-plane position in this pointing's frame, mm (gnomonic projection about `ra_deg`/`dec_deg` at `position_angle_deg`): what `POST /v1/validations` re-checks each observed target against.")
     not_planned: str | None = Field(None, description="Why this pointing was not planned (the "
                                     "plan's time limit left it no time: its targets 'no_time'); "
                                     "null when it was.")
@@ -672,6 +684,8 @@ class PlanResponse(Response):
     unallocated: list[Unallocated] = Field(default_factory=list, description="Targets of "
                                            "the request in no pointing: those of `excluded_targets` "
                                            "(reason 'excluded').")
+    content_hash: str | None = Field(
+        None, description="\"sha256:\" + the hex SHA-256 of the plan's canonical JSON: every field but this one, keys sorted, no whitespace, UTF-8, numbers as they read back (docs/validation.md). `POST /v1/validations` and `mxs-planner validate` detect a plan edited after it was written.")
     notices: list[str] = Field(default_factory=list, description="Sentences for the "
                                "astronomer about the plan as a whole (e.g. the time limit it "
                                "needs), shown by the page's banner and the CLI's summary.")
