@@ -63,7 +63,7 @@ from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequ
 from planner.sky import SkyField, place_sky
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time
 from solvers.allocation import allocate
-from solvers.allocation.options import AllocationOptions
+from solvers.allocation.options import DEFAULT_SOLVER, AllocationOptions
 from solvers.sequencing.options import SequenceOptions as AllocationSequenceOptions
 
 __all__ = [
@@ -434,7 +434,7 @@ class PointingOptions:
     telescope time is counted with)."""
 
     method: str = "ilp"
-    solver: str = "bnb"
+    solver: str = DEFAULT_SOLVER
     seed: int = 0
     park_move_limit_s: float | None = CONFIGURATION_TIME_GOAL_S
     max_configurations: int | None = None

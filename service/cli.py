@@ -270,7 +270,8 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=_api_choices("method"), default=_api_default("method"),
                    help="allocation: exact ILP or the semi-greedy heuristic (default: %(default)s)")
     p.add_argument("--solver", choices=_api_choices("solver"), default=_api_default("solver"),
-                   help="ILP back-end (default: %(default)s)")
+                   help="exact engine of --method ilp; cpsat and highs start from a branch-and-bound "
+                   "dive, bnb is that search alone (default: %(default)s)")
     p.add_argument("--position-angle", type=float, default=_api_default("position_angle_deg"),
                    metavar="DEG", help="position angle of the instrument, deg East of North; a "
                    "pointing whose PA the segmentation chooses uses its own (default: %(default)s)")

@@ -38,6 +38,7 @@ from service.schema_rules import (
     unique_arms_check,
     unique_ids,
 )
+from solvers.allocation.options import DEFAULT_SOLVER
 from solvers.programme.segment import MAX_TARGETS
 
 N_ARMS = 12
@@ -90,6 +91,12 @@ BufferMm = Annotated[
 ]
 Method = Literal["ilp", "semigreedy"]
 Solver = Literal["highs", "cpsat", "bnb"]  # bnb: exact bitset branch-and-bound (extension)
+SOLVER_DESCRIPTION = (
+    "Exact engine of method 'ilp' (thesis 5.4): 'cpsat' (OR-Tools CP-SAT), 'highs' (HiGHS) or 'bnb' "
+    "(the bitset branch-and-bound alone, CP-SAT finishing proofs past its node limit). CP-SAT and "
+    "HiGHS start from a branch-and-bound dive: its incumbent fixes the columns no better solution "
+    f"uses and is their start. Default {DEFAULT_SOLVER!r} (solvers.allocation.options.DEFAULT_SOLVER)."
+)
 SegmentationMode = Literal["complete-linkage", "balanced", "fewest-exposures"]
 Stats = dict[str, Any]
 
@@ -200,7 +207,7 @@ class AllocationRequest(Request):
         None, description="Telescope pointing; required when `targets` are sky targets."
     )
     method: Method = "ilp"
-    solver: Solver = "bnb"
+    solver: Solver = Field(DEFAULT_SOLVER, description=SOLVER_DESCRIPTION)
     configurations: Literal["one", "all"] = "one"
     time_limit_s: TimeLimitS | None = None
     seed: Seed | None = None
@@ -285,7 +292,7 @@ class MotionPlanRequest(Request):
 
 class PlanRequest(SkyTargetSource):
     method: Method = "ilp"
-    solver: Solver = "bnb"
+    solver: Solver = Field(DEFAULT_SOLVER, description=SOLVER_DESCRIPTION)
     position_angle_deg: PositionAngleDeg = 0.0
     time_limit_s: TimeLimitS | None = Field(
         None, description="Wall-clock limit of the whole plan, s (its one meaning): "

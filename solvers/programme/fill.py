@@ -25,7 +25,7 @@ from models.instrument import Instrument
 from models.sky import sky_to_focal_mm, tangent_radius_mm
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
-from solvers.allocation.options import AllocationOptions, PackingOptions
+from solvers.allocation.options import DEFAULT_SOLVER, AllocationOptions, PackingOptions
 from solvers.programme.reach import arm_masks
 from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
@@ -52,7 +52,7 @@ class FillOptions:
     kept when it observes at least this many targets (or one no other pointing holds)."""
 
     method: str = "ilp"
-    solver: str = "bnb"
+    solver: str = DEFAULT_SOLVER
     seed: int = 0
     park_move_limit_s: float | None = 120.0
     position_angle_deg: float = 0.0
