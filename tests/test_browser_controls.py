@@ -11,9 +11,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from astropy import units as u
 from astropy.coordinates import Angle
 
+from models.instrument import default_instrument
+from models.kinematics import inverse_fov
 from tests import test_browser
 
 # The uvicorn server, Chromium and page fixtures of the page's other browser tests.
@@ -70,6 +73,19 @@ def _where(result: dict) -> dict[str, tuple[str, int, int]]:
     """target -> (pointing, configuration from 1, arm)."""
     return {a["target_id"]: (p["id"], k + 1, a["arm"]) for p in result["pointings"]
             for k, c in enumerate(p["configurations"]) for a in c["assignments"] if a["target_id"]}
+
+
+def _another_arm_reaching(result: dict, target: str, arm: int) -> int:
+    """An arm other than `arm` that reaches the target's tip position (the kinematics' own IK),
+    the farthest round the bench first."""
+    x, y = next((a["x_mm"], a["y_mm"]) for p in result["pointings"] for c in p["configurations"]
+                for a in c["assignments"] if a["target_id"] == target)
+    inst = default_instrument()
+    for step in (6, 5, 7, 4, 8, 3, 9, 2, 10, 1, 11):
+        other = (arm + step) % 12
+        if inverse_fov(inst, other, np.array([x]), np.array([y])).valid.any():
+            return other
+    raise AssertionError(f"no other arm reaches {target}")
 
 
 def test_controls_send_their_fields(page, server, tmp_path: Path) -> None:
@@ -136,13 +152,14 @@ def test_controls_send_their_fields(page, server, tmp_path: Path) -> None:
 def test_lock_and_exclude_by_clicking_then_plan_again(page, server) -> None:
     """Lock a target to another arm by clicking it in the configuration viewer, exclude one by
     clicking it in the sky view; the next plan observes the first on that arm and lists the
-    second as excluded."""
+    second as excluded. The excluded star is a pointing of its own, 10' away, so that the
+    locked star's pointing is the same in both plans."""
     sent = _open(page, server)
-    first = _small_plan(page, _csv())
+    first = _small_plan(page, _csv(STARS + [("z", 600.0, 0.0, 10, 0.0, 0.0)]))
     where = _where(first)
-    assert "b" in where and "c" in where, where
+    assert "b" in where and "z" in where and where["z"][0] != where["b"][0], where
     old_arm = where["b"][2]
-    new_arm = (old_arm + 6) % 12
+    new_arm = _another_arm_reaching(first, "b", old_arm)
     marker = page.locator(".pointing svg.configuration [data-id='b']").first
     if page.locator(".pointing").first.locator("svg.configuration").get_attribute("data-configuration") != str(where["b"][1]):
         page.locator(".pointing").first.locator(".stepper button").nth(where["b"][1] - 1).click()
@@ -153,24 +170,25 @@ def test_lock_and_exclude_by_clicking_then_plan_again(page, server) -> None:
     menu.locator("select.lock-arm").select_option(str(new_arm))
     menu.locator("button.lock-to").click()
     assert page.locator("#lock-menu").count() == 0
-    page.locator("svg.sky .sky-target[data-id='c']").click()
+    page.locator("svg.sky .sky-target[data-id='z']").click()
     page.locator("#lock-menu button.exclude").click()
-    assert page.locator("#lock-list li").all_inner_texts() == [f"b locked to arm {new_arm} remove", "c excluded remove"]
+    assert page.locator("#lock-list li").all_inner_texts() == [f"b locked to arm {new_arm} remove", "z excluded remove"]
     # marked in both views, with a legend entry; the plan shown is stale
     assert page.locator("svg.sky g.lock-mark[data-for='b'][data-kind='mark-locked']").count() == 1
-    assert page.locator("svg.sky g.lock-mark[data-for='c'][data-kind='mark-excluded']").count() == 1
+    assert page.locator("svg.sky g.lock-mark[data-for='z'][data-kind='mark-excluded']").count() == 1
     assert page.locator("svg.configuration g.lock-mark[data-for='b']").count() >= 1
     legend = page.locator(".field .legend li[data-kind]").evaluate_all("(ls) => ls.map((l) => l.dataset.kind)")
     assert {"mark-locked", "mark-excluded"} <= set(legend)
     assert "stale" in page.get_attribute("#result", "class")
     second = _plan(page)
     assert sent[-1]["locked"] == [{"target_id": "b", "arm": new_arm, "branch": None}]
-    assert sent[-1]["excluded_targets"] == ["c"]
+    assert sent[-1]["excluded_targets"] == ["z"]
     assert _where(second)["b"][2] == new_arm
-    assert "c" not in _where(second)
-    assert {u["reason"] for p in second["pointings"] for u in p["unallocated"] if u["target_id"] == "c"} == {"excluded"}
+    assert "z" not in _where(second)
+    unallocated = second.get("unallocated", []) + [u for p in second["pointings"] for u in p["unallocated"]]
+    assert {u["reason"] for u in unallocated if u["target_id"] == "z"} == {"excluded"}
     row = page.evaluate("""() => [...document.querySelectorAll('.every-target tbody tr')]
-        .map((tr) => [...tr.children].map((td) => td.textContent)).find((r) => r[0] === 'c')""")
+        .map((tr) => [...tr.children].map((td) => td.textContent)).find((r) => r[0] === 'z')""")
     assert row[-1] == "excluded"
     # an arm clicked in the viewer names its target; the lock list survives the new plan
     arm = page.locator(f".pointing svg.configuration g.arm[data-arm='{new_arm}']").first

@@ -228,6 +228,8 @@ function targetFates(result) {
     });
     for (const u of p.unallocated) if (!fate.has(u.target_id)) fate.set(u.target_id, { pointing: p.id, reason: u.reason });
   }
+  // targets in no pointing (excluded ones)
+  for (const u of result.unallocated || []) if (!fate.has(u.target_id)) fate.set(u.target_id, { pointing: "", reason: u.reason });
   return fate;
 }
 
