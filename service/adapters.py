@@ -33,6 +33,7 @@ from planner.sky import SkyField, arm_sky
 from planner.telescope_time import TelescopeTime
 from service.errors import FieldError
 from service.schemas import ArmState, PlaneTarget
+from solvers.programme.angle import DEFAULT_STEP_DEG, AngleChoice, AngleSearch
 from solvers.segmentation import Pointing, Segmentation
 
 # ------------------------------------------------------------------ generic values
@@ -306,3 +307,31 @@ def with_content_hash(plan: Mapping[str, Any]) -> dict[str, Any]:
     out = PlanResponse.model_validate({**plan, HASH_FIELD: None}).model_dump(mode="json", by_alias=True)
     out[HASH_FIELD] = content_hash(out)
     return out
+
+
+# ------------------------------------------------------------------ position angle
+
+
+def requested_angle_deg(position_angle_deg: float | str) -> float:
+    """The request's ``position_angle_deg`` as the angle a pointing without a search of its
+    own takes: the number, or 0 for "auto" (whose pointings all carry their searched angle)."""
+    return 0.0 if position_angle_deg == "auto" else float(position_angle_deg)
+
+
+def angle_search_in(position_angle_deg: float | str, range_deg: Sequence[float] | None,
+                    step_deg: float | None) -> AngleSearch | None:
+    """The request's "auto" as the domain's :class:`~solvers.programme.angle.AngleSearch`
+    (None for a number: that angle is used)."""
+    if position_angle_deg != "auto":
+        return None
+    rng = None if range_deg is None else (float(range_deg[0]), float(range_deg[1]))
+    return AngleSearch(rng, DEFAULT_STEP_DEG if step_deg is None else float(step_deg))
+
+
+def angle_out(used_deg: float, choice: AngleChoice | None) -> dict[str, Any]:
+    """A PlanPointing's ``position_angle_deg`` (the angle it is observed at) and
+    ``position_angle_search`` (None when the angle was used as given)."""
+    search = None if choice is None else {
+        "tried_deg": [float(a) for a in choice.tried_deg], "chosen_deg": float(choice.chosen_deg),
+        "objective": str(choice.objective)}
+    return {"position_angle_deg": float(used_deg), "position_angle_search": search}

@@ -69,7 +69,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         req = PlanRequest(locked=args.lock or None, excluded_targets=args.exclude or None,
                           keep_configurations=keep,
                           targets=rows, method=args.method, solver=args.solver,
-                          position_angle_deg=args.position_angle, time_limit_s=args.time_limit,
+                          position_angle_deg=args.position_angle,
+                          position_angle_range_deg=args.position_angle_range,
+                          position_angle_step_deg=args.position_angle_step, time_limit_s=args.time_limit,
                           seed=args.seed, threshold_mm=args.threshold_mm,
                           segmentation_mode=args.segmentation_mode,
                           park_move_limit_s=None if args.no_park_move_limit else args.park_move_limit,
@@ -148,8 +150,9 @@ def print_summary(result: Mapping[str, Any], req: Any, out: Path, n_pictures: in
           f"{plural(n_pictures, 'configuration picture')} (pointing<id>_c<k>.png)"
           + (f" and the sky overview {overview}" if overview else ""))
     for p in result["pointings"]:
+        auto = " (auto)" if req.position_angle_deg == "auto" else ""
         print(f"pointing {p['id']} at {radec_text(p['ra_deg'], p['dec_deg'])}, PA "
-              f"{pointing_pa_deg(p, req):g}°: {plural(len(p['configurations']), 'configuration')}, "
+              f"{pointing_pa_deg(p, req):g}°{auto}: {plural(len(p['configurations']), 'configuration')}, "
               f"{plural(len(p['target_ids']), 'target')}")
     print(f"spare arms: {plural(s.get('sky_arms', 0), 'arm')} on sky over all configurations "
           f"(kind 'sky' in {ASSIGNMENTS_NAME})")
@@ -235,6 +238,15 @@ def lock_arg(text: str) -> dict[str, Any]:
     raise argparse.ArgumentTypeError(f"{text!r}: expected TARGET:ARM or TARGET:ARM:BRANCH (integers)")
 
 
+def _angle_or_auto(text: str) -> float | str:
+    """``--position-angle``: a number of degrees, or the text as given ("auto"; anything else
+    is refused by the request's validation, which names ``position_angle_deg``)."""
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
 def _api_default(name: str) -> Any:
     """The default of ``POST /v1/plans``' field ``name`` (:class:`service.schemas.PlanRequest`),
     so ``plan`` and the API cannot drift apart."""
@@ -272,9 +284,18 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--solver", choices=_api_choices("solver"), default=_api_default("solver"),
                    help="exact engine of --method ilp; cpsat and highs start from a branch-and-bound "
                    "dive, bnb is that search alone (default: %(default)s)")
-    p.add_argument("--position-angle", type=float, default=_api_default("position_angle_deg"),
-                   metavar="DEG", help="position angle of the instrument, deg East of North; a "
-                   "pointing whose PA the segmentation chooses uses its own (default: %(default)s)")
+    p.add_argument("--position-angle", type=_angle_or_auto, default=_api_default("position_angle_deg"),
+                   metavar="DEG|auto", help="position angle of the instrument, deg East of North; a "
+                   "pointing whose PA the segmentation chooses uses its own; 'auto': every pointing "
+                   "takes the best angle of --position-angle-range every --position-angle-step (fewest "
+                   "targets lost to arm reach, then fewest exposures, then highest priority, then "
+                   "nearest the range's centre, then the smaller angle) (default: %(default)s)")
+    p.add_argument("--position-angle-range", type=float, nargs=2, default=None, metavar=("MIN", "MAX"),
+                   help="with --position-angle auto: the angles searched, deg, both ends included "
+                   "(default: any angle, [0, 360))")
+    p.add_argument("--position-angle-step", type=float, default=None, metavar="DEG",
+                   help="with --position-angle auto: the step between the angles searched, deg "
+                   "(default: 5, a sixth of the arms' pitch)")
     p.add_argument("--time-limit", type=float, default=DEFAULT_LIMIT_S, metavar="S",
                    help="wall-clock limit of the whole plan, s, as POST /v1/plans "
                    "(default: %(default)s)")

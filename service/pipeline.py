@@ -64,6 +64,7 @@ from service.schemas import (
 )
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
+from solvers.programme.segment import searched_angles
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -162,7 +163,11 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
     ``optimiser_s`` wall-clock seconds, on the effort clock as a pointing's plan)."""
     args = field_args(req, inst)
     if req.mode != "fewest-exposures":
-        return segment_field(**args, seed=int(req.seed or 0))
+        seg = segment_field(**args, seed=int(req.seed or 0))
+        if fill is None or fill.angle_search is None:
+            return seg
+        return searched_angles(inst, seg, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
+                               fill.angle_search, fill.park_move_limit_s)
     wall_s = programme.optimiser_s(None) if optimiser_s is None else float(optimiser_s)
     with clock.effort(wall_limit_s=wall_s):
         return segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
@@ -296,7 +301,10 @@ def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = Non
     if req.keep_configurations is not None:
         return segment_kept(req, inst, limit_s)
     fill = FillOptions(method=req.method, solver=req.solver, seed=int(req.seed or 0),
-                       park_move_limit_s=req.park_move_limit_s, position_angle_deg=req.position_angle_deg)
+                       park_move_limit_s=req.park_move_limit_s,
+                       position_angle_deg=adapters.requested_angle_deg(req.position_angle_deg),
+                       angle_search=adapters.angle_search_in(req.position_angle_deg, req.position_angle_range_deg,
+                                                             req.position_angle_step_deg))
     return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s), "segmentation_mode")
 
 
@@ -388,7 +396,7 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
                               observing_rules(req), p.allocation, kept_of(req, p.id))
     options = dataclasses.replace(options, locked=plan_locks.member_locks(
         req, [req.targets[int(k)] for k in p.target_indices]))
-    pa = req.position_angle_deg if p.position_angle_deg is None else p.position_angle_deg
+    pa = adapters.requested_angle_deg(req.position_angle_deg) if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
                         pa, options, float(task.share_s), task.round,
                         plan_sky(req).near(p.ra_deg % 360.0, p.dec_deg))
@@ -417,6 +425,7 @@ def pointing_result(task: PointingTask, inst: Instrument,
     t0 = time.monotonic()
     pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
     out = pointing_plan_out(task.pointing, pp, ids, inst, task_sky(task, inst))
+    out.update(adapters.angle_out(task.position_angle_deg, task.pointing.position_angle_search))
     out["targets"] = adapters.plan_targets_out(task.members, pp.targets)
     if task.sky is not None:
         out["stats"]["sky"] = sky_stats(task.sky, out["configurations"])

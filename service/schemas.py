@@ -28,6 +28,18 @@ from planner.programme import DEFAULT_SEGMENTATION_MODE
 from planner.sky import DEFAULT_SKY_RADIUS_ARCSEC, MAX_SKY_RADIUS_ARCSEC
 from planner.telescope_time import DEFAULT_ACQUISITION_S, DEFAULT_EXPOSURE_TIME_S
 from service import keep_schemas
+from service.angle_schemas import (
+    PA_DOC,
+    PA_RANGE_DOC,
+    PA_SEARCH_DOC,
+    PA_STEP_DOC,
+    PlanPositionAngle,
+    PositionAngleRange,
+    PositionAngleSearchOut,
+    PositionAngleStep,
+    check_range,
+    check_step,
+)
 from service.lock_schemas import EXCLUDED_DOC, LOCKED_DOC, ExcludedTargets, Locked
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
@@ -293,7 +305,11 @@ class MotionPlanRequest(Request):
 class PlanRequest(SkyTargetSource):
     method: Method = "ilp"
     solver: Solver = Field(DEFAULT_SOLVER, description=SOLVER_DESCRIPTION)
-    position_angle_deg: PositionAngleDeg = 0.0
+    position_angle_deg: PlanPositionAngle = Field(0.0, description=PA_DOC)
+    position_angle_range_deg: PositionAngleRange | None = Field(None, description=PA_RANGE_DOC)
+    position_angle_step_deg: PositionAngleStep | None = Field(None, description=PA_STEP_DOC)
+    _pa_range = field_validator("position_angle_range_deg")(check_range)
+    _pa_step = field_validator("position_angle_step_deg")(check_step)
     time_limit_s: TimeLimitS | None = Field(
         None, description="Wall-clock limit of the whole plan, s (its one meaning): "
         "segmentation, then every pointing's allocation and motion legs. The pointings share it "
@@ -611,6 +627,7 @@ class PlanTargetOut(Response):
 
 
 class PlanPointing(PointingOut):
+    position_angle_search: PositionAngleSearchOut | None = Field(None, description=PA_SEARCH_DOC)
     configurations: list[ConfigurationOut] = Field(
         description="Configurations c1 ... cn, as changed by the motion planner (`changes`)."
     )

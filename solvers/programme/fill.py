@@ -26,12 +26,13 @@ from models.sky import sky_to_focal_mm, tangent_radius_mm
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
 from solvers.allocation.options import DEFAULT_SOLVER, AllocationOptions, PackingOptions
+from solvers.programme.angle import AngleChoice, AngleSearch, choose_angle
 from solvers.programme.reach import arm_masks
 from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
-           "commit", "position_angle", "recentre", "within"]
+           "commit", "pointing_angle", "position_angle", "recentre", "within"]
 
 #: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
 #: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
@@ -49,7 +50,9 @@ SETTLED = frozenset({"unreachable", "beyond_park_move_limit", "conflict"})
 class FillOptions:
     """How the plan allocates a pointing (the feedback allocates the same way), the angle the
     plan asks for (kept unless another loses fewer targets) and ``fill_min``: an exposure is
-    kept when it observes at least this many targets (or one no other pointing holds)."""
+    kept when it observes at least this many targets (or one no other pointing holds).
+    ``angle_search`` (the request's "auto"): every pointing takes the best angle of that
+    search (:func:`solvers.programme.angle.choose_angle`) instead of the requested one."""
 
     method: str = "ilp"
     solver: str = DEFAULT_SOLVER
@@ -59,6 +62,7 @@ class FillOptions:
     search_position_angle: bool = True
     fill_min: int = 8
     allocation_cap_s: float = 1.0
+    angle_search: AngleSearch | None = None
 
 
 @dataclass(frozen=True)
@@ -90,6 +94,7 @@ class Pointing:
     exposures: int | None = None
     only_here: np.ndarray | None = None  # set once every pointing is known (mark_only_here)
     allocation: AllocationResult | None = None  # of ``members`` (ascending), its exposures kept
+    pa_search: AngleChoice | None = None  # how ``pa_deg`` was chosen (None: not searched)
 
 
 def within(f: Field, idx: np.ndarray, centre: tuple[float, float], margin_mm: float = RIM_MARGIN_MM) -> np.ndarray:
@@ -133,6 +138,27 @@ def position_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
     return min(lost, key=lambda a: (lost[a], angles.index(a))), lost
 
 
+def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], opts: FillOptions,
+                   ) -> tuple[float, AngleChoice | None]:
+    """The pointing's angle and how it was chosen: the best of ``opts.angle_search`` when the
+    request asked for "auto", else :func:`position_angle` about the requested angle (None
+    when it searched nothing)."""
+    if opts.angle_search is not None and len(members):
+        c = choose_angle(f.inst, f.ra_deg[members], f.dec_deg[members], f.priority[members], centre,
+                         opts.angle_search, opts.park_move_limit_s)
+        return c.chosen_deg, c
+    pa, lost = position_angle(f, members, centre, opts)
+    if not lost:
+        return pa, None
+    want = float(opts.position_angle_deg) % 360.0
+    objective = (f"{pa:g} deg: {lost[pa]} of {len(members)} targets lost to arm reach. Objective: the "
+                 f"requested angle ({want:g} deg), else the angle nearest it, every "
+                 f"{POSITION_ANGLES_DEG[1] - POSITION_ANGLES_DEG[0]:g} deg, that loses the fewest "
+                 "targets to arm reach within the park move limit (tried nearest first, up to the "
+                 "first that loses none).")
+    return pa, AngleChoice(pa, tuple(lost), (), objective)
+
+
 def _allocate(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget) -> AllocationResult:
     m = p.members
     x, y = sky_to_focal_mm(f.ra_deg[m], f.dec_deg[m], p.centre[0], p.centre[1], f.scale, p.pa_deg)
@@ -156,8 +182,8 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     inside = np.flatnonzero(todo)
     inside = inside[within(f, inside, centre)]
     members = np.union1d(inside, given)
-    pa, _ = position_angle(f, members, centre, opts)
-    p = Pointing(centre, pa, members)
+    pa, search = pointing_angle(f, members, centre, opts)
+    p = Pointing(centre, pa, members, pa_search=search)
     only = ~elsewhere[members]
     if budget.expired():
         return p
@@ -233,13 +259,13 @@ def _drop_last(f: Field, p: Pointing, moved: np.ndarray) -> Pointing:
     """The pointing without its last exposure and the targets ``moved`` out of it."""
     keep = np.setdiff1d(p.members, moved)
     if keep.size == 0:
-        return Pointing(p.centre, p.pa_deg, keep, 0)
+        return Pointing(p.centre, p.pa_deg, keep, 0, pa_search=p.pa_search)
     configs = p.allocation.configurations[:-1]
     gone = {int(t) for t in moved}
     local = AllocationResult(configs, tuple(u for u in p.allocation.unallocated
                                             if int(p.members[u.target_index]) not in gone), p.allocation.stats)
     return Pointing(p.centre, p.pa_deg, keep, len(configs),
-                    allocation=witness(local, p.members, keep, len(configs), f.priority))
+                    allocation=witness(local, p.members, keep, len(configs), f.priority), pa_search=p.pa_search)
 
 
 def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
@@ -280,7 +306,7 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
         if inside.size == 0:
             continue
         members = np.union1d(q.members, inside)
-        new = Pointing(q.centre, q.pa_deg, members)
+        new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = _allocate(f, new, f.priority, opts, budget)
         observed = {int(members[a.target_index]) for c in result.configurations for a in c.assignments
                     if a.target_index is not None}

@@ -38,6 +38,7 @@ from models.budget import Budget
 from models.instrument import Instrument
 from models.sky import focal_mm_to_sky
 from models.types import AllocationResult
+from solvers.programme.angle import AngleChoice
 from solvers.programme.bound import RADIUS_SLACK, ExposureBound, lower_bound
 from solvers.programme.candidates import Candidates, maximal_sets
 from solvers.programme.fill import (
@@ -90,6 +91,7 @@ class OptimisedPointing:
     exposures: int | None
     only_here: tuple[int, ...] = ()
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    position_angle_search: AngleChoice | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
@@ -138,7 +140,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
                                   tuple(int(i) for i in p.members), p.exposures,
                                   tuple(int(i) for i in p.only_here),
-                                  p.allocation)
+                                  p.allocation, p.pa_search)
                 for p in pts)
     stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": len(pts),
              "model_status": first.status, "model_exposures": int(first.exposures.sum()),

@@ -6,14 +6,21 @@ the instrument and the allocation the plan will run."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument
+from solvers.programme.angle import AngleSearch, choose_angle
 from solvers.programme.fill import FillOptions
-from solvers.programme.optimiser import OptimiserOptions, ProgrammeResult, optimise
+from solvers.programme.optimiser import (
+    OptimisedPointing,
+    OptimiserOptions,
+    ProgrammeResult,
+    optimise,
+)
 from solvers.segmentation.field import (
     MODES,
     Segmentation,
@@ -23,7 +30,7 @@ from solvers.segmentation.field import (
     segment_field,
 )
 
-__all__ = ["MAX_TARGETS", "MODES", "segment_programme"]
+__all__ = ["MAX_TARGETS", "MODES", "searched_angles", "segment_programme"]
 
 #: the programme optimiser plans programmes of at most this many targets (its candidates
 #: grow with the pairs of targets closer than a FOV diameter)
@@ -37,14 +44,19 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
     """The programme's pointings in ``mode`` (one of :data:`MODES`; ``threshold_mm`` is the
     complete linkage's, checked in every mode). ``fill``: how the plan
     allocates a pointing (the optimiser's feedback allocates the same way); ``budget``: the
-    optimiser's (default: 10 s on the caller's clock). Raises InputError naming the field
-    (``mode_field`` for the mode)."""
+    optimiser's (default: 10 s on the caller's clock). With ``fill.angle_search`` (the
+    request's "auto") every pointing of every mode takes its best angle of that search
+    (:func:`solvers.programme.angle.choose_angle`; in mode "fewest-exposures" before its
+    allocation feedback). Raises InputError naming the field (``mode_field`` for the mode)."""
     if mode not in MODES:
         raise InputError(mode_field, f"must be one of {', '.join(repr(m) for m in MODES)}, got {mode!r}")
     R, scale = float(inst.fov_radius_mm), float(inst.plate_scale_arcsec_per_mm)
     if mode != "fewest-exposures":
-        return segment_field(ra_deg, dec_deg, threshold_mm=threshold_mm, tangent_point=tangent_point,
-                             fov_radius_mm=R, plate_scale_arcsec_per_mm=scale, mode=mode, seed=seed)
+        seg = segment_field(ra_deg, dec_deg, threshold_mm=threshold_mm, tangent_point=tangent_point,
+                            fov_radius_mm=R, plate_scale_arcsec_per_mm=scale, mode=mode, seed=seed)
+        if fill is None or fill.angle_search is None:
+            return seg
+        return searched_angles(inst, seg, ra_deg, dec_deg, priority, fill.angle_search, fill.park_move_limit_s)
     if len(np.atleast_1d(ra_deg)) > MAX_TARGETS:
         raise InputError(mode_field, f"'fewest-exposures' plans programmes of at most {MAX_TARGETS:,} "
                          f"targets (this one has {len(np.atleast_1d(ra_deg)):,}): use 'balanced'")
@@ -57,7 +69,28 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
     opts = OptimiserOptions(fill=FillOptions(seed=int(seed)) if fill is None else fill)
     t0 = time.perf_counter()
     result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget)
-    return _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
+    seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
+    if opts.fill.angle_search is None:
+        return seg
+    return searched_angles(inst, seg, ra, dec, prio, opts.fill.angle_search, opts.fill.park_move_limit_s)
+
+
+def searched_angles(inst: Instrument, seg: Segmentation, ra_deg, dec_deg, priority, search: AngleSearch,
+                    park_move_limit_s: float | None) -> Segmentation:
+    """``seg`` with every pointing not yet searched at its best angle of ``search``, about its
+    own centre, on its members (:func:`solvers.programme.angle.choose_angle`); a pointing the
+    programme optimiser already turned (its allocation is at that angle) keeps its angle."""
+    ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
+    prio = np.broadcast_to(np.asarray(priority, np.int64), ra.shape)
+    pointings = []
+    for p in seg.pointings:
+        if p.position_angle_search is None and p.allocation is None and p.target_indices:
+            idx = np.asarray(p.target_indices, np.int64)
+            c = choose_angle(inst, ra[idx], dec[idx], prio[idx], (p.ra_deg % 360.0, p.dec_deg), search,
+                             park_move_limit_s)
+            p = replace(p, position_angle_deg=c.chosen_deg, position_angle_search=c)
+        pointings.append(p)
+    return replace(seg, pointings=tuple(pointings))
 
 
 def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float) -> Segmentation:
@@ -66,8 +99,9 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
     groups = [np.asarray(p.members, dtype=np.int64) for p in result.pointings]
     pra = np.array([p.ra_deg for p in result.pointings])
     pdec = np.array([p.dec_deg for p in result.pointings])
-    extras = [{"position_angle_deg": float(p.position_angle_deg), "exposures": p.exposures,
-               "only_here": tuple(sorted(p.only_here)), "allocation": p.allocation} for p in result.pointings]
+    extras = [{"position_angle_deg": _reported_angle(p), "exposures": p.exposures,
+               "only_here": tuple(sorted(p.only_here)), "allocation": p.allocation,
+               "position_angle_search": p.position_angle_search} for p in result.pointings]
     pointings = checked_pointings(groups, pra, pdec, ra, dec, tangent, R, scale, extras)
     b = result.bound
     stats = {"mode": "fewest-exposures", "n_targets": len(ra), "n_pointings": len(pointings),
@@ -77,3 +111,12 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
                        "weight": b.weight, "method": b.method},
              "optimiser": result.stats, "time_s": wall_s}
     return Segmentation(float(tangent[0]), float(tangent[1]), pointings, stats)
+
+
+def _reported_angle(p: OptimisedPointing) -> float:
+    """A pointing's angle as the search chose it (inside the request's range, e.g. -15), the
+    optimiser's angle in [0, 360) when no range search chose it (the same rotation)."""
+    c = p.position_angle_search
+    if c is not None and c.scores:
+        return float(c.chosen_deg)
+    return float(p.position_angle_deg)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -45,6 +45,9 @@ from solvers.segmentation.linkage import (
     threshold_complete_linkage,
 )
 
+if TYPE_CHECKING:
+    from solvers.programme.angle import AngleChoice
+
 FOV_TOL_MM = 1e-6  # a member may sit this far outside the FOV circle (rounding only)
 Mode = Literal["complete-linkage", "balanced"]
 #: the modes of :func:`solvers.programme.segment_programme`: these, and the optimiser's
@@ -61,7 +64,8 @@ class Pointing:
     ``position_angle_deg`` (None: the plan's), the ``exposures`` its allocation needed,
     ``only_here``: the members no other pointing of the plan holds, and that ``allocation`` of
     its members (target ids: ``str`` of the programme's indices), which the plan keeps unless
-    its own allocation of the pointing is better.
+    its own allocation of the pointing is better. ``position_angle_search``: how its angle
+    was chosen, when a search chose it (:class:`solvers.programme.angle.AngleChoice`).
     """
 
     id: str
@@ -75,6 +79,7 @@ class Pointing:
     exposures: int | None = None
     only_here: tuple[int, ...] = ()
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    position_angle_search: AngleChoice | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
