@@ -83,7 +83,8 @@ def check_allocation(out: dict[str, Any], targets: dict[str, tuple[float, float,
             # the reported position is where the tip really is, for every kind of entry
             assert math.hypot(tip[0] - e["x_mm"], tip[1] - e["y_mm"]) < TIP_TOL_MM, e
             if e["target_id"] is None:
-                assert e["kind"] in ("park", "blank", "fixed"), e
+                assert e["kind"] in ("park", "sky", "blank", "fixed"), e
+                assert (e.get("sky_ra_deg") is not None) == (e["kind"] == "sky"), e
                 continue
             assert e["kind"] == "target", e
             x, y, _ = targets[e["target_id"]]
