@@ -12,10 +12,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping, Sequence
+from datetime import date
 from typing import Any
 
 import numpy as np
 
+from models.epochs import MOTION_FIELDS, EpochReport, Motions, at_date
 from models.instrument import Instrument
 from models.types import (
     AllocationResult,
@@ -32,7 +34,7 @@ from planner.sequence import SequencePlan
 from planner.sky import SkyField, arm_sky
 from planner.telescope_time import TelescopeTime
 from service.errors import FieldError
-from service.schemas import ArmState, PlaneTarget
+from service.schemas import ArmState, PlaneTarget, SkyTarget
 from solvers.programme.angle import DEFAULT_STEP_DEG, AngleChoice, AngleSearch
 from solvers.segmentation import Pointing, Segmentation
 
@@ -80,6 +82,21 @@ def plane_targets_of(targets: Sequence[PlaneTarget]) -> PlaneTargets:
     return plane_targets([t.id for t in targets], np.array([t.x_mm for t in targets], float),
                          np.array([t.y_mm for t in targets], float),
                          [t.priority for t in targets])
+
+
+def targets_at_epoch(targets: Sequence[SkyTarget], obs_date: str | None, today: date,
+                     ) -> tuple[list[SkyTarget], EpochReport | None]:
+    """The targets at the observation date and the report of :func:`models.epochs.at_date`
+    (the epoch policy); a target that does not move is returned as given."""
+    ra = np.array([t.ra_deg for t in targets], float)
+    dec = np.array([t.dec_deg for t in targets], float)
+    motions = Motions.of(len(targets), **{f: [getattr(t, f) for t in targets]
+                                          for f in MOTION_FIELDS})
+    new_ra, new_dec, report = at_date(ra, dec, motions, obs_date, today)
+    moved = [t if (r, d) == (t.ra_deg, t.dec_deg)
+             else t.model_copy(update={"ra_deg": float(r), "dec_deg": float(d)})
+             for t, r, d in zip(targets, new_ra, new_dec, strict=True)]
+    return moved, report
 
 
 def check_arms(states: Sequence[ArmState] | None, inst: Instrument, field: str) -> None:

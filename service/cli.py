@@ -68,7 +68,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         keep = None if args.keep is None else read_keep(args.keep)
         req = PlanRequest(locked=args.lock or None, excluded_targets=args.exclude or None,
                           keep_configurations=keep,
-                          targets=rows, method=args.method, solver=args.solver,
+                          targets=rows, obs_date=args.obs_date, method=args.method, solver=args.solver,
                           position_angle_deg=args.position_angle,
                           position_angle_range_deg=args.position_angle_range,
                           position_angle_step_deg=args.position_angle_step, time_limit_s=args.time_limit,
@@ -279,6 +279,11 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
     """``plan``'s options; every help says the default, taken from the API's defaults."""
     p.add_argument("targets", help=targets_help())
     p.add_argument("--out", required=True, help="output directory (required)")
+    p.add_argument("--obs-date", default=_api_default("obs_date"), metavar="YYYY-MM-DD",
+                   help="observation date: every target with proper motions (columns pmra/pmdec, "
+                   "pmRA/pmDE; parallax, radial velocity and ref_epoch/Epoch when given) is moved "
+                   "to it before planning (default: positions as given, with a notice of the "
+                   "shift a year ahead)")
     p.add_argument("--method", choices=_api_choices("method"), default=_api_default("method"),
                    help="allocation: exact ILP or the semi-greedy heuristic (default: %(default)s)")
     p.add_argument("--solver", choices=_api_choices("solver"), default=_api_default("solver"),

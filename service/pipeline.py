@@ -16,6 +16,7 @@ import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from datetime import UTC, date, datetime
 from functools import lru_cache
 from typing import Any
 
@@ -180,9 +181,15 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
 def segmentation(
     req: SegmentationRequest, inst: Instrument, progress: Progress = _noop
 ) -> dict[str, Any]:
+    """The segmentation stage on the targets at the request's ``obs_date`` (:func:`at_epoch`;
+    its report in ``stats.epoch``)."""
+    req, epoch = at_epoch(req)
     seg = segment(req, inst)
     progress(1.0)
-    return adapters.segmentation_out(seg, [t.id for t in req.targets])
+    out = adapters.segmentation_out(seg, [t.id for t in req.targets])
+    if epoch:
+        out["stats"]["epoch"] = {**adapters.plain(epoch["epoch"]), "notices": epoch["epoch"].notices()}
+    return out
 
 
 # --------------------------------------------------------------------- allocation
@@ -563,16 +570,32 @@ def _count(n: int, word: str) -> str:
     return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
+def today() -> date:
+    """The server's date (UTC): a plan without an observation date reports the shifts of its
+    moving targets a year after it."""
+    return datetime.now(UTC).date()
+
+
+def at_epoch(req: Any) -> tuple[Any, dict[str, Any]]:
+    """``req`` (a plan or segmentation request) with its targets at its ``obs_date``
+    (:func:`models.epochs.at_date`: unchanged without one), and ``{"epoch": report}`` for
+    :func:`plan_out` (empty when there is nothing to report)."""
+    targets, report = adapters.targets_at_epoch(req.targets, req.obs_date, today())
+    return req.model_copy(update={"targets": targets}), {} if report is None else {"epoch": report}
+
+
 def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
          budget_s: float | None = None, on_stage: Stage = _no_stage) -> dict[str, Any]:
     """:func:`plan_pointings` as a PlanResponse dict. A motion leg that cannot be planned is
     returned with status "failed", never as an exception; the pointing and the plan then say
     ``executable: false`` with the reasons. ``on_stage`` hears the stages
-    (:mod:`planner.stages`)."""
+    (:mod:`planner.stages`). The targets are first moved to the request's ``obs_date``
+    (:func:`at_epoch`)."""
+    req, epoch = at_epoch(req)
     req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
     stats = {**stats, **excluded}
-    out = plan_out(seg, pointings, req.targets, stats)
+    out = plan_out(seg, pointings, req.targets, {**stats, **epoch})
     progress(1.0)
     return adapters.with_content_hash(out)
 
@@ -621,9 +644,9 @@ def _completeness(out: Sequence[dict[str, Any]],
 def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget],
              stats: dict[str, Any]) -> dict[str, Any]:
     """A PlanResponse dict from the segmentation and its PlanPointing dicts, in pointing
-    order (``targets`` of the request; ``stats`` of the whole plan's deadline, and its
-    ``time_limit_advice``, which goes to the answer's field of that name and its
-    ``notices``)."""
+    order (``targets`` of the request; ``stats`` of the whole plan's deadline, its
+    ``time_limit_advice`` and its ``epoch`` report (:func:`at_epoch`), which go to the
+    answer's fields of those names and its ``notices``)."""
     reasons: dict[str, int] = {}
     for p in out:
         for u in p["unallocated"]:
@@ -636,9 +659,12 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
         targets = (*targets, *excluded)
     advice = stats.pop("time_limit_advice", None)
     sky_notices = list(dict.fromkeys(n for p in out for n in p["stats"].get("sky", {}).get("notices", [])))
+    epoch = stats.pop("epoch", None)
     return {
         "time_limit_advice": advice,
-        "notices": ([] if advice is None else [advice["message"]]) + sky_notices,
+        "epoch": None if epoch is None else adapters.plain(epoch),
+        "notices": ([] if epoch is None else epoch.notices())
+                   + ([] if advice is None else [advice["message"]]) + sky_notices,
         "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
         "pointings": list(out),
         "unallocated": unallocated,

@@ -56,6 +56,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     again."""
     t0 = time.monotonic()
     req = request if isinstance(request, PlanRequest) else PlanRequest.model_validate(request)
+    req, epoch = pipeline.at_epoch(req)
     req, excluded = plan_locks.without_excluded(req, inst)
     limit = pipeline.plan_limit_s(req, budget_s)
     stage = pipeline.Stages(on_stage)
@@ -128,7 +129,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": computed[0], **excluded,
+        "pointings_resumed": resumed, "pointings_computed": computed[0], **epoch, **excluded,
         **({} if advice is None else {"time_limit_advice": advice})}))
 
 

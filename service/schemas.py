@@ -40,6 +40,20 @@ from service.angle_schemas import (
     check_range,
     check_step,
 )
+from service.epoch_schemas import (
+    OBS_DATE_DOC,
+    PARALLAX_DOC,
+    PMDEC_DOC,
+    PMRA_DOC,
+    REF_EPOCH_DOC,
+    RV_DOC,
+    EpochOut,
+    ParallaxMas,
+    PmMasYr,
+    RadialVelocityKmS,
+    RefEpochYr,
+    check_obs_date,
+)
 from service.lock_schemas import EXCLUDED_DOC, LOCKED_DOC, ExcludedTargets, Locked
 from service.schema_rules import (
     ONE_TARGET_SOURCE,
@@ -147,6 +161,11 @@ class SkyTarget(Request):
     ra_deg: RaDeg
     dec_deg: DecDeg
     priority: Priority
+    pmra_mas_yr: PmMasYr | None = Field(None, description=PMRA_DOC)
+    pmdec_mas_yr: PmMasYr | None = Field(None, description=PMDEC_DOC)
+    parallax_mas: ParallaxMas | None = Field(None, description=PARALLAX_DOC)
+    radial_velocity_km_s: RadialVelocityKmS | None = Field(None, description=RV_DOC)
+    ref_epoch_yr: RefEpochYr | None = Field(None, description=REF_EPOCH_DOC)
 
 
 class PlaneTarget(Request):
@@ -206,6 +225,9 @@ class SegmentationRequest(SkyTargetSource):
                     "members with the fewest exposures, and a proven lower bound on them).",
     )
     seed: Seed | None = None
+    obs_date: str | None = Field(None, description=OBS_DATE_DOC)
+
+    _obs_date = field_validator("obs_date")(check_obs_date)
 
 
 class AllocationRequest(Request):
@@ -303,6 +325,8 @@ class MotionPlanRequest(Request):
 
 
 class PlanRequest(SkyTargetSource):
+    obs_date: str | None = Field(None, description=OBS_DATE_DOC)
+    _obs_date = field_validator("obs_date")(check_obs_date)
     method: Method = "ilp"
     solver: Solver = Field(DEFAULT_SOLVER, description=SOLVER_DESCRIPTION)
     position_angle_deg: PlanPositionAngle = Field(0.0, description=PA_DOC)
@@ -705,6 +729,9 @@ class PlanResponse(Response):
     time_limit_advice: TimeLimitAdvice | None = Field(
         None, description="Set when the time limit left a pointing unplanned: the limit this "
         "field needs and whether to plan it as a job.")
+    epoch: EpochOut | None = Field(None, description="The epoch step: targets moved to "
+                                   "`obs_date` (or, without one, their shift a year ahead); null "
+                                   "when no date was given and no target moves.")
     unallocated: list[Unallocated] = Field(default_factory=list, description="Targets of "
                                            "the request in no pointing: those of `excluded_targets` "
                                            "(reason 'excluded').")

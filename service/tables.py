@@ -1,5 +1,5 @@
 """Target tables (CSV, VizieR's TSV, ECSV, VOTable, FITS) -> validated targets
-``{id, ra_deg, dec_deg, priority}``.
+``{id, ra_deg, dec_deg, priority}`` and, when the table gives them, their motion fields.
 
 One reader for every entry point (the CLI's ``plan`` and the web page's upload,
 ``POST /v1/target-lists``), so a file means the same thing wherever it is handed in. The format
@@ -26,6 +26,10 @@ Values are read by their own form, cell by cell, and never by guessing for a who
   column's unit is an angle unit other than hours;
 * a column whose cells mix the two forms is accepted, and a notice says which rows had which.
 
+A table without RA/Dec columns may give galactic or ecliptic longitude and latitude, converted
+to ICRS with a notice; proper motions, parallax, radial velocity and the positions' epoch are
+read into each row's ``motion`` (both: :mod:`service.table_motion`, docs/epochs.md).
+
 Every bad cell raises :class:`TargetFileError` naming the file, the row (1 = first data row;
 for CSV also the file's line) and the column. A table without an id column gets row-number ids,
 a table without a priority column priority 1; both are reported in ``notices``.
@@ -38,12 +42,13 @@ import math
 import re
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from models.epochs import MOTION_FIELDS
 from models.types import MAX_PRIORITY
 from service.table_checks import (
     TSV,
@@ -53,6 +58,8 @@ from service.table_checks import (
     compression,
     sniff,
 )
+from service.table_motion import frame_columns, read_motions, to_icrs
+from service.table_motion import wanted as motion_wanted
 from service.vizier_tsv import read_tsv
 
 ALIASES: dict[str, tuple[str, ...]] = {
@@ -72,6 +79,9 @@ UCDS: dict[str, tuple[str, ...]] = {
 FORMATS = {".csv": "ascii.csv", ".ecsv": "ascii.ecsv", ".tsv": TSV, ".vot": "votable",
            ".xml": "votable", ".votable": "votable", ".fits": "fits", ".fit": "fits",
            ".fts": "fits"}
+#: How each sky frame's columns are converted (:mod:`service.table_motion`), for notices.
+FRAME_DOC = {"galactic": "astropy's Galactic frame", "ecliptic": "astropy's "
+             "BarycentricTrueEcliptic, equinox J2000.0"}
 #: The formats read, for messages.
 KNOWN = "give a .csv, .tsv, .ecsv, .vot or .fits table"
 #: Suffixes of a compressed file, after its format's (``.fits.gz``, ``.csv.bz2``).
@@ -98,10 +108,12 @@ class TargetRow:
     priority: int
     row: int
     line: int | None = None
+    #: the motion fields given (:data:`models.epochs.MOTION_FIELDS`; none: no motion column)
+    motion: dict[str, float] = field(default_factory=dict)
 
     def request(self) -> dict[str, Any]:
         return {"id": self.id, "ra_deg": self.ra_deg, "dec_deg": self.dec_deg,
-                "priority": self.priority}
+                "priority": self.priority, **self.motion}
 
 
 @dataclass(frozen=True)
@@ -115,6 +127,13 @@ class TargetTable:
 
     def rows(self) -> list[dict[str, Any]]:
         return [t.request() for t in self.targets]
+
+
+def motion_lists(targets: Sequence[TargetRow]) -> dict[str, list[float | None]]:
+    """The motion fields of ``targets`` as columns (None where a row has none); only the fields
+    some row gives (empty: no motion at all)."""
+    given = [f for f in MOTION_FIELDS if any(f in t.motion for t in targets)]
+    return {f: [t.motion.get(f) for t in targets] for f in given}
 
 
 def read_targets(path: str | Path) -> list[dict[str, Any]]:
@@ -142,18 +161,15 @@ def read_target_table(path: str | Path, name: str | None = None,
     table, n = loaded.table, loaded.n_rows
     if n == 0:
         raise TargetFileError(f"{label}: the table has no rows")
-    cols = {k: _find_column(table, k) for k in ALIASES}
-    for k in ("ra_deg", "dec_deg"):
-        if cols[k] is None:
-            raise TargetFileError(
-                f"{label}: no {k} column (looked for UCD {UCDS[k][0]} and the names "
-                f"{', '.join(ALIASES[k])})")
+    cols: dict[str, str | None] = {k: _find_column(table, k) for k in ALIASES}
     lines = loaded.lines
     where = _Where(label, lines)
     notices: list[str] = []
-    ra = _angles(table[cols["ra_deg"]], "ra_deg", where, notices)
-    dec = _angles(table[cols["dec_deg"]], "dec_deg", where, notices)
+    ra, dec = _positions(table, cols, where, notices)
     _check_ranges(ra, dec, cols, where)
+    motion, motion_cols, motion_notes = read_motions(table, cols["ra_deg"], where.cell)
+    cols.update(motion_cols)
+    notices += [f"{label}: {n}" for n in motion_notes]
     if cols["id"]:
         ids = _ids(table[cols["id"]], where)
     else:
@@ -167,10 +183,45 @@ def read_target_table(path: str | Path, name: str | None = None,
         notices.append(f"{label}: no priority column; every target has priority 1")
     targets = tuple(
         TargetRow(ids[i], float(ra[i]), float(dec[i]), prio[i], i + 1,
-                  lines[i] if lines else None)
+                  lines[i] if lines else None,
+                  {f: float(v[i]) for f, v in motion.items() if math.isfinite(v[i])})
         for i in range(n)
     )
     return TargetTable(label, targets, cols, tuple(notices))
+
+
+def _positions(table: Any, cols: dict[str, str | None], where: _Where,
+               notices: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """ICRS RA/Dec (deg) of every row: from the RA/Dec columns, else from galactic or
+    ecliptic longitude/latitude columns (:func:`service.table_motion.to_icrs`, with a notice
+    naming them; ``cols`` then names them for ``ra_deg``/``dec_deg``); neither is an error
+    naming the columns looked for."""
+    if cols["ra_deg"] is not None and cols["dec_deg"] is not None:
+        ra = _angles(table[cols["ra_deg"]], "ra_deg", where, notices)
+        return ra, _angles(table[cols["dec_deg"]], "dec_deg", where, notices)
+    found = frame_columns(table)
+    if found is None:
+        k = "ra_deg" if cols["ra_deg"] is None else "dec_deg"
+        raise TargetFileError(
+            f"{where.label}: no {k} column (looked for UCD {UCDS[k][0]} and the names "
+            f"{', '.join(ALIASES[k])}; nor galactic or ecliptic longitude and latitude: "
+            "_Glon/_Glat, GLON/GLAT, ELON/ELAT or UCD pos.galactic.lon/lat, "
+            "pos.ecliptic.lon/lat)")
+    frame, lon_col, lat_col = found
+    lon = _angles(table[lon_col], "lon_deg", where, notices)
+    lat = _angles(table[lat_col], "lat_deg", where, notices)
+    for i in range(len(lon)):
+        if not math.isfinite(lon[i]) or not -360.0 <= lon[i] <= 360.0:
+            raise TargetFileError(f"{where.cell(i, lon_col)}: longitude {lon[i]:g} deg is not in "
+                                  "[-360, 360]")
+        if not math.isfinite(lat[i]) or not -90.0 <= lat[i] <= 90.0:
+            raise TargetFileError(f"{where.cell(i, lat_col)}: latitude {lat[i]:g} deg is not in "
+                                  "[-90, 90]")
+    cols["ra_deg"], cols["dec_deg"] = lon_col, lat_col
+    notices.append(f"{where.label}: no RA/Dec columns; the {frame.name} longitude and latitude "
+                   f"columns {lon_col} and {lat_col} were converted to ICRS RA/Dec "
+                   f"({FRAME_DOC[frame.name]})")
+    return to_icrs(frame, lon, lat)
 
 
 # --------------------------------------------------------------------------- reading
@@ -215,7 +266,8 @@ def _load(p: Path, fmt: str | None, label: str, rows: RowLimit | None) -> _Loade
 def _wanted(name: str, ucd: str) -> bool:
     """Whether a column may be read for a field: one of the names or UCDs looked for."""
     return (any(name.lower() in names for names in ALIASES.values())
-            or any(ucd.lower() in (x.lower() for x in ucds) for ucds in UCDS.values()))
+            or any(ucd.lower() in (x.lower() for x in ucds) for ucds in UCDS.values())
+            or motion_wanted(name, ucd))
 
 
 def _read_table(p: Path, fmt: str | None, label: str) -> Any:

@@ -24,7 +24,7 @@ import sqlite3
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -34,6 +34,7 @@ from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from starlette.concurrency import run_in_threadpool
 
+from service.epoch_schemas import PARALLAX_DOC, PMDEC_DOC, PMRA_DOC, REF_EPOCH_DOC, RV_DOC
 from service.errors import NotFound, clip
 from service.executor import HeavyExecutor, Ticket, run_heavy
 from service.schemas import ErrorResponse, SkyTarget
@@ -67,6 +68,12 @@ class ListedTarget(BaseModel):
     priority: int
     row: int = Field(description="Row of the file (1 = first data row).")
     line: int | None = Field(description="Line of the file (CSV only; null when unknown).")
+    pmra_mas_yr: float | None = Field(None, description=PMRA_DOC + " Absent: the file has no "
+                                      "such column.")
+    pmdec_mas_yr: float | None = Field(None, description=PMDEC_DOC)
+    parallax_mas: float | None = Field(None, description=PARALLAX_DOC)
+    radial_velocity_km_s: float | None = Field(None, description=RV_DOC)
+    ref_epoch_yr: float | None = Field(None, description=REF_EPOCH_DOC)
 
 
 class TargetList(BaseModel):
@@ -105,13 +112,19 @@ class StoredList:
     dec_deg: list[float]
     priority: list[int]
     line: list[int | None]
+    motion: dict[str, list[float | None]] = field(default_factory=dict)
 
     @property
     def n_targets(self) -> int:
         return len(self.ids)
 
     def listed(self) -> list[dict[str, Any]]:
-        return listed_targets(self.ids, self.ra_deg, self.dec_deg, self.priority, self.line)
+        return listed_targets(self.ids, self.ra_deg, self.dec_deg, self.priority, self.line,
+                              self.motion)
+
+    def motion_of(self, k: int) -> dict[str, float]:
+        """The motion fields target ``k`` gives."""
+        return {f: v[k] for f, v in self.motion.items() if v[k] is not None}  # type: ignore[misc]
 
 
 def _connect(db_path: Path) -> sqlite3.Connection:
@@ -169,7 +182,7 @@ class TargetListStore:
         cols = json.loads(row[4])
         return StoredList(list_id, row[0], row[1], json.loads(row[2]), json.loads(row[3]),
                           cols["id"], cols["ra_deg"], cols["dec_deg"], cols["priority"],
-                          cols["line"])
+                          cols["line"], cols.get("motion", {}))
 
     def _expire(self, con: sqlite3.Connection, now: float) -> None:
         con.execute(
@@ -253,9 +266,10 @@ def resolve(req: Any, store: TargetListStore, prefix: tuple[str | int, ...] = ("
                        f"deleted: {store.kept()}); upload the table with POST /v1/target-lists")
     # a stored list was validated cell by cell when it was read (service.tables checks what
     # SkyTarget checks: ids, ranges, priorities), so its targets are built without re-validation
-    targets = [SkyTarget.model_construct(id=i, ra_deg=r, dec_deg=d, priority=p)
-               for i, r, d, p in zip(stored.ids, stored.ra_deg, stored.dec_deg, stored.priority,
-                                     strict=True)]
+    targets = [SkyTarget.model_construct(id=i, ra_deg=r, dec_deg=d, priority=p,
+                                         **stored.motion_of(k))
+               for k, (i, r, d, p) in enumerate(zip(stored.ids, stored.ra_deg, stored.dec_deg,
+                                                    stored.priority, strict=True))]
     return req.model_copy(update={"targets": targets, "target_list_id": None})
 
 

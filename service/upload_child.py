@@ -30,7 +30,13 @@ from typing import Any
 
 from service.parent_death import kill_with_parent
 from service.table_checks import RowLimit, decompress
-from service.tables import TargetFileError, TargetTable, read_target_table, table_suffix
+from service.tables import (
+    TargetFileError,
+    TargetTable,
+    motion_lists,
+    read_target_table,
+    table_suffix,
+)
 
 # A child imports its parent's main module (multiprocessing does) by running it under another
 # name; the fork server has it loaded already, which runpy notes with this warning in every child.
@@ -65,10 +71,14 @@ class ParseJob:
 
 
 def listed_targets(ids: list[str], ra_deg: list[float], dec_deg: list[float],
-                   priority: list[int], line: list[int | None]) -> list[dict[str, Any]]:
+                   priority: list[int], line: list[int | None],
+                   motion: dict[str, list[float | None]] | None = None) -> list[dict[str, Any]]:
     """The ``targets`` array of a stored list's answer: each target with its ``row`` (1 = first
-    data row) and ``line`` (of a CSV; None when unknown)."""
-    return [{"id": i, "ra_deg": r, "dec_deg": d, "priority": p, "row": k + 1, "line": ln}
+    data row), ``line`` (of a CSV; None when unknown) and the motion fields the list gives
+    (:func:`service.tables.motion_lists`)."""
+    motion = motion or {}
+    return [{"id": i, "ra_deg": r, "dec_deg": d, "priority": p, "row": k + 1, "line": ln,
+             **{f: v[k] for f, v in motion.items()}}
             for k, (i, r, d, p, ln) in enumerate(zip(ids, ra_deg, dec_deg, priority, line,
                                                      strict=True))]
 
@@ -99,8 +109,11 @@ class ParsedList:
             "id": [r.id for r in t], "ra_deg": [r.ra_deg for r in t],
             "dec_deg": [r.dec_deg for r in t], "priority": [r.priority for r in t],
             "line": [r.line for r in t]}
+        motion = motion_lists(t)
+        if motion:
+            cols["motion"] = motion  # type: ignore[assignment]
         listed = listed_targets(cols["id"], cols["ra_deg"], cols["dec_deg"], cols["priority"],
-                                cols["line"])
+                                cols["line"], motion)
         return cls(table.source, dict(table.columns), list(table.notices), len(t),
                    json.dumps(cols), json_text(listed))
 
