@@ -93,6 +93,9 @@ class PositionAngleSearchOut(BaseModel):
                            "reached) and the term that settled it.")
 
 
+PA_USED_DOC = ("The position angle this pointing is observed at, deg: the request's number, the "
+               "angle mode 'fewest-exposures' turned it to, or the angle the \"auto\" search chose "
+               "(inside `position_angle_range_deg` as given, e.g. -15 rather than 345).")
 PA_SEARCH_DOC = ("How this pointing's `position_angle_deg` was chosen: with \"auto\", the search "
                  "over the range (every angle tried, the one chosen and why); with a number in "
                  "mode 'fewest-exposures', the angles tried about the requested one. null: the "

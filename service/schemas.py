@@ -33,6 +33,7 @@ from service.angle_schemas import (
     PA_RANGE_DOC,
     PA_SEARCH_DOC,
     PA_STEP_DOC,
+    PA_USED_DOC,
     PlanPositionAngle,
     PositionAngleRange,
     PositionAngleSearchOut,
@@ -651,6 +652,7 @@ class PlanTargetOut(Response):
 
 
 class PlanPointing(PointingOut):
+    position_angle_deg: float | None = Field(None, description=PA_USED_DOC)
     position_angle_search: PositionAngleSearchOut | None = Field(None, description=PA_SEARCH_DOC)
     configurations: list[ConfigurationOut] = Field(
         description="Configurations c1 ... cn, as changed by the motion planner (`changes`)."
