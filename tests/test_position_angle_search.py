@@ -100,6 +100,23 @@ def test_the_search_loses_none_where_brute_force_finds_an_angle_that_reaches_all
     assert "0 of 7 targets lost" in c.objective
 
 
+def test_when_no_angle_reaches_both_the_higher_priority_is_reached() -> None:
+    """Two rim targets (at 30 and 45 deg about the centre) whose reaching angles of a 15 deg grid
+    never meet: every angle loses one, so the priority decides, whichever target holds it."""
+    search = AngleSearch(None, 15.0)
+    for prio_a, prio_b in ((1, 10), (10, 1)):
+        t = []
+        for name, phi, prio in (("A", 30.0, prio_a), ("B", 45.0, prio_b)):
+            ra, dec = focal_mm_to_sky(np.array([RIM_MM * math.cos(math.radians(phi))]),
+                                      np.array([RIM_MM * math.sin(math.radians(phi))]), *CENTRE, SCALE, 0.0)
+            t.append({"id": name, "ra_deg": float(ra[0]), "dec_deg": float(dec[0]), "priority": prio})
+        assert all(len(lost_at(t, CENTRE, a)) == 1 for a in search.angles())  # the oracle's premise
+        c = choose_angle(INS, [x["ra_deg"] for x in t], [x["dec_deg"] for x in t], [x["priority"] for x in t],
+                         CENTRE, search, LIMIT_S)
+        higher = "A" if prio_a > prio_b else "B"
+        assert higher not in lost_at(t, CENTRE, c.chosen_deg)
+
+
 def test_ties_go_to_the_range_centre_then_the_smaller_angle() -> None:
     """One target at the centre: every angle reaches it with every arm, so only the last two
     keys decide."""
