@@ -31,6 +31,10 @@ exposure can (a configuration key naming ``only``, when the plan has one; else n
 ratio of the mode's exposures to complete-linkage's. The summary, per mode: total exposures,
 their ratio to complete-linkage's total, the median and largest gap to the bound, the
 executable plans and the median wall time.
+
+Every plan is then validated (:func:`validation_of`, what ``mxs-planner validate`` does):
+``valid``, ``hash_ok``, ``violations``, ``violation_kinds`` and ``validate_s`` per plan;
+``valid`` (plans) and ``violations_total`` per mode.
 """
 
 from __future__ import annotations
@@ -217,6 +221,20 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     }
 
 
+def validation_of(plan: dict[str, Any]) -> dict[str, Any]:
+    """The plan re-checked as ``mxs-planner validate`` / ``POST /v1/validations`` do
+    (:func:`planner.validate.validate_plan`): valid, hash_ok, the violations counted and their
+    kinds, and the check's wall time."""
+    from planner.validate import validate_plan
+    from service import pipeline
+
+    t0 = time.perf_counter()
+    r = validate_plan(pipeline.instrument_from(None), plan)
+    return {"valid": r.valid, "hash_ok": r.hash_ok, "violations": r.violations_total,
+            "violation_kinds": sorted({v.kind for v in r.violations}),
+            "validate_s": round(time.perf_counter() - t0, 3)}
+
+
 def ratio(a: float, b: float) -> float | None:
     return round(a / b, 4) if b else None
 
@@ -246,6 +264,8 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
         "gap_median": _median(gaps), "gap_max": max(gaps) if gaps else None,
         "within_gap_goal": sum(g <= GAP_GOAL for g in gaps),
         "executable": sum(x["executable"] for x in res),
+        "valid": sum(x["valid"] for x in res),
+        "violations_total": sum(x["violations"] for x in res),
         "priority_completeness_min": min((x["priority_completeness"] for x in res), default=None),
         "field_completeness_min": min((x["field_completeness"] for x in res), default=None),
         "telescope_time_total_s": sum(tts) if res and None not in tts else None,
@@ -284,12 +304,13 @@ def run(progs: list[dict[str, Any]], modes: Sequence[str], time_limit_s: float |
                 continue
             if plans is not None:
                 plans[(prog["name"], mode)] = plan
-            res = summarise(plan, wall_s)
+            res = {**summarise(plan, wall_s), **validation_of(plan)}
             row["modes"][mode] = res
             print(f"[{i + 1}/{len(progs)}] {prog['name']} (n={len(prog['targets'])}) {mode}: "
                   f"{res['exposures']} exposures, {res['pointings']} pointings, bound "
                   f"{res['exposures_lower_bound']}, executable {res['executable']}, "
-                  f"priority {res['priority_completeness']}, {res['wall_s']:.1f} s",
+                  f"priority {res['priority_completeness']}, {res['wall_s']:.1f} s, "
+                  f"valid {res['valid']}",
                   file=sys.stderr, flush=True)
         base = row["modes"].get(BASELINE, {}).get("exposures")
         for res in row["modes"].values():

@@ -22,13 +22,15 @@ ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_b
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",
             "optimiser_s", "optimiser_fraction", "small_exposures", "small_exposures_only_here",
-            "only_here_flag", "ratio_to_complete_linkage"}
+            "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
+            "violation_kinds", "validate_s"}
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "ratio_to_complete_linkage_total", "ratio_to_complete_linkage", "with_bound",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
                 "wall_s_total", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
-                "small_exposures_total", "small_exposures_only_here_total"}
+                "small_exposures_total", "small_exposures_only_here_total", "valid",
+                "violations_total"}
 
 
 @pytest.fixture(scope="module")
@@ -66,6 +68,7 @@ def test_the_smoke_run_has_every_programme_and_mode(smoke) -> None:
             assert res["wall_s"] > 0 and 0 <= res["optimiser_fraction"] < 1
     for s in out["summary"].values():
         assert set(s) == SUMMARY_KEYS and s["programmes"] == len(names) and s["errors"] == 0
+        assert s["valid"] == s["programmes"] and s["violations_total"] == 0
 
 
 def test_each_figure_is_what_its_plan_gives(smoke) -> None:
@@ -82,6 +85,7 @@ def test_each_figure_is_what_its_plan_gives(smoke) -> None:
             seen = {t for obs in observed for t in obs}
             assert res["exposures"] == len(configs) == plan["stats"]["configurations"]
             assert res["pointings"] == len(plan["pointings"])
+            assert res["valid"] and res["hash_ok"] and res["violations"] == 0  # every plan re-checks
             assert res["executable"] == all(p["executable"] for p in plan["pointings"])
             assert res["small_exposures"] == sum(len(obs) <= 2 for obs in observed)
             assert res["field_completeness"] == pytest.approx(len(seen) / len(prio), abs=1e-4)
