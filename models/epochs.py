@@ -105,7 +105,7 @@ class Propagated:
 def parse_date(text: str, field: str = "obs_date") -> dt.date:
     """The ISO date ``YYYY-MM-DD`` ``text``; InputError naming ``field`` when it is no such
     date or lies outside years :data:`FIRST_YEAR` .. :data:`LAST_YEAR`."""
-    s = str(text).strip()
+    s = str(text)
     try:
         if len(s) != 10:
             raise ValueError

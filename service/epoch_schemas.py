@@ -30,6 +30,10 @@ ParallaxMas = _number(-_PLX, _PLX, "Parallax, mas.")
 RadialVelocityKmS = _number(-_RV, _RV, "Radial velocity, km/s.")
 RefEpochYr = _number(MIN_REF_EPOCH_YR, MAX_REF_EPOCH_YR, "Catalogue epoch, Julian year.")
 
+#: An ISO date ``YYYY-MM-DD``; the document states its form, :func:`check_obs_date` its range.
+ObsDate = Annotated[str, Field(max_length=10, json_schema_extra={"pattern": r"^\d{4}-\d{2}-\d{2}$",
+                                                                  "format": "date"})]
+
 PMRA_DOC = ("Proper motion in RA, mu_alpha* = mu_alpha cos(dec), mas/yr (Gaia `pmra`, VizieR "
             "`pmRA`); null: none.")
 PMDEC_DOC = "Proper motion in Dec, mas/yr (Gaia `pmdec`, VizieR `pmDE`); null: none."

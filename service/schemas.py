@@ -49,6 +49,7 @@ from service.epoch_schemas import (
     REF_EPOCH_DOC,
     RV_DOC,
     EpochOut,
+    ObsDate,
     ParallaxMas,
     PmMasYr,
     RadialVelocityKmS,
@@ -226,7 +227,7 @@ class SegmentationRequest(SkyTargetSource):
                     "members with the fewest exposures, and a proven lower bound on them).",
     )
     seed: Seed | None = None
-    obs_date: str | None = Field(None, description=OBS_DATE_DOC)
+    obs_date: ObsDate | None = Field(None, description=OBS_DATE_DOC)
 
     _obs_date = field_validator("obs_date")(check_obs_date)
 
@@ -326,7 +327,7 @@ class MotionPlanRequest(Request):
 
 
 class PlanRequest(SkyTargetSource):
-    obs_date: str | None = Field(None, description=OBS_DATE_DOC)
+    obs_date: ObsDate | None = Field(None, description=OBS_DATE_DOC)
     _obs_date = field_validator("obs_date")(check_obs_date)
     method: Method = "ilp"
     solver: Solver = Field(DEFAULT_SOLVER, description=SOLVER_DESCRIPTION)
