@@ -400,7 +400,7 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
-                              observing_rules(req), p.allocation, kept_of(req, p.id))
+                              observing_rules(req), p.allocation, kept=kept_of(req, p.id))
     options = dataclasses.replace(options, locked=plan_locks.member_locks(
         req, [req.targets[int(k)] for k in p.target_indices]))
     pa = adapters.requested_angle_deg(req.position_angle_deg) if p.position_angle_deg is None else p.position_angle_deg
