@@ -18,7 +18,7 @@ const FIELD_LABELS = { position_angle_deg: "position angle", method: "allocation
 const NOT_PLAN_INPUTS = new Set(["token", "lock-target", "lock-arm", "keep-k"]);
 // The plan shown: `origin` says which input it was made from and when (null: none shown).
 const state = { instrument: null, list: null, result: null, request: null, running: false, jobId: null,
-  origin: null, defaults: null, touched: new Set() };
+  origin: null, defaults: null, touched: new Set(), resultText: null };
 
 // ------------------------------------------------------------------------ HTTP helpers
 
@@ -27,11 +27,13 @@ function authHeaders() {
   return token ? { Authorization: "Bearer " + token } : {};
 }
 
+// An answer's status, its JSON body (null if none) and its text as sent.
 async function fetchJson(url, options) {
   const r = await fetch(url, options);
+  const text = await r.text();
   let body = null;
-  try { body = await r.json(); } catch (e) { body = null; }
-  return { status: r.status, body };
+  try { body = JSON.parse(text); } catch (e) { body = null; }
+  return { status: r.status, body, text };
 }
 
 function errorText(status, body) {
@@ -189,6 +191,7 @@ async function followJob(jobId, restored) {
       if (job.status === "done") {
         showResult(job.result, state.request, state.list,
           { name: state.list.filename, finishedAt: job.updated_at, restored });
+        state.resultText = rawMember(r.text, "result");  // the plan file as the server wrote it
         return;
       }
       if (job.status === "failed") throw new Error(`the plan failed: ${job.error}`);
@@ -254,6 +257,7 @@ function priorityTiers(priorities) {
 // s), restored} of the plan.
 function showResult(result, request, list, origin = state.origin) {
   state.result = result;
+  state.resultText = null;
   state.origin = origin;
   $("result").hidden = false;
   $("result").classList.remove("stale");
@@ -440,7 +444,7 @@ async function start() {
   $("sky-file").onchange = readSkyFile;
   startLocks();
   startValidation();
-  $("dl-json").onclick = () => download("plan.json", JSON.stringify(state.result, null, 1), "application/json");
+  $("dl-json").onclick = () => download("plan.json", state.resultText || JSON.stringify(state.result, null, 1), "application/json");
   $("dl-csv").onclick = () => download("assignments.csv", assignmentsCsv(state.result, state.request), "text/csv");
   $("dl-commands").onclick = () => download("commands.csv", commandsCsv(state.result), "text/csv");
   showInputUsed();

@@ -4,6 +4,34 @@
 // as its violations. Loaded after viewer.js (el) and before app.js (authHeaders).
 "use strict";
 
+// The text of member `key` of the JSON object `text` (top level), as written; null if absent.
+// The plan is downloaded as the server wrote it: a JavaScript writer turns 900.0 into 900, and
+// the plan's content hash is over the numbers as the server wrote them.
+function rawMember(text, key) {
+  let depth = 0, i = 0, lastString = null, valueStart = -1;
+  const want = JSON.stringify(key);
+  while (i < text.length) {
+    const ch = text[i];
+    if (ch === '"') {
+      let j = i + 1;
+      while (text[j] !== '"') j += text[j] === "\\" ? 2 : 1;
+      lastString = text.slice(i, j + 1);
+      i = j + 1;
+      continue;
+    }
+    if (ch === ":" && depth === 1 && lastString === want) {
+      valueStart = i + 1;
+    } else if (ch === "{" || ch === "[") {
+      depth += 1;
+    } else if (ch === "}" || ch === "]" || ch === ",") {
+      if (valueStart >= 0 && depth === 1) return text.slice(valueStart, i).trim();
+      if (ch !== ",") depth -= 1;
+    }
+    i += 1;
+  }
+  return null;
+}
+
 // Violations listed open; more are folded under a summary.
 const VIOLATIONS_SHOWN = 20;
 
