@@ -60,6 +60,14 @@ PositionAngleRange = Annotated[list[RangeEndDeg], Field(min_length=2, max_length
 PositionAngleStep = Annotated[float, Field(gt=0.0, le=360.0, strict=True, allow_inf_nan=False)]
 
 
+#: JSON Schema of the rule "a range or a step only with \"auto\"" (allOf: it sits beside the
+#: request's own if/then), so that what a client generates from the document is accepted
+PA_SEARCH_NEEDS_AUTO: dict[str, Any] = {"allOf": [
+    {"if": {"required": [name], "properties": {name: {"type": kind}}},
+     "then": {"required": ["position_angle_deg"], "properties": {"position_angle_deg": {"const": AUTO}}}}
+    for name, kind in (("position_angle_range_deg", "array"), ("position_angle_step_deg", "number"))]}
+
+
 def check_range(v: list[float] | None, info: ValidationInfo) -> list[float] | None:
     """``position_angle_range_deg``: only with "auto", and not empty (min <= max)."""
     if v is None:

@@ -32,6 +32,7 @@ from service.angle_schemas import (
     PA_DOC,
     PA_RANGE_DOC,
     PA_SEARCH_DOC,
+    PA_SEARCH_NEEDS_AUTO,
     PA_STEP_DOC,
     PA_USED_DOC,
     PlanPositionAngle,
@@ -327,6 +328,8 @@ class MotionPlanRequest(Request):
 
 
 class PlanRequest(SkyTargetSource):
+    model_config = ConfigDict(json_schema_extra={**ONE_TARGET_SOURCE, **PA_SEARCH_NEEDS_AUTO})
+
     obs_date: ObsDate | None = Field(None, description=OBS_DATE_DOC)
     _obs_date = field_validator("obs_date")(check_obs_date)
     method: Method = "ilp"

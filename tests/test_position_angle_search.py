@@ -227,6 +227,18 @@ def test_the_json_schema_takes_auto_and_refuses_sideways(client) -> None:
                 jsonschema.validate(bad, schema)
 
 
+def test_the_json_schema_states_that_a_range_or_a_step_needs_auto() -> None:
+    schema = PlanRequest.model_json_schema()
+    targets = field_targets()
+    for good in ({}, {"position_angle_deg": 15}, {"position_angle_deg": "auto", "position_angle_range_deg": [-30, 30],
+                                                   "position_angle_step_deg": 10}):
+        jsonschema.validate({"targets": targets, **good}, schema)
+        PlanRequest.model_validate({"targets": targets, **good})
+    for bad in ({"position_angle_range_deg": [-30, 30]}, {"position_angle_deg": 15, "position_angle_step_deg": 10}):
+        with pytest.raises(jsonschema.ValidationError):
+            jsonschema.validate({"targets": targets, **bad}, schema)
+
+
 # ---------------------------------------------------------------------------- CLI
 
 
