@@ -460,6 +460,8 @@ class PointingOptions:
             raise InputError("max_configurations", f"must be an integer >= 0 or None, got {cap!r}")
         if not isinstance(self.rules, ObservingRules):
             raise InputError("rules", "must be an ObservingRules")
+        if self.kept is not None and not isinstance(self.kept, KeptPointing):
+            raise InputError("kept", f"must be a KeptPointing or None, got {type(self.kept).__name__}")
 
 
 @dataclass(frozen=True)

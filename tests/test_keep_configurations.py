@@ -298,6 +298,11 @@ def test_a_leg_into_a_kept_configuration_is_never_repaired_by_changing_it() -> N
             assert leg is failed and not seq.changes
 
 
+def test_pointing_options_refuse_anything_but_a_kept_pointing() -> None:
+    with pytest.raises(ValueError, match="kept"):
+        programme.PointingOptions(kept=object())  # type: ignore[arg-type]
+
+
 # ------------------------------------------------------------- API and CLI
 
 
