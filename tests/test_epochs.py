@@ -8,6 +8,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import time
 import warnings
 from collections.abc import Iterator
 from pathlib import Path
@@ -262,7 +263,22 @@ def test_the_api_without_a_date_says_how_far_the_stars_move_in_a_year(client: Te
     assert len(observed(body)) == 2  # planned at the catalogue positions: still 1 arcsec apart
 
 
-@pytest.mark.parametrize("date", ["2027-02-30", "1850-01-01", "soon", 2027])
+def test_a_plan_job_plans_at_obs_date(client: TestClient) -> None:
+    """The page's path: a plan job moves its targets as the synchronous plan does."""
+    r = client.post("/v1/jobs", json={"kind": "plan", "request": {
+        "targets": FAST, "obs_date": OBS, "seed": 1, "time_limit_s": 30}})
+    assert r.status_code == 202, r.text[:300]
+    job_id, deadline = r.json()["job_id"], time.monotonic() + 120
+    while (job := client.get(f"/v1/jobs/{job_id}").json())["status"] not in ("done", "failed"):
+        assert time.monotonic() < deadline, job
+        time.sleep(0.2)
+    assert job["status"] == "done", job
+    plan = job["result"]
+    assert observed(plan) == [["A", "B"]] and plan["epoch"]["targets_with_motion"] == 1
+    b_tip_matches_astropy(plan, OBS)
+
+
+@pytest.mark.parametrize("date", ["2027-02-30", "1850-01-01", "soon", " 2027-01-01", 2027])
 def test_a_bad_obs_date_is_a_422_naming_it(client: TestClient, date: Any) -> None:
     r = client.post("/v1/plans", json={"targets": FAST, "obs_date": date})
     assert r.status_code == 422
