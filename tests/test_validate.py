@@ -275,3 +275,19 @@ def test_cli_plan_json_is_valid(tmp_path: Path) -> None:
     plan = json.loads((out / "plan.json").read_text())
     assert plan["content_hash"] == _oracle_hash(plan)
     assert main(["validate", str(out / "plan.json")]) == code
+
+
+def test_api_in_a_worker_process_and_plan_answers_carry_their_hash(tmp_path: Path, base: dict[str, Any]) -> None:
+    """With the default worker processes: a validation computed in a worker, and the bytes of a
+    POST /v1/plans answer hash to the content_hash they carry."""
+    with TestClient(create_app(Settings(job_db=tmp_path / "j.db"))) as c:
+        out = c.post("/v1/validations", json=base).json()
+        assert out["valid"] and out["hash_ok"]
+        targets = [{"id": f"s{i}", "ra_deg": 150 + 0.0004 * i, "dec_deg": 2.0 + 0.0003 * (i % 5),
+                    "priority": 1 + i} for i in range(5)]
+        r = c.post("/v1/plans", json={"targets": targets, "seed": 1, "time_limit_s": 15.0})
+        assert r.status_code == 200, r.text
+        plan = json.loads(r.content)
+        assert plan["content_hash"] == _oracle_hash(plan)
+        out = c.post("/v1/validations", json=plan).json()
+        assert out["valid"] and out["executable"] == plan["executable"]
