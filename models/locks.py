@@ -203,3 +203,14 @@ def lock_columns(ids: Sequence[str], locks: Sequence[TargetLock] | None) -> dict
     pos = {t: j for j, t in enumerate(ids)}
     return {pos[lk.target_id]: (int(lk.arm), None if lk.branch is None else int(lk.branch))
             for lk in locks or () if lk.target_id in pos}
+
+
+def arm_limits(ids: Sequence[str], locks: Sequence[TargetLock] | None, n_arms: int) -> tuple[int, ...] | None:
+    """Per target of ``ids``, the bit mask of the arms it may use: its locked arm's bit, or
+    every arm's (None without locks). The programme optimiser and the angle search read it,
+    so that a locked target's pointing and angle are ones where its own arm reaches it."""
+    cols = lock_columns(ids, locks)
+    if not cols:
+        return None
+    every = (1 << int(n_arms)) - 1
+    return tuple((1 << cols[j][0]) if j in cols else every for j in range(len(ids)))

@@ -26,6 +26,7 @@ from models import clock
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
+from models.locks import arm_limits
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import keep, plan_motion, programme, stages
@@ -311,7 +312,8 @@ def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = Non
                        park_move_limit_s=req.park_move_limit_s,
                        position_angle_deg=adapters.requested_angle_deg(req.position_angle_deg),
                        angle_search=adapters.angle_search_in(req.position_angle_deg, req.position_angle_range_deg,
-                                                             req.position_angle_step_deg))
+                                                             req.position_angle_step_deg),
+                       arm_limits=arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms))
     return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s), "segmentation_mode")
 
 

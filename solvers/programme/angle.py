@@ -143,23 +143,27 @@ def reach_exposures(masks: np.ndarray, n_arms: int) -> int:
 
 
 def _score(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
-           centre: tuple[float, float], angle_deg: float, park_move_limit_s: float | None) -> AngleScore:
+           centre: tuple[float, float], angle_deg: float, park_move_limit_s: float | None,
+           arm_limits: np.ndarray | None = None) -> AngleScore:
     x, y = sky_to_focal_mm(ra_deg, dec_deg, centre[0], centre[1], float(inst.plate_scale_arcsec_per_mm),
                            angle_deg)
     masks = arm_masks(inst, x, y, park_move_limit_s)
+    if arm_limits is not None:
+        masks = masks & arm_limits
     return AngleScore(float(angle_deg), int(np.count_nonzero(masks == 0)), reach_exposures(masks, inst.n_arms),
                       int(priority[masks != 0].sum()))
 
 
 def choose_angle(inst: Instrument, ra_deg, dec_deg, priority, centre: tuple[float, float], search: AngleSearch,
-                 park_move_limit_s: float | None) -> AngleChoice:
+                 park_move_limit_s: float | None, arm_limits: np.ndarray | None = None) -> AngleChoice:
     """The angle of ``search`` for the members at (``ra_deg``, ``dec_deg``) with
     ``priority``, about the pointing ``centre`` (sky, deg), by the objective of the module
-    docstring."""
+    docstring. ``arm_limits``: per member, the bit mask of the arms it may use (its lock), or
+    None: a locked target counts as lost at an angle where its own arm cannot reach it."""
     ra, dec = np.atleast_1d(np.asarray(ra_deg, float)), np.atleast_1d(np.asarray(dec_deg, float))
     prio = np.atleast_1d(np.asarray(priority, np.int64))
     angles = search.angles()
-    scores = tuple(_score(inst, ra, dec, prio, centre, a, park_move_limit_s) for a in angles)
+    scores = tuple(_score(inst, ra, dec, prio, centre, a, park_move_limit_s, arm_limits) for a in angles)
     keys: list[Callable[[AngleScore], float]] = [
         lambda s: s.lost, lambda s: s.exposures, lambda s: -s.priority,
         lambda s: round(search.distance_deg(s.angle_deg), 9), lambda s: s.angle_deg]

@@ -63,6 +63,15 @@ class FillOptions:
     fill_min: int = 8
     allocation_cap_s: float = 1.0
     angle_search: AngleSearch | None = None
+    arm_limits: tuple[int, ...] | None = None
+
+    def limited(self, masks: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """``masks`` (arms reaching each of ``targets``, programme indices) less the arms their
+        locks forbid: ``arm_limits`` holds, per target of the programme, the bit mask of the
+        arms it may use (a locked target: its arm only; None: every arm)."""
+        if self.arm_limits is None:
+            return masks
+        return masks & np.asarray(self.arm_limits, np.int64)[np.asarray(targets, np.int64)]
 
 
 @dataclass(frozen=True)
@@ -132,7 +141,7 @@ def position_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
     lost: dict[float, int] = {}
     for a in angles:
         x, y = sky_to_focal_mm(f.ra_deg[members], f.dec_deg[members], centre[0], centre[1], f.scale, a)
-        lost[a] = int(np.count_nonzero(arm_masks(f.inst, x, y, opts.park_move_limit_s) == 0))
+        lost[a] = int(np.count_nonzero(opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), members) == 0))
         if lost[a] == 0:
             break
     return min(lost, key=lambda a: (lost[a], angles.index(a))), lost
@@ -145,7 +154,8 @@ def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
     when it searched nothing)."""
     if opts.angle_search is not None and len(members):
         c = choose_angle(f.inst, f.ra_deg[members], f.dec_deg[members], f.priority[members], centre,
-                         opts.angle_search, opts.park_move_limit_s)
+                         opts.angle_search, opts.park_move_limit_s,
+                         None if opts.arm_limits is None else np.asarray(opts.arm_limits, np.int64)[members])
         return c.chosen_deg, c
     pa, lost = position_angle(f, members, centre, opts)
     if not lost:

@@ -108,7 +108,8 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
     n, arms, R = len(f.ra_deg), inst.n_arms, f.radius_mm
     cand = maximal_sets(xy_mm, R * (1.0 + RADIUS_SLACK) + 1e-9)  # every FOV set: a bound holds
-    masks = entry_masks(inst, cand, xy_mm, options.fill.position_angle_deg, options.fill.park_move_limit_s)
+    masks = options.fill.limited(entry_masks(inst, cand, xy_mm, options.fill.position_angle_deg,
+                                             options.fill.park_move_limit_s), cand.index)
     bound = _bound(xy_mm, R, arms, cand, budget.share(options.bound_share), options.fill.seed)
     todo = np.ones(n, bool)
     pts: list[Pointing] = []

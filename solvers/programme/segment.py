@@ -6,6 +6,7 @@ the instrument and the allocation the plan will run."""
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -56,7 +57,8 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
                             fov_radius_mm=R, plate_scale_arcsec_per_mm=scale, mode=mode, seed=seed)
         if fill is None or fill.angle_search is None:
             return seg
-        return searched_angles(inst, seg, ra_deg, dec_deg, priority, fill.angle_search, fill.park_move_limit_s)
+        return searched_angles(inst, seg, ra_deg, dec_deg, priority, fill.angle_search, fill.park_move_limit_s,
+                               fill.arm_limits)
     if len(np.atleast_1d(ra_deg)) > MAX_TARGETS:
         raise InputError(mode_field, f"'fewest-exposures' plans programmes of at most {MAX_TARGETS:,} "
                          f"targets (this one has {len(np.atleast_1d(ra_deg)):,}): use 'balanced'")
@@ -72,14 +74,17 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
     seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
     if opts.fill.angle_search is None:
         return seg
-    return searched_angles(inst, seg, ra, dec, prio, opts.fill.angle_search, opts.fill.park_move_limit_s)
+    return searched_angles(inst, seg, ra, dec, prio, opts.fill.angle_search, opts.fill.park_move_limit_s,
+                           opts.fill.arm_limits)
 
 
 def searched_angles(inst: Instrument, seg: Segmentation, ra_deg, dec_deg, priority, search: AngleSearch,
-                    park_move_limit_s: float | None) -> Segmentation:
+                    park_move_limit_s: float | None, arm_limits: Sequence[int] | None = None) -> Segmentation:
     """``seg`` with every pointing not yet searched at its best angle of ``search``, about its
     own centre, on its members (:func:`solvers.programme.angle.choose_angle`); a pointing the
-    programme optimiser already turned (its allocation is at that angle) keeps its angle."""
+    programme optimiser already turned (its allocation is at that angle) keeps its angle.
+    ``arm_limits``: per target, the bit mask of the arms it may use (its lock), or None."""
+    limits = None if arm_limits is None else np.asarray(arm_limits, np.int64)
     ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
     prio = np.broadcast_to(np.asarray(priority, np.int64), ra.shape)
     pointings = []
@@ -87,7 +92,7 @@ def searched_angles(inst: Instrument, seg: Segmentation, ra_deg, dec_deg, priori
         if p.position_angle_search is None and p.allocation is None and p.target_indices:
             idx = np.asarray(p.target_indices, np.int64)
             c = choose_angle(inst, ra[idx], dec[idx], prio[idx], (p.ra_deg % 360.0, p.dec_deg), search,
-                             park_move_limit_s)
+                             park_move_limit_s, None if limits is None else limits[idx])
             p = replace(p, position_angle_deg=c.chosen_deg, position_angle_search=c)
         pointings.append(p)
     return replace(seg, pointings=tuple(pointings))
