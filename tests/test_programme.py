@@ -18,6 +18,7 @@ from distributed import LocalCluster
 from fastapi.testclient import TestClient
 
 from planner import programme as programme_policy
+from planner.plan_file import content_hash
 from service import jobs, pipeline
 from service.app import create_app
 from service.errors import json_safe
@@ -33,10 +34,11 @@ REQUEST = {"targets": TARGETS, "seed": 3, "time_limit_s": 60}
 
 
 def content(plan: dict[str, Any]) -> Any:
-    """A plan without its ``stats`` (compute times differ from run to run), as JSON."""
+    """A plan without its ``stats`` (compute times differ from run to run) and so without its
+    ``content_hash`` (which covers them), as JSON."""
     def strip(v: Any) -> Any:
         if isinstance(v, dict):
-            return {k: strip(x) for k, x in v.items() if k != "stats"}
+            return {k: strip(x) for k, x in v.items() if k not in ("stats", "content_hash")}
         if isinstance(v, list):
             return [strip(x) for x in v]
         return v
@@ -133,6 +135,7 @@ def test_dask_job_over_http_equals_the_synchronous_plan(tmp_path, cluster, refer
     assert (job["pointings_done"], job["pointings_total"], job["progress"]) == (3, 3, 1.0)
     assert job["result"]["stats"]["engine"] == "dask"
     assert content(job["result"]) == content(reference)
+    assert job["result"]["content_hash"] == content_hash(job["result"])  # the bytes served hash to it
 
 
 def test_interrupted_job_resumes_from_its_finished_pointings(tmp_path, reference) -> None:
@@ -165,6 +168,7 @@ def test_interrupted_job_resumes_from_its_finished_pointings(tmp_path, reference
     assert result["pointings"][:2] == [committed[0], committed[1]]  # unchanged, stats included
     assert (result["stats"]["pointings_resumed"], result["stats"]["pointings_computed"]) == (2, 1)
     assert content(result) == content(reference)
+    assert result["content_hash"] == content_hash(result)
 
 
 def test_a_job_that_is_no_longer_ours_stops_and_commits_nothing_more(tmp_path, cluster) -> None:
