@@ -344,9 +344,9 @@ def _add_plan_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lock", type=lock_arg, action="append", default=None, metavar="TARGET:ARM[:BRANCH]",
                    help="observe TARGET only with ARM (0..11), through IK BRANCH (0..3) when given, in "
                    "every exposure that observes it (repeatable; a lock that cannot be honoured is an "
-                   "error naming it; default: none)")
+                   "error naming it) (default: none)")
     p.add_argument("--exclude", action="append", default=None, metavar="TARGET",
-                   help="never observe TARGET: it is reported 'excluded' (repeatable; default: none)")
+                   help="never observe TARGET: it is reported 'excluded' (repeatable) (default: none)")
     p.add_argument("--keep", type=keep_arg, default=None, metavar="PLAN.json:K",
                    help="keep configurations c1..cK of every pointing of a previous plan file as they "
                    "were (same pointing, position angle, members, arms, targets and joint angles) and "
