@@ -197,6 +197,14 @@ def test_lock_and_exclude_by_clicking_then_plan_again(page, server) -> None:
     page.keyboard.press("Escape")
     assert page.locator("#lock-menu").count() == 0
     assert page.locator("#lock-list li").count() == 2
+    # by keyboard: a target focused, Enter opens its menu, Escape closes it and gives the focus back
+    page.locator("svg.sky .sky-target[data-id='a']").focus()
+    page.keyboard.press("Enter")
+    assert page.inner_text("#lock-menu").startswith("a: ")
+    assert page.evaluate("document.activeElement.closest('#lock-menu') !== null")
+    page.keyboard.press("Escape")
+    assert page.locator("#lock-menu").count() == 0
+    assert page.evaluate("document.activeElement.dataset.id") == "a"
 
 
 def test_epochs_position_angle_search_and_sky(page, server) -> None:

@@ -7,7 +7,8 @@
 "use strict";
 
 // target id -> {arm, branch}; excluded target ids; the configurations kept (null: none).
-const locks = { locked: new Map(), excluded: new Set(), keep: null };
+// `opener`: the marker or arm whose menu is open.
+const locks = { locked: new Map(), excluded: new Set(), keep: null, opener: null };
 
 // ------------------------------------------------------------------------ the request
 
@@ -147,14 +148,18 @@ function observedBy(id, p, k) {
   return found.find((f) => f.here) || found[0] || { target: id, arm: null, branch: null, where: null };
 }
 
-function closeMenu() {
+// Close the menu; `refocus`: give the focus back to the marker or arm that opened it (Escape).
+function closeMenu(refocus) {
   const m = document.getElementById("lock-menu");
-  if (m) m.remove();
+  if (!m) return;
+  m.remove();
+  if (refocus && locks.opener && locks.opener.isConnected) locks.opener.focus();
 }
 
 // The menu for a picked target or arm, at page position (x, y); its first button has focus.
-function openMenu(picked, x, y) {
+function openMenu(picked, x, y, opener) {
   closeMenu();
+  locks.opener = opener;
   const act = (fn) => () => { closeMenu(); fn(); };
   const menu = el("div", { id: "lock-menu", class: "lock-menu", role: "dialog", "aria-label": "lock or exclude",
     style: `left:${x}px;top:${y}px` });
@@ -175,8 +180,8 @@ function openMenu(picked, x, y) {
     el("button", { type: "button", class: "exclude", onclick: act(() => excludeTarget(id)) }, "exclude"),
     el("button", { type: "button", class: "clear", onclick: act(() => clearTarget(id)) }, "clear"));
   }
-  menu.append(el("button", { type: "button", class: "close", onclick: closeMenu }, "close"));
-  menu.addEventListener("keydown", (e) => { if (e.key === "Escape") { closeMenu(); } });
+  menu.append(el("button", { type: "button", class: "close", onclick: () => closeMenu(true) }, "close"));
+  menu.addEventListener("keydown", (e) => { if (e.key === "Escape") closeMenu(true); });
   document.body.append(menu);
   menu.querySelector("button").focus();
 }
@@ -190,7 +195,7 @@ function onPictureEvent(e) {
   e.preventDefault();
   const r = e.target.getBoundingClientRect();
   const x = e.type === "click" ? e.pageX : r.right + window.scrollX, y = e.type === "click" ? e.pageY : r.bottom + window.scrollY;
-  openMenu(picked, x + 4, y + 4);
+  openMenu(picked, x + 4, y + 4, e.target.closest("[tabindex]"));
 }
 
 // ------------------------------------------------------------------------ marks in the pictures
