@@ -275,6 +275,7 @@ function showResult(result, request, list, origin = state.origin) {
   $("every-target").replaceChildren(everyTarget(request, fate));
   $("raw-json").textContent = JSON.stringify(result, null, 1);
   renderLocks();
+  snapToPixels(document.querySelectorAll("#result svg.sky, #result svg.configuration"));
 }
 
 // "Plan of m67.csv (150 targets), finished at 02:41:07 on 2026-12-05", saying so when the plan

@@ -171,6 +171,7 @@ function configurationViewer(p, members, pos, tiers) {
     for (const b of stepper.querySelectorAll("button")) b.setAttribute("aria-pressed", String(Number(b.dataset.k) === k));
     const root = drawConfiguration(p, k, members, pos, tiers);
     view.replaceChildren(root, legend(root, tiers));
+    snapToPixels([root]);
     legInfo.replaceChildren(...legText(p, k));
   };
   let current = 0;
@@ -189,6 +190,19 @@ function configurationViewer(p, members, pos, tiers) {
   box.append(stepper, play, " ", save, legInfo, view, picked);
   show(0);
   return box;
+}
+
+// Pictures start on a whole pixel of the page: a finding chart's raster is then drawn without
+// resampling across a pixel boundary (sharp, and where its WCS puts it to the pixel). Each
+// picture's top margin takes up the fraction of a pixel the text above it leaves.
+function snapToPixels(roots) {
+  for (const root of roots) {
+    if (!root.isConnected) continue;
+    root.style.marginTop = "0px";
+    const top = root.getBoundingClientRect().top + window.scrollY;
+    const frac = top - Math.floor(top);
+    if (frac > 1e-3) root.style.marginTop = `${(1 - frac).toFixed(4)}px`;
+  }
 }
 
 // A tap or click on a marker or an arm names it (labels left out of a crowded field included).
