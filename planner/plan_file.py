@@ -11,9 +11,10 @@ way-points and controller commands of every arm). A value of the wrong shape or 
 
 The content hash is ``"sha256:"`` + the hex SHA-256 of the plan's canonical JSON: every field
 but ``content_hash`` itself, keys sorted, no whitespace, non-ASCII characters as they are
-(UTF-8), numbers as Python's ``json`` writes the values the file holds (an integer as an
-integer, a float in its shortest form that reads back to the same double). Any writer whose
-numbers read back to the same values gives the same hash; editing any number, string or list
+(UTF-8), numbers as Python's ``json`` writes the values the file holds (a whole number as
+an integer, whether written ``900`` or ``900.0``; any other float in its shortest form that
+reads back to the same double). Any writer whose numbers read back to the same values, a
+browser's ``JSON.stringify`` included, gives the same hash; editing any number, string or list
 of the plan without recomputing the hash is detected.
 """
 
@@ -38,9 +39,22 @@ HASH_PREFIX = "sha256:"
 # ------------------------------------------------------------------------------ hash
 
 
+def _numbers(v: Any) -> Any:
+    """``v`` with every whole float written as an integer: JSON does not tell 900 from 900.0,
+    and writers differ (JavaScript writes 900), so the hash must not either."""
+    if isinstance(v, float):
+        return int(v) if v.is_integer() and abs(v) < 2.0**53 else v
+    if isinstance(v, Mapping):
+        return {k: _numbers(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_numbers(x) for x in v]
+    return v
+
+
 def canonical_json(plan: Mapping[str, Any]) -> bytes:
-    """The plan without ``content_hash`` as canonical JSON bytes (see the module doc)."""
-    body = {k: v for k, v in plan.items() if k != HASH_FIELD}
+    """The plan without ``content_hash`` as canonical JSON bytes (see the module doc): keys
+    sorted, no whitespace, UTF-8, whole numbers without a fraction."""
+    body = {k: _numbers(v) for k, v in plan.items() if k != HASH_FIELD}
     return json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
                       allow_nan=True).encode("utf-8")
 

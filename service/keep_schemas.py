@@ -37,7 +37,7 @@ class KeptAssignment(_In):
     arm: Annotated[int, Field(ge=0, le=N_ARMS - 1, strict=True), BeforeValidator(_integral)] = Field(
         description="Arm number 0..11.")
     target_id: Annotated[str, Field(min_length=1, max_length=128)] | None = Field(
-        description="The target the arm observes (a member of the pointing); null: idle (park, blank sky).")
+        None, description="The target the arm observes (a member of the pointing); null: idle (park, blank sky).")
     theta1_rad: _float(-1000.0, 1000.0, "Joint angle J1, rad, as in the previous plan.")  # type: ignore[valid-type]
     theta2_rad: _float(-1000.0, 1000.0, "Joint angle J2, rad, as in the previous plan.")  # type: ignore[valid-type]
     x_mm: _float(-1e5, 1e5, "Tip x, mm (optional; must be the tip of the joint angles).") | None = None  # type: ignore[valid-type]

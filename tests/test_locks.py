@@ -267,9 +267,17 @@ def test_cli_lock_and_exclude_flags(tmp_path: Path, capsys: pytest.CaptureFixtur
             for a in c["assignments"] if a["target_id"]}
     assert arms["s1"] == arm and "s5" not in arms and "s6" not in arms
     assert {u["target_id"] for u in plan["unallocated"]} == {"s5", "s6"}
+    # a target arm 0 cannot reach from the field's own pointing: the segmentation places its
+    # pointing where arm 0 reaches it (tests/test_locks_segmentation.py)
     far = next(t for t in reach if not reach[t][0].any())
+    code = main(["plan", str(csv), "--out", str(tmp_path / "far"), "--time-limit", "30", "--seed", "1",
+                 "--quiet", "--lock", f"{far}:0"])
+    assert code in (0, 4), capsys.readouterr().err
+    plan = json.loads((tmp_path / "far" / "plan.json").read_text())
+    assert {a["arm"] for p in plan["pointings"] for c in p["configurations"] for a in c["assignments"]
+            if a["target_id"] == far} == {0}
     code = main(["plan", str(csv), "--out", str(tmp_path / "bad"), "--time-limit", "30", "--quiet",
-                 "--lock", f"{far}:0"])
+                 "--lock", "nobody:0"])
     assert code == EXIT_INVALID_INPUT
     assert "locked[0]" in capsys.readouterr().err
 

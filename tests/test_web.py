@@ -51,7 +51,8 @@ def test_page_script_fetches_only_relative_paths(client: TestClient) -> None:
     html = client.get("/").text
     scripts = re.findall(r'<script src="([^"]+)"', html)
     assert scripts == ["static/format.js", "static/viewer.js", "static/labels.js", "static/finding.js",
-                       "static/form.js", "static/app.js"]
+                       "static/controls.js", "static/locks.js", "static/validate.js", "static/form.js",
+                       "static/app.js"]
     js = "".join(client.get("/" + src).text for src in scripts)
     assert "fetch(" in js and not re.search(r"https?://(?!www\.w3\.org/2000/svg)", js)
     assert client.get("/docs-assets/swagger-ui-bundle.js").status_code == 200
