@@ -73,7 +73,7 @@ from solvers.programme.segment import MAX_TARGETS
 N_ARMS = 12
 UNIQUE_ARMS = unique_arms(N_ARMS)
 MAX_EXPOSURES = 10_000  # a plan's max_exposures at most
-MAX_SKY_POSITIONS = 10_000  # a plan's sky_positions at most
+MAX_SKY_POSITIONS = 1_000  # a plan's sky_positions at most (a MOS sky list is 50-100 positions)
 
 
 def _integral(v: Any) -> Any:
