@@ -97,6 +97,10 @@ class ProgrammeShares:
     #: Of a pointing's effort, what its allocation may use; the motion legs and the
     #: allocation <-> motion loop get the rest (and whatever the allocation left).
     allocation_share: float = 0.5
+    #: The legs with the spare arms on sky are planned once the plain legs are, when the
+    #: motion time left is at least this many times what the plain legs took
+    #: (:func:`_sequence_with_sky`), and kept when every one of them is planned.
+    sky_motion_factor: float = 1.5
     #: A pointing whose share is below this is not attempted (its targets ``no_time``): less
     #: cannot allocate and plan even one leg.
     min_pointing_s: float = 0.5
@@ -548,9 +552,8 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         result = given
     result, below = apply_exposure_rules(plain_reasons(result), targets, options.max_configurations,
                                          options.rules)
-    if options.sky is not None:
-        result = replace(result, configurations=place_sky(inst, result.configurations, options.sky,
-                                                          options.park_move_limit_s))
+    skyed = None if options.sky is None else with_kept(replace(result, configurations=place_sky(
+        inst, result.configurations, options.sky, options.park_move_limit_s)), kept)
     progress(ALLOCATION_PART)
     result = with_kept(result, kept)
     motion_s = budget.left_s()
@@ -561,7 +564,8 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
             "share for its legs)")
     else:
         motion_progress = lambda f: progress(ALLOCATION_PART + (1.0 - ALLOCATION_PART) * f)  # noqa: E731
-        seq, err = _sequence(inst, result.configurations, targets, options, budget, motion_progress)
+        result, seq, err = _sequence_with_sky(inst, result, skyed, targets, options, budget, motion_progress,
+                                              table)
         if err is None:
             seq, err, weak = _thresholds_after_motion(inst, seq, targets, options, budget, motion_progress)
             if weak:  # exposures the motion planner's changes left below a threshold
@@ -673,6 +677,30 @@ def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: Plane
         seq = replace(again, dropped=seq.dropped + dropped)
         if err is not None:
             return seq, err, tuple(weak_all)
+
+
+def _sequence_with_sky(inst: Instrument, plain: AllocationResult, skyed: AllocationResult | None,
+                       targets: PlaneTargets, options: PointingOptions, budget: Budget, progress: Progress,
+                       table: ProgrammeShares) -> tuple[AllocationResult, SequencePlan, str | None]:
+    """The legs of ``plain`` (the spare arms where the allocator left them); then, when they
+    are all planned and the motion time left is at least ``table.sky_motion_factor`` times
+    what they took, the legs of ``skyed`` (the spare arms on sky, :func:`planner.sky.place_sky`),
+    kept when all of them are planned and they observe no fewer targets. Resting arms on sky
+    never costs the plan a leg, nor the time its legs need. Returns the allocation whose legs
+    were kept."""
+    left_s = budget.left_s()
+    seq, err = _sequence(inst, plain.configurations, targets, options, budget, progress)
+    if skyed is None or skyed.configurations == plain.configurations or err is not None or not seq.executable:
+        return plain, seq, err
+    took_s = left_s - budget.left_s()
+    if budget.left_s() < table.sky_motion_factor * took_s:
+        log.info("no time to rest the spare arms on sky (%.2f s left, the legs took %.2f s)",
+                 budget.left_s(), took_s)
+        return plain, seq, err
+    sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, progress)
+    if sky_err is None and sky_seq.executable and len(sky_seq.dropped) <= len(seq.dropped):
+        return skyed, sky_seq, None
+    return plain, seq, err
 
 
 def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: PlaneTargets,
