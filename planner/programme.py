@@ -697,7 +697,8 @@ def _sequence_with_sky(inst: Instrument, plain: AllocationResult, skyed: Allocat
         log.info("no time to rest the spare arms on sky (%.2f s left, the legs took %.2f s)",
                  budget.left_s(), took_s)
         return plain, seq, err
-    sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, progress)
+    # the pointing's progress has reached the end of its legs: the sky pass does not move it back
+    sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, _noop)
     if sky_err is None and sky_seq.executable and len(sky_seq.dropped) <= len(seq.dropped):
         return skyed, sky_seq, None
     return plain, seq, err

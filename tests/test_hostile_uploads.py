@@ -193,7 +193,10 @@ def test_health_answers_while_hostile_uploads_are_read(tmp_path: Path,
                 worst_s, probes = max(worst_s, time.monotonic() - t0), probes + 1
                 time.sleep(0.01)
     assert sorted(answers) == [200, 422, 422, 422]
-    assert probes >= 5 and worst_s < 0.5, (probes, worst_s)
+    # a frozen server misses probes for seconds; the bound leaves room for the suite's other
+    # worker (CP-SAT on two threads) taking both cores for a moment. The latency figure itself
+    # is the benchmark's (benchmarks/load.py --attack).
+    assert probes >= 5 and worst_s < 1.5, (probes, worst_s)
 
 
 def test_an_upload_needs_a_free_heavy_slot(tmp_path: Path) -> None:

@@ -129,7 +129,8 @@ def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail
             range(1, programme.SHARES.rounds + 1))
         check_failed(out)
         return
-    assert len(fake.calls) == 1
+    # the legs once, then once more with the spare arms on sky (planner.programme._sequence_with_sky)
+    assert [o.seed for o in fake.calls] == [1, 1]
     PlanResponse.model_validate(out)
     assert out["executable"] is True and out["reasons"] == []
     (p,) = out["pointings"]
