@@ -8,17 +8,12 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field
 
+from service.lock_schemas import _integral
+
 N_ARMS = 12
 MAX_KEPT_POINTINGS = 1_000
 MAX_KEPT_CONFIGURATIONS = 10_000
 MAX_KEPT_MEMBERS = 100_000
-
-
-def _integral(v: object) -> object:
-    """An integral float (``3.0``) is that integer (JSON has one number type)."""
-    if isinstance(v, float) and v.is_integer():
-        return int(v)
-    return v
 
 
 class _In(BaseModel):
