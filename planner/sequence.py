@@ -493,8 +493,25 @@ def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration
     return _Sequencer(instrument, configurations, options, priority_of, budget, progress).run()
 
 
+#: The verified park -> park leg of the instruments seen last (a pointing with no exposure
+#: has only this leg, and a plan out of time has many such pointings): id -> (instrument, leg)
+_STATIONARY: dict[int, tuple[Instrument, MotionPlan]] = {}
+
+
 def _stationary(instrument: Instrument) -> MotionPlan:
-    """park -> park: every arm stays where it is (verified like any other leg)."""
+    """park -> park: every arm stays where it is (verified like any other leg, once per
+    instrument)."""
+    seen = _STATIONARY.get(id(instrument))
+    if seen is not None and seen[0] is instrument:
+        return seen[1]
+    leg = _verified_stationary(instrument)
+    if len(_STATIONARY) >= 8:
+        _STATIONARY.clear()
+    _STATIONARY[id(instrument)] = (instrument, leg)
+    return leg
+
+
+def _verified_stationary(instrument: Instrument) -> MotionPlan:
     park = instrument.park_configuration
     trajs = tuple(ArmTrajectory(k, np.array([0.0]), park[k, :1].copy(), park[k, 1:].copy())
                   for k in range(instrument.n_arms))

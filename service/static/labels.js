@@ -39,17 +39,20 @@ const LABEL_DIRECTIONS = [[1, 0], [-1, 0], [0, -1], [0, 1], [1, -1], [-1, -1], [
 function candidateBoxes(item, w, h) {
   const out = [];
   for (const ring of [0, 1.6, 3.4]) {
-    for (const [dx, dy] of LABEL_DIRECTIONS) {
-      const d = item.r + item.gap + ring * h, n = Math.hypot(dx, dy);
-      const px = item.x + d * dx / n, py = item.y + d * dy / n;
-      const x0 = dx > 0 ? px : dx < 0 ? px - w : px - w / 2, y0 = dy > 0 ? py : dy < 0 ? py - h : py - h / 2;
-      out.push({ box: [x0, y0, x0 + w, y0 + h], leader: ring > 0 });
+    for (const [ax, ay] of item.anchors || [[item.x, item.y]]) {
+      for (const [dx, dy] of LABEL_DIRECTIONS) {
+        const d = item.r + item.gap + ring * h, n = Math.hypot(dx, dy);
+        const px = ax + d * dx / n, py = ay + d * dy / n;
+        const x0 = dx > 0 ? px : dx < 0 ? px - w : px - w / 2, y0 = dy > 0 ? py : dy < 0 ? py - h : py - h / 2;
+        out.push({ box: [x0, y0, x0 + w, y0 + h], leader: ring > 0, ax, ay });
+      }
     }
   }
   return out;
 }
 
-// Greedy collision-avoiding layout: items (in priority order: {x, y, r, gap, text, fs, size}) take
+// Greedy collision-avoiding layout: items (in priority order: {x, y, r, gap, text, fs, size};
+// optional `anchors`, the points it may sit beside, [[x, y], ...], first preferred) take
 // the first candidate box that overlaps no obstacle (markers, fixed texts), no label already
 // placed, and stays inside `bounds`; an item with no such box gets no label (its marker keeps
 // the id as a tooltip). Returns [{item, box, x, y (baseline), leader: [x1, y1, x2, y2] | null}].
@@ -62,7 +65,7 @@ function placeLabels(items, obstacles, bounds) {
       if (b[0] < bounds[0] || b[1] < bounds[1] || b[2] > bounds[2] || b[3] > bounds[3]) continue;
       if (taken.some((o) => boxesOverlap(b, o))) continue;
       taken.push(b);
-      placed.push({ item, box: b, x: b[0] + pad - dx, y: b[1] + pad - dy, leader: c.leader ? leaderLine(item, b) : null });
+      placed.push({ item, box: b, x: b[0] + pad - dx, y: b[1] + pad - dy, leader: c.leader ? leaderLine({ ...item, x: c.ax, y: c.ay }, b) : null });
       break;
     }
   }

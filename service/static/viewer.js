@@ -520,8 +520,8 @@ function skyView(result, request, tiers, fate) {
     root.append(svg("circle", { class: "pointing-fov", cx: centres[i][0], cy: centres[i][1], r, fill: "none",
       stroke: p.executable ? "#1f4e99" : "#c62828", "stroke-width": 0.4 * u,
       "data-kind": p.executable ? "fov-executable" : "fov-not-executable" }, svg("title", {}, `pointing ${p.id}`)));
-    const d = r / Math.SQRT2;
-    items.push({ id: p.id, x: centres[i][0] + d, y: centres[i][1] - d, r: 0, gap: 0.3 * u, text: p.id, fs: 4.5 * u,
+    const [cx, cy] = centres[i], anchors = POINTING_LABEL_ANGLES.map((a) => [cx + r * Math.cos(a), cy - r * Math.sin(a)]);
+    items.push({ id: p.id, x: anchors[0][0], y: anchors[0][1], anchors, r: 0, gap: 0.3 * u, text: p.id, fs: 4.5 * u,
       colour: p.executable ? "#1f4e99" : "#c62828", priority: Infinity, kind: "pointing-label" });
   });
   for (const s of request.sky_positions || []) {
@@ -548,6 +548,10 @@ function skyView(result, request, tiers, fate) {
       "(red: not executable); filled: observed, crosses: not observed; colour: priority."),
     el("div", { class: "viewer" }, root, legend(root, tiers)), el("p", { class: "finding-note" }));
 }
+
+// Where on its circle a pointing's id may sit, first preferred: NE, NW, SE, SW, then N, S, E, W
+// (radians, counter-clockwise from East on the page).
+const POINTING_LABEL_ANGLES = [45, 135, 315, 225, 90, 270, 0, 180].map((d) => d * Math.PI / 180);
 
 // The targets' markers on the sky (appended to root), their boxes in `obstacles`; returns
 // their label items, highest priority first.

@@ -22,6 +22,14 @@ top-``arms`` weight over *all* discs, so the bound holds even when the cutting p
 early. Targets in different components of the 2R-neighbour graph never share an exposure,
 so the bound is the sum over components of each component's weight rounded up.
 
+**Crowding.** Targets closer than the instrument's exclusion distance never share an
+exposure (:mod:`solvers.programme.crowding`: 25 mm on the default instrument). Grouped into
+cells that are cliques of that relation, an exposure observes at most one target of a cell, so
+the condition above becomes: the ``arms`` heaviest *cells* with a member inside D weigh at most
+1, a cell of m targets counting m times its weight in ``sum(w)``. A crowded clump of m
+targets alone then needs m exposures, which no disc argument sees. Without crowding every
+target is its own cell and the two conditions are the same.
+
 Distances are on the programme's tangent plane; the radius is enlarged by ``RADIUS_SLACK``
 so that the plane's distortion of a few arcminutes (parts in 10^6) cannot make a true FOV
 set look wider than R (a larger radius only weakens the bound).
@@ -93,36 +101,64 @@ def disc_centres(xy: np.ndarray, radius_mm: float) -> np.ndarray:
 
 
 def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: float, arms: int,
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """For every centre, the summed weight of its ``arms`` heaviest targets within
-    ``radius_mm`` and (k, arms) indices of those targets (-1: fewer)."""
+              cells: _Cells | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """For every centre, the summed weight of its ``arms`` heaviest cells with a member within
+    ``radius_mm`` (``w``: per cell; without ``cells`` every target is its own cell) and
+    (k, arms) indices of those cells (-1: fewer)."""
     n = len(xy)
-    k = min(arms, n)
+    m = n if cells is None else cells.count
+    k = min(arms, m)
     clock.charge(CELL_S * len(centres) * n)
     sums = np.empty(len(centres))
     tops = np.full((len(centres), k), -1, dtype=np.int64)
     r2 = (radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM) ** 2
     block = max(1, BLOCK_CELLS // max(n, 1))
+    pts = xy if cells is None else xy[cells.order]
     for s in range(0, len(centres), block):
         c = centres[s:s + block]
-        d2 = (c[:, 0, None] - xy[None, :, 0]) ** 2 + (c[:, 1, None] - xy[None, :, 1]) ** 2
-        wm = np.where(d2 <= r2, w[None, :], -1.0)
-        idx = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < n else np.tile(np.arange(n), (len(c), 1))
+        inside = (c[:, 0, None] - pts[None, :, 0]) ** 2 + (c[:, 1, None] - pts[None, :, 1]) ** 2 <= r2
+        if cells is not None:
+            inside = np.logical_or.reduceat(inside, cells.starts, axis=1)
+        wm = np.where(inside, w[None, :], -1.0)
+        idx = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < m else np.tile(np.arange(m), (len(c), 1))
         top = np.take_along_axis(wm, idx, axis=1)
         sums[s:s + block] = np.where(top > 0, top, 0.0).sum(axis=1)
         tops[s:s + block] = np.where(top >= 0, idx, -1)
     return sums, tops
 
 
-def _lp(n: int, cuts: list[np.ndarray]) -> np.ndarray:
-    """max sum(w) s.t. sum(w[cut]) <= 1 for every cut, 0 <= w <= 1 (HiGHS)."""
+@dataclass(frozen=True)
+class _Cells:
+    """Targets grouped by crowding cell: ``order`` sorts them by cell, ``starts[c]`` is where
+    cell c begins in it; ``size[c]`` its members; ``first[c]`` one of them."""
+
+    order: np.ndarray
+    starts: np.ndarray
+    size: np.ndarray
+    first: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return len(self.starts)
+
+    @staticmethod
+    def of(cell: np.ndarray) -> _Cells:
+        order = np.argsort(cell, kind="stable")
+        size = np.bincount(cell)
+        starts = np.r_[0, np.cumsum(size)[:-1]].astype(np.int64)
+        return _Cells(order, starts, size, order[starts])
+
+
+def _lp(value: np.ndarray, cuts: list[np.ndarray]) -> np.ndarray:
+    """max sum(value * w) s.t. sum(w[cut]) <= 1 for every cut, 0 <= w <= 1 (HiGHS)."""
     import highspy
 
+    n = len(value)
     h = highspy.Highs()
     h.setOptionValue("output_flag", False)
     lp = highspy.HighsLp()
     lp.num_col_, lp.num_row_ = n, len(cuts)
-    lp.col_cost_ = np.ones(n)
+    lp.col_cost_ = np.asarray(value, float)
     lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
     lp.row_lower_, lp.row_upper_ = np.full(len(cuts), -np.inf), np.ones(len(cuts))
     lp.sense_ = highspy.ObjSense.kMaximize
@@ -137,28 +173,33 @@ def _lp(n: int, cuts: list[np.ndarray]) -> np.ndarray:
 
 
 def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget | None = None,
-                ) -> ExposureBound:
+                cell: np.ndarray | None = None) -> ExposureBound:
     """The proven lower bound on the exposures that observe every target of ``xy`` ((n, 2)
     mm on the programme's tangent plane) with FOVs of radius ``fov_radius_mm`` and ``arms``
     arms (module docstring). ``budget``: the cutting planes stop when it expires (the bound
-    stays valid, only weaker)."""
+    stays valid, only weaker). ``cell``: each target's crowding cell
+    (:func:`solvers.programme.crowding.crowding_cells`), whose members one exposure observes
+    at most one of (None: no crowding)."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     n = len(xy)
     trivial = math.ceil(n / arms)
     if n == 0:
         return ExposureBound(0, 0, 0, 0.0, "trivial")
+    cells = None if cell is None or len(np.unique(cell)) == n else _Cells.of(np.asarray(cell, np.int64))
+    crowd = 0 if cells is None else int(cells.size.max())
     R = fov_radius_mm * (1.0 + RADIUS_SLACK) + 1e-9
     pairs = cKDTree(xy).query_pairs(2.0 * R, output_type="ndarray")
     graph_n, labels = _components(n, pairs)
     if n + 2 * len(pairs) > MAX_CENTRES:
-        return ExposureBound(max(trivial, graph_n), trivial, graph_n, float(n) / arms, "trivial")
+        return ExposureBound(max(trivial, graph_n, crowd), trivial, graph_n, float(n) / arms, "trivial")
     centres = disc_centres(xy, R)
-    w = np.ones(n)  # the LP with no cut yet
+    value = np.ones(n) if cells is None else cells.size.astype(float)
+    w = np.ones(len(value))  # the LP with no cut yet
     cuts: list[np.ndarray] = []
     rounds = 0
     while rounds < ROUNDS:
         rounds += 1
-        sums, tops = _top_sums(xy, w, centres, R, arms)
+        sums, tops = _top_sums(xy, w, centres, R, arms, cells)
         worst = np.argsort(-sums, kind="stable")[:CUTS_PER_ROUND]
         worst = worst[sums[worst] > 1.0 + 1e-7]
         if worst.size == 0 or (budget is not None and budget.expired()):
@@ -166,12 +207,13 @@ def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget 
         cuts.extend(np.unique(tops[j][tops[j] >= 0]) for j in worst)
         # a cut holds a disc's top targets; the disc's full member set is what binds, so the
         # next round re-checks every disc with the new weights
-        w = _lp(n, cuts)
-    sums, _ = _top_sums(xy, w, centres, R, arms)
+        w = _lp(value, cuts)
+    sums, _ = _top_sums(xy, w, centres, R, arms, cells)
     w = w / max(float(sums.max(initial=0.0)), 1e-12)
-    per = np.bincount(labels, weights=w, minlength=graph_n)
+    owner = labels if cells is None else labels[cells.first]  # a cell lies in one component
+    per = np.bincount(owner, weights=w * value, minlength=graph_n)
     exposures = int(sum(math.ceil(v - 1e-9) for v in per))
-    return ExposureBound(max(exposures, trivial), trivial, graph_n, float(w.sum()), "lp", rounds)
+    return ExposureBound(max(exposures, trivial, crowd), trivial, graph_n, float((w * value).sum()), "lp", rounds)
 
 
 def _components(n: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:

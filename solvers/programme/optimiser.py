@@ -41,6 +41,12 @@ from models.types import AllocationResult
 from solvers.programme.angle import AngleChoice
 from solvers.programme.bound import RADIUS_SLACK, ExposureBound, lower_bound
 from solvers.programme.candidates import Candidates, maximal_sets
+from solvers.programme.crowding import (
+    CrowdingCells,
+    crowding_cells,
+    exclusion_distance_mm,
+    with_crowding,
+)
 from solvers.programme.fill import (
     Field,
     FillOptions,
@@ -110,7 +116,8 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     cand = maximal_sets(xy_mm, R * (1.0 + RADIUS_SLACK) + 1e-9)  # every FOV set: a bound holds
     masks = options.fill.limited(entry_masks(inst, cand, xy_mm, options.fill.position_angle_deg,
                                              options.fill.park_move_limit_s), cand.index)
-    bound = _bound(xy_mm, R, arms, cand, budget.share(options.bound_share), options.fill.seed)
+    cells = crowding_cells(xy_mm, exclusion_distance_mm(inst))
+    bound = _bound(xy_mm, R, arms, cand, budget.share(options.bound_share), options.fill.seed, cells)
     todo = np.ones(n, bool)
     pts: list[Pointing] = []
     first: CoverSolution | None = None
@@ -118,7 +125,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     while todo.any():
         if cover is None or any(int(cover.owner[i]) in done or cover.owner[i] < 0 for i in np.flatnonzero(todo)):
             share = options.model_share if first is None else options.step_share
-            cover, sub = _model(cand, masks, todo, arms, options, budget.share(share))
+            cover, sub = _model(cand, masks, todo, arms, options, budget.share(share), cells)
             first, done = (cover if first is None else first), set()
         used = np.bincount(cover.owner[todo], minlength=len(sub))
         if budget.expired():  # no time for the feedback: the model's pointings as they are
@@ -152,14 +159,16 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
 
 
 def _model(cand: Candidates, masks: np.ndarray, todo: np.ndarray, arms: int, options: OptimiserOptions,
-           budget: Budget) -> tuple[CoverSolution, Candidates]:
-    """The programme model on the targets ``todo`` (bool mask), over its shortlist."""
+           budget: Budget, cells: CrowdingCells) -> tuple[CoverSolution, Candidates]:
+    """The programme model on the targets ``todo`` (bool mask), over its shortlist, with the
+    rows of arm reach and of crowding."""
     n = len(todo)
     sub, entries = cand.restrict(todo)
     keep = shortlist(sub, n, masks[entries], arms, options.max_candidates)
     sub, within_sub = sub.subset(keep)
     entries = entries[within_sub]
     allowed, rows = reach_rows(sub, masks[entries], arms)
+    rows = with_crowding(rows, sub, cells)
     cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
                         pointing_cost=options.pointing_cost)
     if cover.status == "timeout":  # the greedy start is a solution; a guard only
@@ -172,14 +181,15 @@ def _unallocated(f: Field, members: np.ndarray, centre_mm: np.ndarray, tangent) 
     return Pointing(centre, 0.0, members)
 
 
-def _bound(xy, R, arms, cand: Candidates, budget: Budget, seed: int) -> ExposureBound:
-    """The cutting-plane bound, or the model's dual bound (complete candidates, no reach
-    rows, a model of at most :data:`BOUND_MODEL_MAX_ENTRIES` entries: thin sets, where the
-    per-set rounding the LP misses matters) when it is higher."""
-    cut = lower_bound(xy, R, arms, budget=budget.share(0.5))
+def _bound(xy, R, arms, cand: Candidates, budget: Budget, seed: int, cells: CrowdingCells) -> ExposureBound:
+    """The cutting-plane bound, or the model's dual bound (complete candidates, the crowding
+    rows but no reach rows, a model of at most :data:`BOUND_MODEL_MAX_ENTRIES` entries: thin
+    sets, where the per-set rounding the LP misses matters) when it is higher. Both count
+    the crowding cells (:mod:`.crowding`): it holds wherever a pointing is placed."""
+    cut = lower_bound(xy, R, arms, budget=budget.share(0.5), cell=cells.cell)
     if not cand.complete or budget.expired() or len(cand.index) > BOUND_MODEL_MAX_ENTRIES:
         return cut
-    model = solve_cover(cand, len(xy), budget, arms=arms, seed=seed)
+    model = solve_cover(cand, len(xy), budget, arms=arms, seed=seed, reach=with_crowding(None, cand, cells))
     if model.exposures_bound > cut.exposures:
         return ExposureBound(model.exposures_bound, cut.trivial, cut.components, cut.weight, "model", cut.rounds)
     return cut
