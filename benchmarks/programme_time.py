@@ -66,7 +66,7 @@ ARMS = 12
 SMALL_EXPOSURE_TARGETS = 2
 #: The goal of issue 38: every programme within this factor of its proven bound.
 GAP_GOAL = 1.25
-SMOKE = {"programmes": [("two-clump", 3), ("scattered", 7)], "n_range": (20, 30),
+SMOKE = {"programmes": [("two-clump", 3), ("scattered", 7)], "n_range": (10, 15),
          "time_limit_s": 10.0}
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from benchmarks.programme_time import generated
+from benchmarks.programme_time import SMOKE, generated
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
 from planner.options import MotionOptions
@@ -39,7 +39,7 @@ def _plan(targets: list[dict[str, Any]], seed: int) -> dict[str, Any]:
 def plans() -> list[dict[str, Any]]:
     """Plans the service makes of two small multi-pointing programmes (the programme
     benchmark's smoke programmes)."""
-    progs = generated([("two-clump", 3), ("scattered", 7)], n_range=(20, 30))
+    progs = generated(SMOKE["programmes"], n_range=SMOKE["n_range"])
     return [_plan(p["targets"], p["seed"]) for p in progs]
 
 
