@@ -174,16 +174,23 @@ RING_POINTS = [(0.0, 0.0)] + [(r * np.cos(t), r * np.sin(t)) for r in (15.0, 25.
 
 
 def test_symmetric_ring_layouts_never_miss_a_collision() -> None:
-    """All 666 pairs of {centre} + rings of 15/25/35 mm at 30 deg: every pair closer than the
-    buffer is in the structure (ties at exactly the buffer included: two tips 25 mm apart
-    measure 5 mm give or take rounding), and nothing farther than the buffer + 1e-5 mm is."""
+    """All 666 pairs of {centre} + rings of 15/25/35 mm at 30 deg, in one structure of the 37
+    targets, and the 24 pairs whose tips are exactly 25 mm apart each in a structure of its
+    own: every pair closer than the buffer is in the structure (ties at exactly the buffer
+    included: two tips 25 mm apart measure 5 mm give or take rounding), and nothing farther
+    than the buffer + 1e-5 mm is."""
     import itertools
 
-    for p, q in itertools.combinations(RING_POINTS, 2):
-        inc = incompatibility_for_targets(INS, np.array([p[0], q[0]]), np.array([p[1], q[1]]))
+    ring = np.array(RING_POINTS)
+    ties = [(p, q) for p, q in itertools.combinations(RING_POINTS, 2)
+            if abs(np.hypot(p[0] - q[0], p[1] - q[1]) - 25.0) < 1e-9]
+    assert len(ties) == 24
+    for xy in [ring] + [np.array(pq) for pq in ties]:
+        inc = incompatibility_for_targets(INS, xy[:, 0], xy[:, 1])
+        assert len(set(inc.assignments.target.tolist()) - {-1}) == len(xy)  # every target reached
         got = {tuple(x) for x in inc.pairs.tolist()}
-        assert _capsule_pairs(inc) <= got, (p, q)
-        assert got <= _capsule_pairs(inc, slack_mm=1e-5), (p, q)
+        assert _capsule_pairs(inc) <= got, xy.tolist()
+        assert got <= _capsule_pairs(inc, slack_mm=1e-5), xy.tolist()
 
 
 def test_symmetric_pair_allocates_with_every_engine() -> None:
