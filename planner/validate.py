@@ -19,7 +19,8 @@ Nothing here comes from the planner's search. The file is read into domain types
   avoidance at every sample, clearance sampled every :data:`DT_CHECK_S` (a tenth of the
   planner's 0.1 s collision step), controller commands matching the way-points; plus one
   command per moving joint per way-point segment (``commands``), the start-stop cycles at most
-  :data:`MAX_STOPS` (a leg through park stops there once more), the leg's reported
+  :data:`MAX_STOPS` (a leg through park: those of its two halves and one more, at park;
+  :func:`allowed_stops`), the leg's reported
   ``max_stops`` and ``makespan_s`` equal to the way-points' (``stops``, ``makespan``);
 * **claims** - a pointing's and the plan's ``executable`` agree with their legs' statuses.
 
@@ -47,8 +48,9 @@ from planner.verify import verify_trajectories
 POSITION_TOL_MM = 1e-3
 #: Re-simulation step of the trajectory checks, s (the planner checks collisions every 0.1 s).
 DT_CHECK_S = 0.01
-#: Start-stop cycles allowed per arm on a direct leg (the planner's default, thesis 6.3.4.4);
-#: a leg sent through park (a ``via_park`` change) may stop once more, at park.
+#: Start-stop cycles allowed per arm on a direct leg (the planner's default, thesis 6.3.4.4).
+#: A leg sent through park (a ``via_park`` change) is two such legs, start -> park and
+#: park -> goal, each within it, with one more stop at park (:func:`allowed_stops`).
 MAX_STOPS = 1
 #: Violations listed in a report at most (all are counted).
 MAX_LISTED = 100
@@ -231,6 +233,12 @@ def _check_commands(run: _Run, p: FilePointing, li: int, tr: ArmTrajectory) -> N
             return
 
 
+def allowed_stops(via_park: bool) -> int:
+    """Start-stop cycles an arm may make on a leg: :data:`MAX_STOPS`, or on a leg through park
+    (:func:`planner.sequence.via_park_leg`) those of its two halves and the rest at park."""
+    return 2 * MAX_STOPS + 1 if via_park else MAX_STOPS
+
+
 def _check_stops(run: _Run, p: FilePointing, li: int, leg: FileLeg, allowed: int) -> None:
     stops = []
     for tr in leg.trajectories:
@@ -277,7 +285,7 @@ def _check_leg(run: _Run, p: FilePointing, li: int, leg: FileLeg, start_q: np.nd
         return
     for tr in leg.trajectories:
         _check_commands(run, p, li, tr)
-    _check_stops(run, p, li, leg, MAX_STOPS + int(via_park))
+    _check_stops(run, p, li, leg, allowed_stops(via_park))
     _check_makespan(run, p, li, leg)
 
 
