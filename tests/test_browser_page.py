@@ -173,7 +173,7 @@ def test_m67_result_first_screen_and_command_line(page, server) -> None:
         new MutationObserver(() => window.statuses.push(document.getElementById('status').textContent))
           .observe(document.getElementById('status'), {childList: true, subtree: true, characterData: true}); }""")
     page.set_input_files("#file", str(M67))
-    page.fill("#time-limit", "30")
+    page.fill("#time-limit", "12")
     page.fill("#seed", "7")
     _plan(page)
     boxes = _first_screen(page)
@@ -209,7 +209,7 @@ def _command_line_repeats_the_request(page) -> None:
     args = build_parser().parse_args(words[1:])
     request = page.evaluate("mxs.state.request")
     limit = page.evaluate("mxs.state.result.stats.time_limit_s")
-    assert (args.seed, args.time_limit, limit) == (7, 30, 30)
+    assert (args.seed, args.time_limit, limit) == (7, 12, 12)
     assert (args.method, args.solver, args.position_angle) == (
         request.get("method", "ilp"), request.get("solver", "bnb"), request.get("position_angle_deg", 0))
     assert args.segmentation_mode == request.get("segmentation_mode")

@@ -192,7 +192,7 @@ def _sexagesimal(ra_deg: float, dec_deg: float) -> str:
 
 def test_m67_views(page, server, tmp_path: Path) -> None:
     """The 150-star M67-like VizieR table: orientation, labels, legends and coordinates."""
-    got = _plan_on_page(page, server, file=M67, time_limit_s=20)
+    got = _plan_on_page(page, server, file=M67, time_limit_s=10)
     result, request = got["result"], got["request"]
     byid = {t["id"]: t for t in request["targets"]}
     out = _artefacts(tmp_path)
@@ -239,7 +239,7 @@ def _crowded_csv(n: int = 475, seed: int = 40) -> str:
 def test_crowded_field_labels(page, server, tmp_path: Path) -> None:
     """475 stars in one field: labels never overlap, in several configurations; a star whose
     label found no place keeps its id on hover (title) and on tap."""
-    got = _plan_on_page(page, server, csv_text=_crowded_csv(), time_limit_s=15)
+    got = _plan_on_page(page, server, csv_text=_crowded_csv(), time_limit_s=8)
     result, request = got["result"], got["request"]
     byid = {t["id"]: t for t in request["targets"]}
     p = max(result["pointings"], key=lambda q: len(q["configurations"]))
