@@ -125,7 +125,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     while todo.any():
         if cover is None or any(int(cover.owner[i]) in done or cover.owner[i] < 0 for i in np.flatnonzero(todo)):
             share = options.model_share if first is None else options.step_share
-            cover, sub = _model(cand, masks, todo, arms, options, budget.share(share), cells)
+            cover, sub = _model(cand, masks, todo, arms, options, budget.share(share))
             first, done = (cover if first is None else first), set()
         used = np.bincount(cover.owner[todo], minlength=len(sub))
         if budget.expired():  # no time for the feedback: the model's pointings as they are
@@ -159,16 +159,17 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
 
 
 def _model(cand: Candidates, masks: np.ndarray, todo: np.ndarray, arms: int, options: OptimiserOptions,
-           budget: Budget, cells: CrowdingCells) -> tuple[CoverSolution, Candidates]:
+           budget: Budget) -> tuple[CoverSolution, Candidates]:
     """The programme model on the targets ``todo`` (bool mask), over its shortlist, with the
-    rows of arm reach and of crowding."""
+    rows of arm reach. The crowding rows are left out of it: the feedback allocations see
+    crowding as it is, and the rows steer the model to pointings that take more exposures
+    (docs/programme.md)."""
     n = len(todo)
     sub, entries = cand.restrict(todo)
     keep = shortlist(sub, n, masks[entries], arms, options.max_candidates)
     sub, within_sub = sub.subset(keep)
     entries = entries[within_sub]
     allowed, rows = reach_rows(sub, masks[entries], arms)
-    rows = with_crowding(rows, sub, cells)
     cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
                         pointing_cost=options.pointing_cost)
     if cover.status == "timeout":  # the greedy start is a solution; a guard only
