@@ -259,7 +259,7 @@ def test_cli_lock_and_exclude_flags(tmp_path: Path, capsys: pytest.CaptureFixtur
         f"{r['id']},{r['ra_deg']!r},{r['dec_deg']!r},{r['priority']}\n" for r in sky_rows()))
     arm = int(np.flatnonzero(reach["s1"].any(axis=1))[0])
     out = tmp_path / "out"
-    code = main(["plan", str(csv), "--out", str(out), "--time-limit", "30", "--seed", "1", "--quiet",
+    code = main(["plan", str(csv), "--out", str(out), "--time-limit", "10", "--seed", "1", "--quiet",
                  "--lock", f"s1:{arm}", "--exclude", "s5", "--exclude", "s6"])
     assert code in (0, 4), capsys.readouterr().err
     plan = json.loads((out / "plan.json").read_text())
@@ -270,7 +270,7 @@ def test_cli_lock_and_exclude_flags(tmp_path: Path, capsys: pytest.CaptureFixtur
     # a target arm 0 cannot reach from the field's own pointing: the segmentation places its
     # pointing where arm 0 reaches it (tests/test_locks_segmentation.py)
     far = next(t for t in reach if not reach[t][0].any())
-    code = main(["plan", str(csv), "--out", str(tmp_path / "far"), "--time-limit", "30", "--seed", "1",
+    code = main(["plan", str(csv), "--out", str(tmp_path / "far"), "--time-limit", "10", "--seed", "1",
                  "--quiet", "--lock", f"{far}:0"])
     assert code in (0, 4), capsys.readouterr().err
     plan = json.loads((tmp_path / "far" / "plan.json").read_text())

@@ -170,7 +170,7 @@ def sky_body(limit: object = "default", mode: str = "complete-linkage") -> dict:
     ra, dec = focal_mm_to_sky(t.x_mm, t.y_mm, 150.0, 20.0, INS.plate_scale_arcsec_per_mm)
     body = {"targets": [{"id": i, "ra_deg": float(a), "dec_deg": float(d), "priority": 100}
                         for i, a, d in zip(t.ids, ra, dec, strict=True)],
-            "seed": 1, "time_limit_s": 60, "segmentation_mode": mode}
+            "seed": 1, "time_limit_s": 20, "segmentation_mode": mode}
     if limit != "default":
         body["park_move_limit_s"] = limit
     return body
