@@ -156,11 +156,12 @@ def only_here_key(configuration: dict[str, Any]) -> tuple[str, Any] | None:
 
 def flagged_only_here(value: Any, observed: Sequence[str]) -> bool:
     """Whether a flag's value says every target of ``observed`` is observable only here: a
-    boolean, the ids of those targets, or their count."""
+    boolean, the ids of those targets (or entries with a ``target_id``), or their count."""
     if isinstance(value, bool):
         return value
     if isinstance(value, (list, tuple, set)):
-        return bool(observed) and set(observed) <= {str(v) for v in value}
+        ids = {str(v["target_id"]) if isinstance(v, dict) else str(v) for v in value}
+        return bool(observed) and set(observed) <= ids
     if isinstance(value, int):
         return 0 < len(observed) <= value
     return bool(value)

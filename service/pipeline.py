@@ -67,6 +67,7 @@ from service.schemas import (
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
+from solvers.programme.spare import IDLE_KINDS, Exposure, only_here
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -597,6 +598,7 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
     stats = {**stats, **excluded}
+    mark_only_here(pointings, req.targets, inst, req.park_move_limit_s)
     out = plan_out(seg, pointings, req.targets, {**stats, **epoch})
     progress(1.0)
     return adapters.with_content_hash(out)
@@ -641,6 +643,27 @@ def _completeness(out: Sequence[dict[str, Any]],
     return {"field_completeness": len(observed) / len(targets) if targets else 1.0,
             "priority_completeness": sum(priority.get(t, 0) for t in observed) / total
             if total else 1.0}
+
+
+def mark_only_here(out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget], inst: Instrument,
+                   park_move_limit_s: float | None) -> None:
+    """Each exposure of a plan observing few targets gets its ``only_here`` targets: those no
+    other exposure can take, and why (:func:`solvers.programme.spare.only_here`)."""
+    index = {t.id: i for i, t in enumerate(targets)}
+    ra = np.array([t.ra_deg for t in targets], float)
+    dec = np.array([t.dec_deg for t in targets], float)
+    exposures, configs = [], []
+    for p in out:
+        for c in p["configurations"]:
+            arms = sorted(c["assignments"], key=lambda a: a["arm"])
+            q = np.array([[a["theta1_rad"], a["theta2_rad"]] for a in arms], float).reshape(-1, 2)
+            idle = np.array([a["kind"] in IDLE_KINDS for a in arms], bool)
+            observed = tuple(index[a["target_id"]] for a in arms if a["target_id"] in index)
+            exposures.append(Exposure(float(p["ra_deg"]), float(p["dec_deg"]), float(p["position_angle_deg"]),
+                                      q, idle, observed))
+            configs.append(c)
+    for j, reasons in only_here(inst, ra, dec, exposures, park_move_limit_s).items():
+        configs[j]["only_here"] = [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.items())]
 
 
 def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget],

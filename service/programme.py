@@ -126,6 +126,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     stage(stages.ASSEMBLING)
     pointings = [answers[i] for i in range(n)]
     advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
+    pipeline.mark_only_here(pointings, req.targets, inst, req.park_move_limit_s)
     return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,

@@ -550,6 +550,15 @@ class AssignmentOut(Response):
                                       "at; null otherwise.")
 
 
+class OnlyHereOut(Response):
+    target_id: str
+    reason: Literal["outside_other_fields", "no_spare_arm"] = Field(
+        description="'outside_other_fields': no other exposure's field of view holds the target; "
+                    "'no_spare_arm': no other exposure whose field holds it has an idle arm (at "
+                    "park, on blank sky or on a sky position) that reaches it within the park move "
+                    "limit without coming closer to another arm than the collision buffer.")
+
+
 class ConfigurationOut(Response):
     index: int
     status: Literal["optimal", "feasible"]
@@ -558,6 +567,11 @@ class ConfigurationOut(Response):
     assignments: list[AssignmentOut] = Field(description="One entry per arm, sorted by arm.")
     stats: Stats = Field(default_factory=dict, description="Solve time, solver status, "
                          "longest move (s) of this configuration.")
+    only_here: list[OnlyHereOut] | None = Field(
+        None, description="In a plan, on an exposure observing at most 2 targets: those of its "
+                          "targets no other exposure of the plan can observe, and why (a target of "
+                          "such an exposure missing here might be observed elsewhere); null on "
+                          "other exposures.")
 
 
 class Unallocated(Response):

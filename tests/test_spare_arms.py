@@ -1,0 +1,142 @@
+"""Spare arms (solvers.programme.spare): whether a target fits into an exposure as it is, and
+the plan's `only_here` on exposures observing few targets.
+
+Oracle: a brute force over every idle arm and every IK branch (models.kinematics.inverse_fov),
+the move from park within the limit (positive_turn_move_time_s) and FCL clearances against
+every other arm of the configuration, on configurations a real allocation built."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from models.collision import fcl_clearance_mm
+from models.instrument import default_instrument
+from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
+from models.types import PlaneTargets
+from service.app import create_app
+from service.settings import Settings
+from solvers.allocation import allocate
+from solvers.programme.spare import (
+    NO_SPARE_ARM,
+    OUTSIDE_OTHER_FIELDS,
+    Exposure,
+    only_here,
+    spare_arm_for,
+    takers,
+)
+
+INST = default_instrument()
+LIMIT_S = 120.0
+V1 = INST.arm_array("joint1_speed_rad_s")
+V2 = INST.arm_array("joint2_speed_rad_s")
+#: capsule and FCL clearances agree to far less; a point this close to the buffer is not judged
+EDGE_MM = 1e-6
+
+
+def _configurations(seed: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    xy = rng.normal(0.0, 45.0, (40, 2))
+    targets = PlaneTargets(tuple(f"t{i}" for i in range(40)), xy[:, 0], xy[:, 1], np.ones(40, np.int64))
+    result = allocate(INST, targets, configurations="all", time_limit_s=20.0, seed=seed)
+    qs, idles = [], []
+    for c in result.configurations:
+        arms = sorted(c.assignments, key=lambda a: a.arm)
+        qs.append(np.array([[a.theta1_rad, a.theta2_rad] for a in arms]))
+        idles.append(np.array([a.kind in ("park", "blank") for a in arms]))
+    return qs, idles
+
+
+def _brute_force(q: np.ndarray, idle: np.ndarray, x: float, y: float) -> tuple[bool, bool]:
+    """(fits, on the edge): some idle arm and branch reaches (x, y) within the limit with every
+    FCL clearance at least the buffer; on the edge when the deciding clearance is within EDGE_MM."""
+    fits, edge = False, False
+    for k in np.flatnonzero(idle):
+        ik = inverse_fov(INST, int(k), np.array([x]), np.array([y]))
+        for b in range(4):
+            if not ik.valid[0, b]:
+                continue
+            pose = (float(ik.theta1_rad[0, b]), float(ik.theta2_rad[0, b]))
+            assert np.allclose(tip_fov(INST, int(k), *pose), (x, y), atol=1e-6)
+            if positive_turn_move_time_s(INST.park_configuration[k], np.array(pose), V1[k], V2[k]) > LIMIT_S:
+                continue
+            worst = min(fcl_clearance_mm(INST, int(k), pose, j, tuple(q[j])) for j in range(INST.n_arms) if j != k)
+            edge |= abs(worst - INST.collision_buffer_mm) < EDGE_MM
+            fits |= worst >= INST.collision_buffer_mm
+    return fits, edge
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_spare_arm_for_agrees_with_a_brute_force_with_fcl(seed: int) -> None:
+    qs, idles = _configurations(seed)
+    rng = np.random.default_rng(100 + seed)
+    fits = 0
+    checked = 0
+    for q, idle in zip(qs, idles, strict=True):
+        for _ in range(6):
+            r, a = 110.0 * math.sqrt(rng.random()), 2 * math.pi * rng.random()
+            x, y = r * math.cos(a), r * math.sin(a)
+            want, edge = _brute_force(q, idle, x, y)
+            if edge:
+                continue
+            got = spare_arm_for(INST, q, idle, x, y, LIMIT_S)
+            assert (got is not None) == want, (x, y)
+            if got is not None:
+                k, t1, t2 = got
+                assert idle[k] and np.allclose(tip_fov(INST, k, t1, t2), (x, y), atol=1e-6)
+                assert min(fcl_clearance_mm(INST, k, (t1, t2), j, tuple(q[j]))
+                           for j in range(INST.n_arms) if j != k) >= INST.collision_buffer_mm
+            fits += want
+            checked += 1
+    assert checked >= 20 and 0 < fits < checked  # both answers occur
+
+
+def test_takers_is_spare_arm_for_on_every_configuration_at_once() -> None:
+    qs, idles = _configurations(5)
+    q, idle = np.stack(qs), np.stack(idles)
+    for x, y in [(0.0, 0.0), (60.0, -20.0), (-90.0, 40.0), (15.0, 100.0)]:
+        one = np.array([spare_arm_for(INST, qq, ii, x, y, LIMIT_S) is not None for qq, ii in zip(qs, idles, strict=True)])
+        assert np.array_equal(takers(INST, q, idle, x, y, LIMIT_S), one)
+
+
+def test_only_here_gives_the_reasons_it_can_prove() -> None:
+    """Three exposures at one pointing and one far away: the far exposure's target is outside
+    every other field; a target whose other exposures have no idle arm has no spare arm; a
+    target another exposure can take is not listed."""
+    park = INST.park_configuration
+    scale = INST.plate_scale_arcsec_per_mm / 3600.0  # deg per mm
+    ra = np.array([10.0, 10.0 + 20 * scale, 11.0])
+    dec = np.array([20.0, 20.0, 20.0])
+    all_idle, none_idle = np.ones(INST.n_arms, bool), np.zeros(INST.n_arms, bool)
+    e = [Exposure(10.0, 20.0, 0.0, park, all_idle, (0,)),
+         Exposure(10.0, 20.0, 0.0, park, all_idle, (1,)),
+         Exposure(11.0, 20.0, 0.0, park, all_idle, (2,))]
+    got = only_here(INST, ra, dec, e, LIMIT_S)
+    assert got == {2: {2: OUTSIDE_OTHER_FIELDS}}  # targets 0 and 1 fit in each other's exposure
+    e[1] = Exposure(10.0, 20.0, 0.0, park, none_idle, (1,))
+    got = only_here(INST, ra, dec, e, LIMIT_S)
+    assert got == {0: {0: NO_SPARE_ARM}, 2: {2: OUTSIDE_OTHER_FIELDS}}
+
+
+def test_a_plan_says_which_targets_of_a_small_exposure_no_other_can_take(tmp_path) -> None:
+    """A lone star 1 deg from a small group: its pointing's one exposure observes it alone, and
+    the plan says that no other exposure's field holds it."""
+    targets = [{"id": f"g{i}", "ra_deg": 150.0 + 0.004 * i, "dec_deg": 2.0, "priority": 10} for i in range(5)]
+    targets.append({"id": "lone", "ra_deg": 151.0, "dec_deg": 2.0, "priority": 10})
+    c = TestClient(create_app(Settings(job_db=tmp_path / "j.sqlite3")))
+    r = c.post("/v1/plans", json={"targets": targets, "seed": 1, "time_limit_s": 30})
+    assert r.status_code == 200, r.text
+    plan = r.json()
+    lone = [cfg for p in plan["pointings"] for cfg in p["configurations"]
+            if any(a["target_id"] == "lone" for a in cfg["assignments"])]
+    assert len(lone) == 1 and lone[0]["only_here"] == [{"target_id": "lone", "reason": "outside_other_fields"}]
+    for p in plan["pointings"]:
+        for cfg in p["configurations"]:
+            observed = [a["target_id"] for a in cfg["assignments"] if a["target_id"] is not None]
+            if len(observed) > 2:
+                assert cfg["only_here"] is None
+            else:
+                assert {o["target_id"] for o in cfg["only_here"] or []} <= set(observed)
