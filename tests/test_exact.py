@@ -254,7 +254,7 @@ def test_one_mode_gives_the_engine_the_request_limit(monkeypatch) -> None:
 
     monkeypatch.setattr(highs_backend, "solve_ilp_highs", spy)
     rng = np.random.default_rng(3)
-    x, y = _field(rng, 100, 40.0)
+    x, y = _field(rng, 40, 40.0)  # HiGHS is called, and done in well under a second
     pr = rng.choice([500, 100, 10, 1], size=len(x), p=[0.1, 0.4, 0.4, 0.1]).astype(np.int64)
     t = PlaneTargets.from_lists([f"t{i}" for i in range(len(x))], x, y, pr)
     r = allocate(INS, t, solver="highs", configurations="one", time_limit_s=30.0)

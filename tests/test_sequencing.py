@@ -241,7 +241,7 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
     r = sequence_configurations(INS, t, solve_ilp_cpsat,
                                 SequencingOptions(sequence=SequenceOptions(config_time_limit_s=5.0),
                                                   packing=PackingOptions(lp_bound_time_limit_s=0.0,
-                                                                         attempt_time_limit_s=1.0)),
+                                                                         attempt_time_limit_s=0.5)),
                                 time_limit_s=40.0)
     assert r.stats["field_completeness"] == 1.0
     same = [(a, b) for i, a in enumerate(calls) for b in calls[i + 1:] if a[:3] == b[:3]]
