@@ -157,6 +157,7 @@ def print_summary(result: Mapping[str, Any], req: Any, out: Path, n_pictures: in
     print(f"spare arms: {plural(s.get('sky_arms', 0), 'arm')} on sky over all configurations "
           f"(kind 'sky' in {ASSIGNMENTS_NAME})")
     print(time_summary(s["telescope_time"]))
+    print(exposures_summary(s))
     summary = changes_summary(s)
     if summary:
         print(f"changes so that every leg can be executed: {summary}")
@@ -208,6 +209,18 @@ def time_summary(t: dict[str, Any]) -> str:
     if t["unplanned_legs"]:
         line += f" ({plural(int(t['unplanned_legs']), 'motion leg')} not planned, not counted)"
     return line
+
+
+def exposures_summary(stats: Mapping[str, Any]) -> str:
+    """One line: the plan's exposures against the proven lower bound, and how many observe at
+    most 2 targets (and of those, how many only for targets no other exposure can take)."""
+    n = int(stats["configurations"])
+    bound = stats.get("exposures_lower_bound")
+    line = f"{plural(n, 'exposure')}" + ("" if bound is None else
+                                         f", proven lower bound {bound} ({n / bound:.2f}x)" if bound else "")
+    few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
+    return line + (f"; {plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
+                   "targets no other exposure can take (only_here in plan.json)" if few else "")
 
 
 def changes_summary(stats: dict[str, Any]) -> str:

@@ -67,7 +67,7 @@ from service.schemas import (
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
-from solvers.programme.spare import IDLE_KINDS, Exposure, only_here
+from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, Exposure, only_here
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -703,6 +703,7 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             **_completeness(out, targets),
             "unallocated_by_reason": reasons,
             "sky_arms": sum(int(c["stats"].get("sky_arms", 0)) for p in out for c in p["configurations"]),
+            **few_target_exposures(out),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
@@ -713,6 +714,19 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "segmentation": seg.stats,
         }),
     }
+
+
+def few_target_exposures(out: Sequence[dict[str, Any]]) -> dict[str, int]:
+    """The exposures observing at most :data:`~solvers.programme.spare.FEW_TARGETS` targets, and
+    those of them whose every target no other exposure can take (their ``only_here``)."""
+    few = only = 0
+    for p in out:
+        for c in p["configurations"]:
+            observed = {a["target_id"] for a in c["assignments"] if a["target_id"] is not None}
+            if 0 < len(observed) <= FEW_TARGETS:
+                few += 1
+                only += observed <= {o["target_id"] for o in c.get("only_here") or []}
+    return {"few_target_exposures": few, "few_target_exposures_only_here": only}
 
 
 def exposure_bound(seg: Segmentation, exposures: int) -> dict[str, Any]:

@@ -7,6 +7,7 @@ every other arm of the configuration, on configurations a real allocation built.
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -140,3 +141,27 @@ def test_a_plan_says_which_targets_of_a_small_exposure_no_other_can_take(tmp_pat
                 assert cfg["only_here"] is None
             else:
                 assert {o["target_id"] for o in cfg["only_here"] or []} <= set(observed)
+
+
+def test_the_plan_and_the_cli_count_the_exposures_observing_few_targets(tmp_path, capsys) -> None:
+    """The plan's stats count its exposures observing at most 2 targets and those explained by
+    `only_here`; the CLI prints them beside the proven bound."""
+    from service.cli import main
+
+    rows = ["id,ra_deg,dec_deg,priority"] + [f"g{i},{150.0 + 0.004 * i},2.0,10" for i in range(5)]
+    rows.append("lone,151.0,2.0,10")
+    src = tmp_path / "few.csv"
+    src.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "out"
+    assert main(["plan", str(src), "--out", str(out), "--seed", "1", "--time-limit", "30", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    plan = json.loads((out / "plan.json").read_text())
+    s = plan["stats"]
+    few = [c for p in plan["pointings"] for c in p["configurations"]
+           if 0 < sum(a["target_id"] is not None for a in c["assignments"]) <= 2]
+    explained = [c for c in few if {a["target_id"] for a in c["assignments"] if a["target_id"] is not None}
+                 <= {o["target_id"] for o in c["only_here"] or []}]
+    assert s["few_target_exposures"] == len(few) >= 1
+    assert s["few_target_exposures_only_here"] == len(explained) >= 1
+    assert (f"proven lower bound {s['exposures_lower_bound']}" in printed
+            and f"{len(few)} exposure" in printed and f"{len(explained)} of them only for" in printed)
