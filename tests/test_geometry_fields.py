@@ -30,7 +30,7 @@ INS = default_instrument()
 TIE_MM = tie_distance_mm(INS)
 
 
-@settings(max_examples=100, derandomize=True, database=None, deadline=None,
+@settings(max_examples=50, derandomize=True, database=None, deadline=None,
           suppress_health_check=[HealthCheck.too_slow])
 @given(crowded_fields(TIE_MM))
 def test_crowded_fields_agree_with_fcl_and_root_scan(points) -> None:
