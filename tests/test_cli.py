@@ -108,7 +108,7 @@ def test_cli_plan(tmp_path: Path, capsys) -> None:
     src = tmp_path / "m13_small.ecsv"
     t.write(src, format="ascii.ecsv")
     out = tmp_path / "out"
-    code = main(["plan", str(src), "--out", str(out), "--seed", "1", "--time-limit", "60", "--quiet"])
+    code = main(["plan", str(src), "--out", str(out), "--seed", "1", "--time-limit", "20", "--quiet"])
     assert code == 0, capsys.readouterr().err
     printed = capsys.readouterr().out
     assert "12 targets" in printed
