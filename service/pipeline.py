@@ -598,8 +598,8 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
     stats = {**stats, **excluded}
-    mark_only_here(pointings, req.targets, inst, req.park_move_limit_s)
-    out = plan_out(seg, pointings, req.targets, {**stats, **epoch})
+    few = few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)
+    out = plan_out(seg, pointings, req.targets, {**stats, **epoch}, few)
     progress(1.0)
     return adapters.with_content_hash(out)
 
@@ -645,14 +645,15 @@ def _completeness(out: Sequence[dict[str, Any]],
             if total else 1.0}
 
 
-def mark_only_here(out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget], inst: Instrument,
-                   park_move_limit_s: float | None) -> None:
-    """Each exposure of a plan observing few targets gets its ``only_here`` targets: those no
-    other exposure can take, and why (:func:`solvers.programme.spare.only_here`)."""
+def few_target_exposures(out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget], inst: Instrument,
+                         park_move_limit_s: float | None) -> list[dict[str, Any]]:
+    """The FewTargetExposureOut dicts of a plan: each exposure observing at most
+    :data:`~solvers.programme.spare.FEW_TARGETS` targets, with those of them no other exposure
+    can take, and why (:func:`solvers.programme.spare.only_here`)."""
     index = {t.id: i for i, t in enumerate(targets)}
     ra = np.array([t.ra_deg for t in targets], float)
     dec = np.array([t.dec_deg for t in targets], float)
-    exposures, configs = [], []
+    exposures, where = [], []
     for p in out:
         for c in p["configurations"]:
             arms = sorted(c["assignments"], key=lambda a: a["arm"])
@@ -661,17 +662,21 @@ def mark_only_here(out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget], 
             observed = tuple(index[a["target_id"]] for a in arms if a["target_id"] in index)
             exposures.append(Exposure(float(p["ra_deg"]), float(p["dec_deg"]), float(p["position_angle_deg"]),
                                       q, idle, observed))
-            configs.append(c)
-    for j, reasons in only_here(inst, ra, dec, exposures, park_move_limit_s).items():
-        configs[j]["only_here"] = [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.items())]
+            where.append((p["id"], int(c["index"])))
+    reasons = only_here(inst, ra, dec, exposures, park_move_limit_s)
+    return [{"pointing_id": where[j][0], "configuration": where[j][1],
+             "target_ids": [targets[t].id for t in e.targets],
+             "only_here": [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.get(j, {}).items())]}
+            for j, e in enumerate(exposures) if 0 < len(e.targets) <= FEW_TARGETS]
 
 
 def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget],
-             stats: dict[str, Any]) -> dict[str, Any]:
+             stats: dict[str, Any], few: Sequence[dict[str, Any]] = ()) -> dict[str, Any]:
     """A PlanResponse dict from the segmentation and its PlanPointing dicts, in pointing
     order (``targets`` of the request; ``stats`` of the whole plan's deadline, its
     ``time_limit_advice`` and its ``epoch`` report (:func:`at_epoch`), which go to the
-    answer's fields of those names and its ``notices``)."""
+    answer's fields of those names and its ``notices``; ``few``: its exposures observing few
+    targets, :func:`few_target_exposures`)."""
     reasons: dict[str, int] = {}
     for p in out:
         for u in p["unallocated"]:
@@ -693,6 +698,7 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
         "tangent_point": {"ra_deg": seg.tangent_ra_deg, "dec_deg": seg.tangent_dec_deg},
         "pointings": list(out),
         "unallocated": unallocated,
+        "few_target_exposures": list(few),
         "executable": all(p["executable"] for p in out),
         "reasons": [f"pointing {p['id']}: {r}" for p in out for r in p["reasons"]],
         "stats": adapters.plain({
@@ -703,7 +709,9 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             **_completeness(out, targets),
             "unallocated_by_reason": reasons,
             "sky_arms": sum(int(c["stats"].get("sky_arms", 0)) for p in out for c in p["configurations"]),
-            **few_target_exposures(out),
+            "few_target_exposures": len(few),
+            "few_target_exposures_only_here": sum(
+                {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"]) for f in few),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
@@ -714,19 +722,6 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "segmentation": seg.stats,
         }),
     }
-
-
-def few_target_exposures(out: Sequence[dict[str, Any]]) -> dict[str, int]:
-    """The exposures observing at most :data:`~solvers.programme.spare.FEW_TARGETS` targets, and
-    those of them whose every target no other exposure can take (their ``only_here``)."""
-    few = only = 0
-    for p in out:
-        for c in p["configurations"]:
-            observed = {a["target_id"] for a in c["assignments"] if a["target_id"] is not None}
-            if 0 < len(observed) <= FEW_TARGETS:
-                few += 1
-                only += observed <= {o["target_id"] for o in c.get("only_here") or []}
-    return {"few_target_exposures": few, "few_target_exposures_only_here": only}
 
 
 def exposure_bound(seg: Segmentation, exposures: int) -> dict[str, Any]:

@@ -126,12 +126,12 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     stage(stages.ASSEMBLING)
     pointings = [answers[i] for i in range(n)]
     advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
-    pipeline.mark_only_here(pointings, req.targets, inst, req.park_move_limit_s)
+    few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)
     return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
         "pointings_resumed": resumed, "pointings_computed": computed[0], **epoch, **excluded,
-        **({} if advice is None else {"time_limit_advice": advice})}))
+        **({} if advice is None else {"time_limit_advice": advice})}, few))
 
 
 @dataclass

@@ -567,11 +567,6 @@ class ConfigurationOut(Response):
     assignments: list[AssignmentOut] = Field(description="One entry per arm, sorted by arm.")
     stats: Stats = Field(default_factory=dict, description="Solve time, solver status, "
                          "longest move (s) of this configuration.")
-    only_here: list[OnlyHereOut] | None = Field(
-        None, description="In a plan, on an exposure observing at most 2 targets: those of its "
-                          "targets no other exposure of the plan can observe, and why (a target of "
-                          "such an exposure missing here might be observed elsewhere); null on "
-                          "other exposures.")
 
 
 class Unallocated(Response):
@@ -732,6 +727,15 @@ class TimeLimitAdvice(Response):
     message: str = Field(description="The advice in one sentence, also in `notices`.")
 
 
+class FewTargetExposureOut(Response):
+    pointing_id: str
+    configuration: int = Field(description="The exposure's `index` among its pointing's configurations.")
+    target_ids: list[str] = Field(description="The targets it observes (at most 2).")
+    only_here: list[OnlyHereOut] = Field(
+        description="Those of them no other exposure of the plan can take, and why; a target "
+                    "of the exposure missing here might be observed by another exposure.")
+
+
 class PlanResponse(Response):
     tangent_point: TangentPoint | None = None
     pointings: list[PlanPointing]
@@ -760,6 +764,10 @@ class PlanResponse(Response):
     notices: list[str] = Field(default_factory=list, description="Sentences for the "
                                "astronomer about the plan as a whole (e.g. the time limit it "
                                "needs), shown by the page's banner and the CLI's summary.")
+    few_target_exposures: list[FewTargetExposureOut] = Field(
+        default_factory=list, description="Every exposure observing at most 2 targets, with those "
+        "of its targets no other exposure can take (`stats.few_target_exposures` counts them, "
+        "`stats.few_target_exposures_only_here` those whose every target is listed).")
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

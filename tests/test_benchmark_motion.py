@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+import planner.pointing as pointing
 import planner.programme as programme
 from benchmarks import motion, motion_fields
 from models.instrument import default_instrument
@@ -81,12 +82,12 @@ class PlanMotionRecorder:
 
 class Recorders:
     def __init__(self, monkeypatch, sequence=None):
-        self.alloc = AllocateRecorder(programme.allocate)
+        self.alloc = AllocateRecorder(pointing.allocate)
         self.sequence = PlanSequenceRecorder() if sequence is None else sequence
         self.pointing = PlanPointingRecorder(motion.plan_pointing)
         self.plan = PlanMotionRecorder()
-        monkeypatch.setattr(programme, "allocate", self.alloc)
-        monkeypatch.setattr(programme, "plan_sequence", self.sequence)
+        monkeypatch.setattr(pointing, "allocate", self.alloc)
+        monkeypatch.setattr(pointing, "plan_sequence", self.sequence)
         monkeypatch.setattr(motion, "plan_pointing", self.pointing)
         monkeypatch.setattr(motion, "plan_motion", self.plan)
 
@@ -269,7 +270,7 @@ def test_a_pointing_whose_legs_were_not_planned_is_not_executable():
     """plan_pointing reports a planner error as the unchanged configurations with no legs and its
     reason: the benchmark counts that pointing as not executable."""
     targets = motion_fields.thesis_field(20, 0, 0)[1]
-    allocation = programme.allocate(INST, targets, method="semigreedy", configurations="all", seed=0)
+    allocation = pointing.allocate(INST, targets, method="semigreedy", configurations="all", seed=0)
     configurations = tuple(allocation.configurations)
     unplanned = programme.PointingPlan(targets, allocation, SequencePlan(configurations, ()),
                                        "planner error: boom", {}, 1.5)

@@ -15,7 +15,7 @@ import pytest
 
 from models import clock
 from models.instrument import default_instrument
-from planner import plan_motion, programme
+from planner import plan_motion, pointing, programme
 from planner import timeline as timeline_module
 from planner.clearance import compile_kernels
 from planner.effort import PLANNER_WORK_S
@@ -197,7 +197,7 @@ def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None
     """A pointing whose budgets bind (a longer share gives another plan): the same plan when
     the machine is slower. The pointing searches on a quarter of its share here, so that the
     wall-clock share, which a loaded test machine may approach, is never what stops it."""
-    monkeypatch.setattr(programme, "SHARES", replace(programme.SHARES, effort_share=0.25))
+    monkeypatch.setattr(pointing, "SHARES", replace(programme.SHARES, effort_share=0.25))
     fast = _pointing(12.0)
     assert _content(fast) != _content(_pointing(24.0))
     calls = _slow_departures(monkeypatch, 0.001)

@@ -24,7 +24,7 @@ from models.instrument import default_instrument
 from models.kinematics import Links, in_zoa, inverse_fov
 from models.sky import focal_mm_to_sky
 from models.types import ArmTrajectory, Configuration, MotionPlan
-from planner import programme
+from planner import pointing, programme
 from planner.keep import KeptArm, KeptPointing, kept_configurations
 from planner.reassign import Placed, new_configuration, try_place
 from planner.sequence import SequenceOptions, _Sequencer
@@ -107,13 +107,13 @@ def observed(p: dict[str, Any], configs: slice = slice(None)) -> list[str]:
 
 def test_keep_c1_and_replan_the_rest_from_its_arm_states(base, monkeypatch) -> None:
     calls: list[tuple[tuple[str, ...], Any]] = []
-    real = programme.allocate
+    real = pointing.allocate
 
     def spy(inst, targets, **kw):
         calls.append((targets.ids, kw.get("start_q")))
         return real(inst, targets, **kw)
 
-    monkeypatch.setattr(programme, "allocate", spy)
+    monkeypatch.setattr(pointing, "allocate", spy)
     old = base["pointings"][0]
     new_plan = plan(TARGETS, seed=9, keep=keep_from_plan(base, 1))
     new = new_plan["pointings"][0]

@@ -1,7 +1,7 @@
 """Executable whole-field plans: `executable`, `reasons` and `changes` of POST /v1/plans, of a
 plan job's result and of `mxs-planner plan` (exit code 4 when a leg could not be planned).
 
-The fast tests replace ``planner.programme.plan_sequence`` with a fake that returns a
+The fast tests replace ``planner.pointing.plan_sequence`` with a fake that returns a
 ``SequencePlan`` of real domain objects (segmentation and allocation run for real); the last
 test runs the whole pipeline unchanged on a tiny field."""
 
@@ -20,7 +20,7 @@ from models.budget import Budget
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets
-from planner import programme
+from planner import pointing, programme
 from planner.sequence import PlanChange, SequenceOptions, SequencePlan
 from service import jobs
 from service.app import create_app
@@ -113,7 +113,7 @@ def check_failed(out: dict[str, Any]) -> None:
 @pytest.mark.parametrize("fail", [True, False])
 def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail: bool) -> None:
     fake = fake_plan_sequence(fail)
-    monkeypatch.setattr(programme, "plan_sequence", fake)
+    monkeypatch.setattr(pointing, "plan_sequence", fake)
     # heavy_processes=False: the plan computes in this process, where the fake applies
     app = create_app(Settings(job_db=tmp_path / "j.db", api_token=TOKEN, heavy_processes=False))
     with TestClient(app) as c:
@@ -129,7 +129,7 @@ def test_plan_endpoint_says_whether_executable(tmp_path: Path, monkeypatch, fail
             range(1, programme.SHARES.rounds + 1))
         check_failed(out)
         return
-    # the legs once, then once more with the spare arms on sky (planner.programme._sequence_with_sky)
+    # the legs once, then once more with the spare arms on sky (planner.pointing._sequence_with_sky)
     assert [o.seed for o in fake.calls] == [1, 1]
     PlanResponse.model_validate(out)
     assert out["executable"] is True and out["reasons"] == []
@@ -145,7 +145,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
     def broken(*_: Any, **__: Any) -> Any:
         raise RuntimeError("a bug")
 
-    monkeypatch.setattr(programme, "plan_sequence", broken)
+    monkeypatch.setattr(pointing, "plan_sequence", broken)
     app = create_app(Settings(job_db=tmp_path / "j.db", heavy_processes=False))
     with TestClient(app) as c:
         r = c.post("/v1/plans", json={"targets": targets(), "seed": 1, "time_limit_s": 10})
@@ -161,7 +161,7 @@ def test_planner_error_is_a_failed_plan_not_a_5xx(tmp_path: Path, monkeypatch) -
 
 def test_plan_job_result_carries_executable(tmp_path: Path, monkeypatch) -> None:
     """The worker's own function, run here so the fake applies; read back with GET /v1/jobs."""
-    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=True))
+    monkeypatch.setattr(pointing, "plan_sequence", fake_plan_sequence(fail=True))
     db = tmp_path / "j.db"
     app = create_app(Settings(job_db=db))
     with TestClient(app) as c:
@@ -186,7 +186,7 @@ def _target_file(tmp_path: Path) -> Path:
 
 
 def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=True))
+    monkeypatch.setattr(pointing, "plan_sequence", fake_plan_sequence(fail=True))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
                  "--seed", "1", "--time-limit", "10", "--quiet"])
     cap = capsys.readouterr()
@@ -203,7 +203,7 @@ def test_cli_exit_code_4_when_not_executable(tmp_path: Path, monkeypatch, capsys
 
 
 def test_cli_exit_code_0_when_executable(tmp_path: Path, monkeypatch, capsys) -> None:
-    monkeypatch.setattr(programme, "plan_sequence", fake_plan_sequence(fail=False))
+    monkeypatch.setattr(pointing, "plan_sequence", fake_plan_sequence(fail=False))
     code = main(["plan", str(_target_file(tmp_path)), "--out", str(tmp_path / "o"),
                  "--seed", "1", "--time-limit", "10", "--quiet"])
     cap = capsys.readouterr()

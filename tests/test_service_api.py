@@ -46,15 +46,15 @@ def test_every_stage_is_imported_statically() -> None:
     """The pipeline calls the domain functions themselves (no dynamic look-up, no 501)."""
     import inspect
 
-    from planner import plan_motion, programme
+    from planner import plan_motion, pointing, programme
     from planner.sequence import plan_sequence
     from solvers.allocation import allocate
     from solvers.segmentation import segment_field
 
     assert pipeline.segment_field is segment_field and pipeline.allocate is allocate
     assert pipeline.plan_motion is plan_motion
-    assert programme.allocate is allocate and programme.plan_sequence is plan_sequence
-    for module in (pipeline, programme):
+    assert pointing.allocate is allocate and pointing.plan_sequence is plan_sequence
+    for module in (pipeline, programme, pointing):
         src = inspect.getsource(module)
         assert "import_module" not in src and "inspect.signature" not in src
 

@@ -131,16 +131,18 @@ def test_a_plan_says_which_targets_of_a_small_exposure_no_other_can_take(tmp_pat
     r = c.post("/v1/plans", json={"targets": targets, "seed": 1, "time_limit_s": 30})
     assert r.status_code == 200, r.text
     plan = r.json()
-    lone = [cfg for p in plan["pointings"] for cfg in p["configurations"]
+    few = {(f["pointing_id"], f["configuration"]): f for f in plan["few_target_exposures"]}
+    lone = [(p["id"], cfg["index"]) for p in plan["pointings"] for cfg in p["configurations"]
             if any(a["target_id"] == "lone" for a in cfg["assignments"])]
-    assert len(lone) == 1 and lone[0]["only_here"] == [{"target_id": "lone", "reason": "outside_other_fields"}]
+    assert len(lone) == 1 and few[lone[0]]["only_here"] == [{"target_id": "lone", "reason": "outside_other_fields"}]
+    expected = {}
     for p in plan["pointings"]:
         for cfg in p["configurations"]:
             observed = [a["target_id"] for a in cfg["assignments"] if a["target_id"] is not None]
-            if len(observed) > 2:
-                assert cfg["only_here"] is None
-            else:
-                assert {o["target_id"] for o in cfg["only_here"] or []} <= set(observed)
+            if 0 < len(observed) <= 2:
+                expected[(p["id"], cfg["index"])] = observed
+    assert {k: f["target_ids"] for k, f in few.items()} == expected
+    assert all({o["target_id"] for o in f["only_here"]} <= set(f["target_ids"]) for f in few.values())
 
 
 def test_the_plan_and_the_cli_count_the_exposures_observing_few_targets(tmp_path, capsys) -> None:
@@ -157,10 +159,8 @@ def test_the_plan_and_the_cli_count_the_exposures_observing_few_targets(tmp_path
     printed = capsys.readouterr().out
     plan = json.loads((out / "plan.json").read_text())
     s = plan["stats"]
-    few = [c for p in plan["pointings"] for c in p["configurations"]
-           if 0 < sum(a["target_id"] is not None for a in c["assignments"]) <= 2]
-    explained = [c for c in few if {a["target_id"] for a in c["assignments"] if a["target_id"] is not None}
-                 <= {o["target_id"] for o in c["only_here"] or []}]
+    few = plan["few_target_exposures"]
+    explained = [f for f in few if {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"])]
     assert s["few_target_exposures"] == len(few) >= 1
     assert s["few_target_exposures_only_here"] == len(explained) >= 1
     assert (f"proven lower bound {s['exposures_lower_bound']}" in printed

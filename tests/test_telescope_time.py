@@ -21,7 +21,7 @@ from models.budget import Budget
 from models.errors import InputError
 from models.instrument import default_instrument
 from models.types import AllocationResult, ArmAssignment, Configuration, MotionPlan, PlaneTargets
-from planner import programme
+from planner import pointing, programme
 from planner.reassign import Placed, new_configuration
 from planner.sequence import SequenceOptions, SequencePlan, _Sequencer
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time, total
@@ -238,8 +238,8 @@ class Stages:
 def test_thresholds_hold_after_the_motion_planners_changes(monkeypatch) -> None:
     targets = _targets(8, [5, 1, 1, 1, 1, 1, 1, 1])
     fake = Stages(targets, [[0, 1, 2, 3], [4, 5, 6], [7]])
-    monkeypatch.setattr(programme, "allocate", fake.allocate)
-    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(pointing, "allocate", fake.allocate)
+    monkeypatch.setattr(pointing, "plan_sequence", fake.plan_sequence)
     options = programme.PointingOptions(rules=ObservingRules(min_targets_per_exposure=3, exposure_time_s=100.0,
                                                              acquisition_s=7.0))
     pp = programme.plan_pointing(INST, targets, options, share_s=30.0)
@@ -257,7 +257,7 @@ def test_thresholds_hold_after_the_motion_planners_changes(monkeypatch) -> None:
 def test_a_pointing_given_no_exposure_is_not_attempted(monkeypatch) -> None:
     targets = _targets(3, [1, 2, 3])
     fake = Stages(targets, [[0, 1, 2]])
-    monkeypatch.setattr(programme, "allocate", fake.allocate)
+    monkeypatch.setattr(pointing, "allocate", fake.allocate)
     pp = programme.plan_pointing(INST, targets, programme.PointingOptions(max_configurations=0), share_s=30.0)
     assert pp.sequence.configurations == () and pp.executable
     assert {u.reason for u in pp.allocation.unallocated} == {"beyond_max_exposures"}  # type: ignore[union-attr]
