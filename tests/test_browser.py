@@ -143,6 +143,11 @@ def test_plan_an_uploaded_table(page, server, tmp_path: Path) -> None:
     assert ("NOT executable" in banner) == (not result["executable"])
     summary = page.inner_text("#summary")
     assert "Targets observed per priority" in summary
+    s = result["stats"]
+    if s.get("exposures_lower_bound"):  # a bound (mode fewest-exposures): the configurations over it
+            assert f"proven lower bound on configurations\t{s['exposures_lower_bound']} (this plan: " \
+               f"{s['configurations'] / s['exposures_lower_bound']:.2f}×)" in summary
+    assert ("configurations observing at most 2 targets" in summary) == bool(s["few_target_exposures"])
     # every target: where the server put it, or why not
     where = {a["target_id"]: (p["id"], f"c{c['index'] + 1}", str(a["arm"]))
              for p in result["pointings"] for c in p["configurations"] for a in c["assignments"]

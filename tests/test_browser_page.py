@@ -176,6 +176,11 @@ def test_m67_result_first_screen_and_command_line(page, server) -> None:
     page.fill("#time-limit", "12")
     page.fill("#seed", "7")
     _plan(page)
+    s = page.evaluate("mxs.state.result.stats")
+    bound_row = page.evaluate("""() => [...document.querySelectorAll('#summary tr')].map((tr) => tr.textContent)
+        .find((r) => r.startsWith('proven lower bound'))""")
+    assert bound_row == (f"proven lower bound on configurations{s['exposures_lower_bound']} "
+                         f"(this plan: {s['configurations'] / s['exposures_lower_bound']:.2f}×)")
     boxes = _first_screen(page)
     assert abs(boxes["result"]["top"]) < 1
     for k in ("summary", "sky"):  # whole, on the first screen

@@ -355,6 +355,10 @@ function showSummary(result, request, fate) {
     ["motion legs not planned", `${s.motion_plans_failed ?? "?"} of ${s.motion_plans ?? "?"}`],
   ];
   if (s.telescope_time) rows.splice(3, 0, ["telescope time (h:mm)", telescopeTimeText(s.telescope_time)]);
+  if (s.exposures_lower_bound) rows.splice(3, 0, ["proven lower bound on configurations",
+    `${s.exposures_lower_bound} (this plan: ${(s.configurations / s.exposures_lower_bound).toFixed(2)}×)`]);
+  if (s.few_target_exposures) rows.push(["configurations observing at most 2 targets",
+    `${s.few_target_exposures} (${s.few_target_exposures_only_here} only for targets no other configuration can take)`]);
   for (const [k, label] of [["targets_moved", "targets moved to another configuration"],
     ["legs_via_park", "legs through park"], ["configurations_added", "configurations added"],
     ["targets_dropped", "targets dropped"]]) if (s[k]) rows.push([label, s[k]]);
