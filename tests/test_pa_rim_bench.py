@@ -29,5 +29,5 @@ def test_a_small_run_loses_no_target_some_angle_reaches(capsys) -> None:
     assert pa_rim.main(["--fields", "1", "--targets", "40"]) == 0
     out = json.loads(capsys.readouterr().out)
     auto = out["modes"]["auto"]
-    assert auto["members"] == 40 and auto["lost_but_reachable"] == 0
+    assert auto["members"] == 40 and auto["lost_but_reachable"] == 0 and auto["lost_beyond_best_angle"] == 0
     assert set(out["modes"]) == {"auto", "fixed_0"}

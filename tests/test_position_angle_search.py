@@ -180,7 +180,10 @@ def test_a_range_without_a_reaching_angle_loses_them_inside_the_range(client) ->
     out = r.json()
     for p in out["pointings"]:
         assert -4.0 <= p["position_angle_deg"] <= 4.0
-        assert p["position_angle_search"]["tried_deg"] == [-4.0, -2.0, 0.0, 2.0, 4.0]
+        tried = p["position_angle_search"]["tried_deg"]
+        # the grid, then (every grid angle losing them) every 0.5 deg between, inside the range
+        assert tried[:5] == [-4.0, -2.0, 0.0, 2.0, 4.0]
+        assert sorted(tried) == [a / 2 for a in range(-8, 9)]
         members = [t for t in field_targets() if t["id"] in p["target_ids"]]
         fewest = min(len(lost_at(members, (p["ra_deg"], p["dec_deg"]), a)) for a in (-4, -2, 0, 2, 4))
         assert len(lost_at(members, (p["ra_deg"], p["dec_deg"]), p["position_angle_deg"])) == fewest > 0

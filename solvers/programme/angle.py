@@ -12,6 +12,10 @@ The objective, compared in this order (each later key breaks the ties of the one
 4. the angle nearest the range's centre (any angle: nearest 0°, on the circle);
 5. the smaller angle.
 
+When the best angles of that grid still lose members, the angles within one step of them are
+tried every 0.5° (:func:`refined_angles`): several rim members can leave an arc of angles
+that reaches them all narrower than the step.
+
 Each angle costs one reachability evaluation of the pointing's members (the allocation is not
 run per angle), about a millisecond for a hundred members, so the angles are scored in turn
 and the search is deterministic: the same members and options give the same angle.
@@ -30,8 +34,8 @@ from models.instrument import Instrument
 from models.sky import sky_to_focal_mm
 from solvers.programme.reach import MAX_WINDOW, arm_masks
 
-__all__ = ["DEFAULT_STEP_DEG", "OBJECTIVE", "AngleChoice", "AngleScore", "AngleSearch", "choose_angle",
-           "reach_exposures"]
+__all__ = ["DEFAULT_STEP_DEG", "OBJECTIVE", "REFINE_STEP_DEG", "AngleChoice", "AngleScore", "AngleSearch",
+           "choose_angle", "reach_exposures", "refined_angles"]
 
 #: the default step, deg: a sixth of the default instrument's arm pitch (30°), so that the
 #: search sees six placements of the arms relative to the members (reach repeats every 30°
@@ -39,6 +43,11 @@ __all__ = ["DEFAULT_STEP_DEG", "OBJECTIVE", "AngleChoice", "AngleScore", "AngleS
 #: least 15.5° wide (measured every 0.5° at r = 124.4 mm, 120 s), so the grid samples every
 #: such arc at least three times. 72 angles take about 0.1 s for a pointing of 100 targets.
 DEFAULT_STEP_DEG = 5.0
+#: when the grid's best angles still lose members, the search also tries every this many
+#: degrees within one grid step of each of them (several rim members can leave an arc of
+#: angles that reaches them all narrower than the grid step), at most REFINE_MAX_ANGLES more
+REFINE_STEP_DEG = 0.5
+REFINE_MAX_ANGLES = 720
 #: the objective in words (the field descriptions and the docs say the same)
 OBJECTIVE = ("fewest targets out of every arm's reach within the park move limit, then fewest "
              "exposures (the arm-reach bound), then highest priority reached, then the angle "
@@ -164,11 +173,37 @@ def choose_angle(inst: Instrument, ra_deg, dec_deg, priority, centre: tuple[floa
     prio = np.atleast_1d(np.asarray(priority, np.int64))
     angles = search.angles()
     scores = tuple(_score(inst, ra, dec, prio, centre, a, park_move_limit_s, arm_limits) for a in angles)
+    least = min(s.lost for s in scores)
+    if least > 0:  # a narrow arc between grid angles may reach every member
+        lo, hi = (-math.inf, math.inf) if search.range_deg is None else search.range_deg
+        extra = refined_angles([s.angle_deg for s in scores if s.lost == least], search.step_deg, lo, hi, angles)
+        if search.range_deg is None:  # any angle: reported in [0, 360)
+            extra = tuple(a % 360.0 for a in extra)
+        angles += extra
+        scores += tuple(_score(inst, ra, dec, prio, centre, a, park_move_limit_s, arm_limits) for a in extra)
     keys: list[Callable[[AngleScore], float]] = [
         lambda s: s.lost, lambda s: s.exposures, lambda s: -s.priority,
         lambda s: round(search.distance_deg(s.angle_deg), 9), lambda s: s.angle_deg]
     best, decided = _lexicographic(scores, keys)
     return AngleChoice(best.angle_deg, angles, scores, _objective(best, len(ra), len(angles), decided))
+
+
+def refined_angles(best_deg: Sequence[float], step_deg: float, lo_deg: float, hi_deg: float,
+                   tried: Sequence[float]) -> tuple[float, ...]:
+    """Every :data:`REFINE_STEP_DEG` within one ``step_deg`` of each angle of ``best_deg``,
+    inside [lo_deg, hi_deg], not equal modulo 360 to an angle of ``tried`` or to one before it
+    (ascending; at most :data:`REFINE_MAX_ANGLES`)."""
+    seen = {round(a % 360.0, 6) % 360.0 for a in tried}
+    n = int(math.ceil(step_deg / REFINE_STEP_DEG - 1e-9))
+    out: list[float] = []
+    for b in sorted(best_deg):
+        for k in range(-n + 1, n):
+            a = round(b + k * REFINE_STEP_DEG, 9)
+            key = round(a % 360.0, 6) % 360.0
+            if lo_deg <= a <= hi_deg and key not in seen and len(out) < REFINE_MAX_ANGLES:
+                seen.add(key)
+                out.append(a)
+    return tuple(out)
 
 
 def _lexicographic(scores: Sequence[AngleScore], keys: Sequence[Callable[[AngleScore], float]],

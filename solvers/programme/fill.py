@@ -16,6 +16,7 @@ exposure when other pointings take its targets in the exposures they already hav
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -26,7 +27,7 @@ from models.sky import sky_to_focal_mm, tangent_radius_mm
 from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
 from solvers.allocation.options import DEFAULT_SOLVER, AllocationOptions, PackingOptions
-from solvers.programme.angle import AngleChoice, AngleSearch, choose_angle
+from solvers.programme.angle import AngleChoice, AngleSearch, choose_angle, refined_angles
 from solvers.programme.reach import arm_masks
 from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
@@ -127,7 +128,9 @@ def position_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
                    ) -> tuple[float, dict[float, int]]:
     """The angle of :data:`POSITION_ANGLES_DEG` (and the requested one) at which the fewest
     members are out of every arm's reach within the park move limit (thesis 7.3: FOV
-    rotation); the requested angle, then the nearest to it, on ties. Returns the angle and
+    rotation); the requested angle, then the nearest to it, on ties. When every grid angle
+    loses members, every 0.5 deg within one grid step of the best of them is tried too
+    (:func:`solvers.programme.angle.refined_angles`). Returns the angle and
     the members lost at each angle tried (the search stops at the first angle losing none)."""
     want = float(opts.position_angle_deg) % 360.0
     if not opts.search_position_angle or len(members) == 0:
@@ -139,11 +142,21 @@ def position_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
 
     angles = sorted({want, *POSITION_ANGLES_DEG}, key=lambda a: (distance(a), a))
     lost: dict[float, int] = {}
-    for a in angles:
-        x, y = sky_to_focal_mm(f.ra_deg[members], f.dec_deg[members], centre[0], centre[1], f.scale, a)
-        lost[a] = int(np.count_nonzero(opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), members) == 0))
-        if lost[a] == 0:
-            break
+
+    def tried(order: list[float]) -> bool:
+        for a in order:
+            x, y = sky_to_focal_mm(f.ra_deg[members], f.dec_deg[members], centre[0], centre[1], f.scale, a)
+            lost[a] = int(np.count_nonzero(opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), members) == 0))
+            if lost[a] == 0:
+                return True
+        return False
+
+    if not tried(angles):  # a narrow arc between the grid's angles may reach every member
+        least = min(lost.values())
+        step = POSITION_ANGLES_DEG[1] - POSITION_ANGLES_DEG[0]
+        extra = refined_angles([a for a in angles if lost[a] == least], step, -math.inf, math.inf, angles)
+        angles += sorted((a % 360.0 for a in extra), key=lambda a: (distance(a), a))
+        tried(angles[len(lost):])
     return min(lost, key=lambda a: (lost[a], angles.index(a))), lost
 
 
