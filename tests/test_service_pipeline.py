@@ -20,7 +20,7 @@ from models.budget import Budget
 from models.instrument import default_instrument
 from models.sky import focal_mm_to_sky
 from models.types import AllocationResult, ArmAssignment, Configuration, MotionPlan, PlaneTargets
-from planner import plan_motion, programme
+from planner import plan_motion, pointing, programme
 from planner.options import MotionOptions
 from planner.sequence import SequenceOptions, SequencePlan
 from service import pipeline
@@ -147,8 +147,8 @@ class SlowStages:
 @pytest.mark.parametrize("limit_s,spread_deg", [(3.0, 0.0), (7.0, 0.2)])
 def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spread_deg) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(programme, "allocate", fake.allocate)
-    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(pointing, "allocate", fake.allocate)
+    monkeypatch.setattr(pointing, "plan_sequence", fake.plan_sequence)
     targets = sky_targets(6)
     for i, t in enumerate(targets):  # spread_deg > 0: several pointings
         t["dec_deg"] += spread_deg * (i % 3)
@@ -167,8 +167,8 @@ def test_the_whole_plan_honours_the_request_time_limit(monkeypatch, limit_s, spr
 
 def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(programme, "allocate", fake.allocate)
-    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(pointing, "allocate", fake.allocate)
+    monkeypatch.setattr(pointing, "plan_sequence", fake.plan_sequence)
     req = PlanRequest(targets=sky_targets(3), time_limit_s=60.0, seed=1, segmentation_mode="complete-linkage")
     t0 = time.monotonic()
     out = pipeline.plan(req, INST, budget_s=2.0)
@@ -177,8 +177,8 @@ def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
     # no request limit: the budget alone, the one limit of the whole plan (no solver cap:
     # the allocation gets its share of the pointing's effort)
     fake2 = SlowStages()
-    monkeypatch.setattr(programme, "allocate", fake2.allocate)
-    monkeypatch.setattr(programme, "plan_sequence", fake2.plan_sequence)
+    monkeypatch.setattr(pointing, "allocate", fake2.allocate)
+    monkeypatch.setattr(pointing, "plan_sequence", fake2.plan_sequence)
     out = pipeline.plan(PlanRequest(targets=sky_targets(3), seed=1, segmentation_mode="complete-linkage"), INST,
                         budget_s=2.0)
     usable = programme.usable_s(2.0)
@@ -189,8 +189,8 @@ def test_the_server_budget_caps_the_request_limit(monkeypatch) -> None:
 
 def test_a_pointing_reached_after_the_deadline_is_no_time(monkeypatch) -> None:
     fake = SlowStages()
-    monkeypatch.setattr(programme, "allocate", fake.allocate)
-    monkeypatch.setattr(programme, "plan_sequence", fake.plan_sequence)
+    monkeypatch.setattr(pointing, "allocate", fake.allocate)
+    monkeypatch.setattr(pointing, "plan_sequence", fake.plan_sequence)
     targets = sky_targets(6)
     for i, t in enumerate(targets):
         t["dec_deg"] += 0.2 * (i % 3)
