@@ -78,7 +78,7 @@ class AngleSearch:
         out: list[float] = []
         seen: set[float] = set()
         for a in grid:
-            key = round(a % 360.0, 6) % 360.0
+            key = _angle_key(a)
             if key not in seen:
                 seen.add(key)
                 out.append(float(a))
@@ -94,6 +94,11 @@ class AngleSearch:
             return abs(a - self.preferred_deg())
         d = abs(a) % 360.0
         return min(d, 360.0 - d)
+
+
+def _angle_key(a_deg: float) -> float:
+    """An angle modulo 360, rounded, so that equal angles compare equal."""
+    return round(a_deg % 360.0, 6) % 360.0
 
 
 def check_search(range_deg: Sequence[float] | None, step_deg: float,
@@ -193,13 +198,13 @@ def refined_angles(best_deg: Sequence[float], step_deg: float, lo_deg: float, hi
     """Every :data:`REFINE_STEP_DEG` within one ``step_deg`` of each angle of ``best_deg``,
     inside [lo_deg, hi_deg], not equal modulo 360 to an angle of ``tried`` or to one before it
     (ascending; at most :data:`REFINE_MAX_ANGLES`)."""
-    seen = {round(a % 360.0, 6) % 360.0 for a in tried}
+    seen = {_angle_key(a) for a in tried}
     n = int(math.ceil(step_deg / REFINE_STEP_DEG - 1e-9))
     out: list[float] = []
     for b in sorted(best_deg):
         for k in range(-n + 1, n):
             a = round(b + k * REFINE_STEP_DEG, 9)
-            key = round(a % 360.0, 6) % 360.0
+            key = _angle_key(a)
             if lo_deg <= a <= hi_deg and key not in seen and len(out) < REFINE_MAX_ANGLES:
                 seen.add(key)
                 out.append(a)

@@ -62,9 +62,8 @@ MAX_CENTRES = 400_000
 #: cutting-plane rounds and discs added per round
 ROUNDS = 15
 CUTS_PER_ROUND = 200
-#: the cutting-plane rounds examine at most this many discs (every k-th; the heaviest discs
-#: of the last round always): the final check examines them all, so the bound holds whatever
-#: the rounds saw
+#: the cutting-plane rounds examine at most this many discs (every k-th): the final check
+#: examines them all, so the bound holds whatever the rounds saw
 ROUND_CENTRES = 8_000
 #: effort seconds charged per (disc, target) cell examined and per cutting-plane LP solve
 #: (reference seconds, as the costs of solvers.effort)

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from models.instrument import Instrument
+from solvers.programme.model import ReachRows
 
 __all__ = ["CrowdingCells", "crowding_cells", "crowding_rows", "exclusion_distance_mm", "with_crowding"]
 
@@ -120,11 +121,9 @@ def crowding_rows(col_set: np.ndarray, member: np.ndarray, cells: CrowdingCells)
     return start, entries.astype(np.int64), ks[starts[keep]].astype(np.int64), np.ones(int(keep.sum()))
 
 
-def with_crowding(rows, cand, cells: CrowdingCells):
+def with_crowding(rows: ReachRows | None, cand, cells: CrowdingCells) -> ReachRows | None:
     """``rows`` (:class:`solvers.programme.model.ReachRows`, or None) with the crowding rows of
     the candidates ``cand`` appended (:func:`crowding_rows`)."""
-    from solvers.programme.model import ReachRows
-
     col_set = np.repeat(np.arange(len(cand)), cand.sizes)
     start, entries, sets, caps = crowding_rows(col_set, cand.index, cells)
     if len(sets) == 0:

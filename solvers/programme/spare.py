@@ -106,26 +106,21 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
     out: another exposure could take it. Returns {exposure index: {target index: reason}}."""
     ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
     scale = float(inst.plate_scale_arcsec_per_mm)
-    groups: dict[tuple[float, float, float], list[int]] = {}
-    for j, e in enumerate(exposures):
-        groups.setdefault((e.ra_deg, e.dec_deg, e.position_angle_deg), []).append(j)
+    groups = _pointings(exposures)
     out: dict[int, dict[int, str]] = {}
     for j, e in enumerate(exposures):
         if not 0 < len(e.targets) <= few:
             continue
         reasons = {}
         for t in e.targets:
-            held = False
-            taken = False
-            for (c_ra, c_dec, pa), members in groups.items():
-                others = [k for k in members if k != j]
-                if not others or tangent_radius_mm(ra[t], dec[t], c_ra, c_dec, scale) > inst.fov_radius_mm:
+            held = taken = False
+            for g in groups:
+                others = g.members != j
+                if not others.any() or tangent_radius_mm(ra[t], dec[t], g.ra_deg, g.dec_deg, scale) > inst.fov_radius_mm:
                     continue
                 held = True
-                x, y = sky_to_focal_mm(ra[[t]], dec[[t]], c_ra, c_dec, scale, pa)
-                q = np.stack([exposures[k].q for k in others])
-                idle = np.stack([exposures[k].idle for k in others])
-                if takers(inst, q, idle, float(x[0]), float(y[0]), park_move_limit_s).any():
+                x, y = sky_to_focal_mm(ra[[t]], dec[[t]], g.ra_deg, g.dec_deg, scale, g.position_angle_deg)
+                if takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s).any():
                     taken = True
                     break
             if not held:
@@ -135,3 +130,25 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
         if reasons:
             out[j] = reasons
     return out
+
+
+@dataclass(frozen=True)
+class _Pointing:
+    """The exposures of one pointing (``members``: their indices), their joint angles and
+    idle arms stacked."""
+
+    ra_deg: float
+    dec_deg: float
+    position_angle_deg: float
+    members: np.ndarray
+    q: np.ndarray
+    idle: np.ndarray
+
+
+def _pointings(exposures: list[Exposure]) -> list[_Pointing]:
+    """The exposures grouped by pointing (centre and angle), in order of first appearance."""
+    index: dict[tuple[float, float, float], list[int]] = {}
+    for j, e in enumerate(exposures):
+        index.setdefault((e.ra_deg, e.dec_deg, e.position_angle_deg), []).append(j)
+    return [_Pointing(*key, np.array(js), np.stack([exposures[k].q for k in js]),
+                      np.stack([exposures[k].idle for k in js])) for key, js in index.items()]
