@@ -192,6 +192,18 @@ def via_park_leg(instrument: Instrument, from_park_a: MotionPlan, from_park_b: M
     return verified_plan(instrument, trajs, start_q, goal_q, max_start_stop=None, stats=stats)
 
 
+#: A leg that fails on its share of the sequence's time is planned once more on this many
+#: times that share (:meth:`_Sequencer.escalated_s`): the leg searches (planner.driver) give
+#: each strategy a fraction of the leg's budget, and a crowded leg from park that fails on
+#: 0.5 s often plans in a quarter of a second once its evasion stage gets 0.15 s of 1 s.
+ESCALATION = 4.0
+#: The second try is made only when it gets at least this many times the first's budget.
+ESCALATION_MIN_GAIN = 1.5
+#: ... and at most this part of what the sequence has left, so that a leg no time plans
+#: leaves its repairs and the later legs theirs.
+ESCALATION_LEFT = 0.25
+
+
 def _key(config: Configuration) -> bytes:
     """A configuration's joint angles, as the key of its park -> configuration plan."""
     return np.ascontiguousarray(config.q, dtype=float).tobytes()
@@ -225,14 +237,34 @@ class _Sequencer:
         legs_left = max(1, len(self.configs) + 1 - len(self.legs))
         return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.budget.left_s() / legs_left))
 
-    def plan(self, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan:
+    def plan(self, start_q: np.ndarray, goal_q: np.ndarray, limit_s: float | None = None) -> MotionPlan:
+        """The leg from ``start_q`` to ``goal_q`` on ``limit_s`` (default: its share,
+        :meth:`budget_s`)."""
         if self.budget.left_s() <= 0:  # the sequence's time limit has passed: no more planning
             arms = tuple(range(self.ins.n_arms))
             return MotionPlan("failed", math.nan, (), arms,
                               {"reasons": {k: "no time left in the sequence's time limit" for k in arms}})
         self.plans += 1
         return plan_motion(self.ins, start_q, goal_q, seed=self.opt.seed,
-                           budget=self.whole.child(self.budget_s()), via=None)
+                           budget=self.whole.child(self.budget_s() if limit_s is None else limit_s), via=None)
+
+    def plan_escalating(self, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan:
+        """:meth:`plan` on the leg's share; when that fails, once more on
+        :meth:`escalated_s`: a hard leg takes time the easy ones leave rather than losing a
+        target (a repair) to a share too short for its search."""
+        share_s = self.budget_s()
+        leg = self.plan(start_q, goal_q, share_s)
+        again_s = self.escalated_s(share_s)
+        if leg.status != "ok" and again_s is not None:
+            leg = self.plan(start_q, goal_q, again_s)
+        return leg
+
+    def escalated_s(self, share_s: float) -> float | None:
+        """The second try of a leg that failed on ``share_s``: :data:`ESCALATION` times it,
+        at most ``leg_time_limit_s`` and :data:`ESCALATION_LEFT` of what the sequence has
+        left; None when that is not :data:`ESCALATION_MIN_GAIN` times ``share_s``."""
+        again_s = min(ESCALATION * share_s, self.opt.leg_time_limit_s, ESCALATION_LEFT * self.budget.left_s())
+        return again_s if again_s >= ESCALATION_MIN_GAIN * share_s else None
 
     def park_to(self, config: Configuration) -> MotionPlan:
         key = _key(config)
@@ -250,7 +282,7 @@ class _Sequencer:
         goal = park if last else self.configs[i].q
         leg = self.from_park.get(_key(self.configs[0])) if i == 0 else None
         if leg is None:
-            leg = self.plan(start_q, goal)
+            leg = self.plan_escalating(start_q, goal)
         if i == 0 and leg.status == "ok":
             self.from_park[_key(self.configs[0])] = leg
         if leg.status == "ok":
@@ -293,6 +325,8 @@ class _Sequencer:
                 continue
             config = self.configs[i]
             k = self._lowest_priority(config, leg.failed_arms)
+            if k is None:  # idle arms block: a target of the arms beside them moves instead
+                k = self._lowest_priority(config, self._beside(leg.failed_arms))
             if k is None:
                 break
             branch = self._other_branch(i, k, start_q)
@@ -328,6 +362,16 @@ class _Sequencer:
                                        f"idle arms {', '.join(map(str, moved))} rest at park instead of on "
                                        f"blank sky in configuration {i + 1}"))
         return True
+
+    def _beside(self, arms: Sequence[int]) -> tuple[int, ...]:
+        """The two arms whose bases are nearest each of ``arms`` (its neighbours on the
+        instrument's ring), nearest first, without ``arms`` themselves."""
+        x, y = self.ins.arm_array("base_x_mm"), self.ins.arm_array("base_y_mm")
+        out: list[int] = []
+        for k in arms:
+            d = np.hypot(x - x[k], y - y[k])
+            out += [int(j) for j in np.argsort(d, kind="stable")[1:3] if int(j) not in arms]
+        return tuple(dict.fromkeys(out))
 
     def _lowest_priority(self, config: Configuration, arms: Sequence[int]) -> int | None:
         """The arm among ``arms`` observing the lowest-priority target (the first on ties)."""

@@ -291,7 +291,7 @@ def test_a_leg_into_a_kept_configuration_is_never_repaired_by_changing_it() -> N
     for kept, changed in ((0, True), (1, False)):
         seq = _Sequencer(INST, [config], SequenceOptions(kept=kept), {}, Budget.start(10.0))
         seq.pending = []
-        seq.plan = lambda start, goal: failed  # type: ignore[method-assign]
+        seq.plan = lambda start, goal, *_: failed  # type: ignore[method-assign]
         leg = seq.transition(0, INST.park_configuration)
         assert (seq.configs[:1] != [config]) == changed
         if not changed:
