@@ -171,10 +171,10 @@ def small_exposures(plan: dict[str, Any]) -> dict[str, Any]:
     """The exposures observing at most ``SMALL_EXPOSURE_TARGETS`` targets, and how many of
     them the plan flags as observing targets no other exposure can (its
     ``few_target_exposures``; else a flag on the configurations; null: no flag)."""
-    if "few_target_exposures" in plan:
-        few = plan["few_target_exposures"]
-        flagged = sum({o["target_id"] for o in f["only_here"]} >= set(f["target_ids"]) for f in few)
-        return {"small_exposures": len(few), "small_exposures_only_here": flagged,
+    if "few_target_exposures" in plan:  # the plan counts them (stats) as it lists them
+        stats = plan["stats"]
+        return {"small_exposures": stats["few_target_exposures"],
+                "small_exposures_only_here": stats["few_target_exposures_only_here"],
                 "only_here_flag": "few_target_exposures"}
     count, flagged, key = 0, 0, None
     for p in plan["pointings"]:
