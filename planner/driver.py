@@ -226,6 +226,9 @@ def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = Non
         if rep.ok:
             plan = _shorter(leg, out, budget, stats) or MotionPlan("ok", float(out.makespan_s), out.trajectories, (),
                                                                     stats)
+            # the stops of the trajectories returned (a shorter search's plan replaces the
+            # first candidate's, whose strategy may have reported its own count)
+            stats["max_stops"] = max_stops(plan.trajectories)
             stats["compute_s"] = clock.now() - t0
             return plan
         kind = rep.violations[0].kind if rep.violations else "unknown"
@@ -292,6 +295,11 @@ def plan_motion(
     return plan_leg(Leg.build(instrument, start_q, goal_q, options), budget)
 
 
+def max_stops(trajectories: Sequence[ArmTrajectory]) -> int:
+    """The most start-stop cycles any arm makes on ``trajectories`` (thesis 6.3.4.4; 0: none)."""
+    return max((int(stop_count(t.t_s, t.theta1_rad, t.theta2_rad)) for t in trajectories), default=0)
+
+
 def verified_plan(instrument: Instrument, trajectories: Sequence[ArmTrajectory], start_q: np.ndarray,
                   goal_q: np.ndarray, *, max_start_stop: int | None, stats: dict) -> MotionPlan | None:
     """A plan composed of verified pieces (a time reversal, two legs joined at park), verified
@@ -300,8 +308,7 @@ def verified_plan(instrument: Instrument, trajectories: Sequence[ArmTrajectory],
     rep = verify_trajectories(instrument, trajectories, start_q, goal_q, max_start_stop=max_start_stop)
     if not rep.ok:
         return None
-    stops = max(stop_count(t.t_s, t.theta1_rad, t.theta2_rad) for t in trajectories)
-    stats = {**stats, "min_clearance_mm": rep.min_clearance_mm, "max_stops": int(stops),
+    stats = {**stats, "min_clearance_mm": rep.min_clearance_mm, "max_stops": max_stops(trajectories),
              "verify_pair_samples": rep.pair_samples_checked}
     return MotionPlan("ok", max(float(t.t_s[-1]) for t in trajectories), tuple(trajectories), (), stats)
 

@@ -267,3 +267,74 @@ def test_sampling_is_bounded(kw, field):
     with pytest.raises(InputError) as e:
         MotionOptions(**kw)
     assert e.value.field == field
+
+
+def _one_arm_move(leg: Leg, rest_s: float) -> tuple[ArmTrajectory, ...]:
+    """Arm 0 straight to its goal at full speed, resting ``rest_s`` halfway (0: no rest); the
+    other arms (disabled) stay."""
+    q0, q1 = leg.start_q[0], leg.goal_q[0].copy()
+    d = q1 - q0
+    d[1] = (d[1] + np.pi) % TWO_PI - np.pi
+    T = float(np.abs(d).max() / V)
+    if rest_s > 0:
+        t = np.array([0.0, T / 2, T / 2 + rest_s, T + rest_s])
+        q = np.array([q0, q0 + d / 2, q0 + d / 2, q0 + d])
+    else:
+        t, q = np.array([0.0, T]), np.array([q0, q0 + d])
+    trajs = [ArmTrajectory(0, t, q[:, 0].copy(), q[:, 1].copy())]
+    trajs += [ArmTrajectory(k, np.array([0.0]), leg.start_q[k, :1].copy(), leg.start_q[k, 1:].copy())
+              for k in range(1, leg.n_arms)]
+    return tuple(trajs)
+
+
+class Resting:
+    """Arm 0 to its goal with a rest halfway: one start-stop cycle, as its stats say."""
+
+    name = "resting"
+
+    def plan(self, leg: Leg, budget: Budget) -> Candidate:
+        trajs = _one_arm_move(leg, rest_s=30.0)
+        return Candidate(trajs, float(trajs[0].t_s[-1]), self.name, {"max_stops": 1})
+
+
+class Straight:
+    """Arm 0 straight to its goal: no stop; its stats say nothing of stops."""
+
+    name = "straight"
+
+    def plan(self, leg: Leg, budget: Budget) -> Candidate:
+        trajs = _one_arm_move(leg, rest_s=0.0)
+        return Candidate(trajs, float(trajs[0].t_s[-1]), self.name, {})
+
+
+def test_a_shorter_plan_reports_its_own_stops(monkeypatch):
+    """A shorter search's plan replaces the first candidate: the leg's ``max_stops`` is the
+    count of the trajectories returned (what ``mxs-planner validate`` recounts), not the
+    first strategy's."""
+    inst = INST.with_arms_disabled(list(range(1, 12)))
+    goal = PARK.copy()
+    goal[0] = GOAL_CONFLICT[0]
+    leg = Leg.build(inst, PARK, goal, MotionOptions())
+    monkeypatch.setattr(driver, "_shorter_searches", lambda leg, strategy: [(Straight(), 0.0)])
+    plan = driver.plan_leg(leg, Budget.start(10.0), sequence=[Resting()])
+    assert plan.status == "ok"
+    assert plan.stats["shorter_search"][0]["strategy"] == "straight"
+    assert plan.makespan_s == pytest.approx(float(Straight().plan(leg, Budget.start(1.0)).makespan_s))
+    from planner.validate import _stop_count
+
+    counted = max(_stop_count(t.t_s, np.column_stack([t.theta1_rad, t.theta2_rad]))
+                  for t in plan.trajectories if len(t.t_s) > 1)
+    assert counted == 0
+    assert plan.stats["max_stops"] == counted
+
+
+def test_a_leg_reports_the_stops_of_its_trajectories(monkeypatch):
+    """Without a shorter search the first candidate is kept, and so are its stops."""
+    inst = INST.with_arms_disabled(list(range(1, 12)))
+    goal = PARK.copy()
+    goal[0] = GOAL_CONFLICT[0]
+    leg = Leg.build(inst, PARK, goal, MotionOptions())
+    monkeypatch.setattr(driver, "_shorter_searches", lambda leg, strategy: [])
+    plan = driver.plan_leg(leg, Budget.start(10.0), sequence=[Resting()])
+    assert plan.status == "ok"
+    assert plan.stats["max_stops"] == 1

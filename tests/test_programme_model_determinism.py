@@ -1,0 +1,80 @@
+"""The programme model's HiGHS run stops on the work it did, not on the wall clock: on the
+effort clock its solution is the same on a slower machine (docs/programme.md, "The fewest
+exposures"). A slower machine is played by sleeping in every HiGHS callback, which adds wall
+time and no work; a run limited by wall seconds (a multiple of its budget) stops earlier in
+its search and keeps another solution."""
+
+from __future__ import annotations
+
+import time
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from models import clock
+from models.budget import Budget
+from models.instrument import load_instrument
+from service.tables import read_target_table
+from solvers import effort
+from solvers.programme.candidates import maximal_sets
+from solvers.programme.optimiser import OptimiserOptions, _model
+from solvers.programme.reach import entry_masks
+from solvers.segmentation.field import field_plane
+
+CASE = Path(__file__).parent / "data" / "m67-like-150-vizier.csv"
+INST = load_instrument()
+#: the model's first budget in a plan at the default limit (0.8 x 8 % of 119.5 s x 0.15)
+BUDGET_S = 1.15
+#: wall seconds each HiGHS callback sleeps in the "slow machine" run
+SLEEP_S = 0.15
+
+
+@cache
+def first_model_inputs():
+    rows = read_target_table(str(CASE)).rows()
+    ra = np.array([r["ra_deg"] for r in rows])
+    dec = np.array([r["dec_deg"] for r in rows])
+    R, scale = float(INST.fov_radius_mm), float(INST.plate_scale_arcsec_per_mm)
+    _, _, _, _, xy = field_plane(ra, dec, threshold_mm=None, tangent_point=None, fov_radius_mm=R,
+                                 plate_scale_arcsec_per_mm=scale)
+    cand = maximal_sets(xy, R * (1.0 + 1e-4) + 1e-9)
+    opts = OptimiserOptions()
+    masks = entry_masks(INST, cand, xy, opts.fill.position_angle_deg, opts.fill.park_move_limit_s)
+    return cand, masks, len(ra), opts
+
+
+def solve(slow: bool):
+    """The plan's first programme model on the M67-like case, on the effort clock; ``slow``:
+    every HiGHS callback sleeps :data:`SLEEP_S` first. Returns the point where the run
+    stopped (the callbacks it took) with its solution, the run's wall seconds and the seconds
+    it slept."""
+    cand, masks, n, opts = first_model_inputs()
+    real = effort.HighsMeter.on_callback
+    calls = [0]
+
+    def counted(self, callback_type, data_out):
+        if slow:
+            time.sleep(SLEEP_S)
+        calls[0] += 1
+        real(self, callback_type, data_out)
+
+    effort.HighsMeter.on_callback = counted
+    try:
+        t0 = time.perf_counter()
+        with clock.effort(wall_limit_s=120.0):
+            cover, sub = _model(cand, masks, np.ones(n, bool), INST.n_arms, opts, Budget.start(BUDGET_S))
+        wall_s = time.perf_counter() - t0
+    finally:
+        effort.HighsMeter.on_callback = real
+    key = (calls[0], cover.status, cover.nodes, round(cover.objective, 9), tuple(cover.exposures),
+           tuple(cover.owner))
+    return key, wall_s, calls[0] * SLEEP_S if slow else 0.0
+
+
+def test_the_model_keeps_its_solution_on_a_slower_machine() -> None:
+    fast, fast_s, _ = solve(slow=False)
+    slow, slow_s, slept_s = solve(slow=True)
+    assert slow == fast  # the run stopped at the same point of its search, with the same solution ...
+    assert slept_s >= BUDGET_S  # ... on a machine made slower by its whole budget
+    assert slow_s >= fast_s + BUDGET_S - 0.1
