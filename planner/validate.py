@@ -292,6 +292,16 @@ def _check_leg(run: _Run, p: FilePointing, li: int, leg: FileLeg, start_q: np.nd
 # ---------------------------------------------------------------------- pointings
 
 
+def _executable(p: FilePointing) -> bool:
+    """Whether a pointing can be executed as it stands: every leg planned; a pointing the time
+    limit left unplanned (``not_planned``) has nothing to execute when it has no
+    configuration (its targets ``no_time``), and cannot be executed when it has any (their
+    legs were not planned)."""
+    if not p.planned:
+        return not p.configurations
+    return all(leg.status == "ok" for leg in p.legs)
+
+
 def _check_pointing(run: _Run, p: FilePointing, via_park_legs: set[int], progress: Progress) -> None:
     run.counts["pointings"] += 1
     where = _plane_targets(run, p)
@@ -309,7 +319,7 @@ def _check_pointing(run: _Run, p: FilePointing, via_park_legs: set[int], progres
     for li, leg in enumerate(p.legs if p.planned else (), start=1):
         _check_leg(run, p, li, leg, qs[li - 1], qs[li], li in via_park_legs)
         progress(li / len(p.legs))
-    all_ok = p.planned and all(leg.status == "ok" for leg in p.legs)
+    all_ok = _executable(p)
     if p.executable != all_ok:
         run.add(p, "executable", f"the pointing says executable {str(p.executable).lower()}, its legs "
                 + ("are all planned" if all_ok else "are not all planned"))
@@ -335,7 +345,7 @@ def validate_plan(inst: Instrument, plan: object, progress: Progress | None = No
     for i, p in enumerate(pf.pointings):
         _check_pointing(run, p, via_park.get(p.id, set()),
                         lambda f, i=i: None if progress is None else progress((i + f) / n))
-    executable = all(p.planned and all(leg.status == "ok" for leg in p.legs) for p in pf.pointings)
+    executable = all(_executable(p) for p in pf.pointings)
     if pf.executable != executable:
         run.add(None, "executable", f"the plan says executable {str(pf.executable).lower()}, its pointings "
                 + ("are all executable" if executable else "are not all executable"))

@@ -175,6 +175,15 @@ def test_the_m67_case_at_10_s_plans_what_fits_and_says_what_it_needs(m67_short) 
     assert all({u["reason"] for u in p["unallocated"]} == {"no_time"} and not p["configurations"]
                for p in waiting)
     assert advice["targets_not_planned"] == sum(len(p["target_ids"]) for p in waiting)
+    # a pointing not planned has nothing to execute; the plan of the others is executable, and
+    # the independent validator agrees
+    assert all(p["executable"] and not p["configurations"] for p in waiting)
+    assert out["executable"] is True
+    from planner.validate import validate_plan
+    from service import pipeline
+
+    report = validate_plan(pipeline.instrument_from(None), out)
+    assert report.valid, [(v.pointing, v.kind, v.message) for v in report.violations]
     # the pointings it started are planned whole, and they observe targets
     assert started and all(p["executable"] and p["configurations"] for p in started)
     assert out["stats"]["motion_plans_failed"] == 0 and advice["pointings_failed"] == []
