@@ -226,8 +226,8 @@ def plan_leg(leg: Leg, budget: Budget, sequence: Sequence[Strategy] | None = Non
         if rep.ok:
             plan = _shorter(leg, out, budget, stats) or MotionPlan("ok", float(out.makespan_s), out.trajectories, (),
                                                                     stats)
-            # the stops of the trajectories returned (a shorter search's plan replaces the
-            # first candidate's, whose strategy may have reported its own count)
+            # counted here, once, on the trajectories returned (a shorter search's plan may
+            # have replaced the first candidate): the strategies do not report it
             stats["max_stops"] = max_stops(plan.trajectories)
             stats["compute_s"] = clock.now() - t0
             return plan

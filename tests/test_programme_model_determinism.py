@@ -17,6 +17,7 @@ from models.budget import Budget
 from models.instrument import load_instrument
 from service.tables import read_target_table
 from solvers import effort
+from solvers.programme.bound import RADIUS_SLACK
 from solvers.programme.candidates import maximal_sets
 from solvers.programme.optimiser import OptimiserOptions, _model
 from solvers.programme.reach import entry_masks
@@ -38,7 +39,7 @@ def first_model_inputs():
     R, scale = float(INST.fov_radius_mm), float(INST.plate_scale_arcsec_per_mm)
     _, _, _, _, xy = field_plane(ra, dec, threshold_mm=None, tangent_point=None, fov_radius_mm=R,
                                  plate_scale_arcsec_per_mm=scale)
-    cand = maximal_sets(xy, R * (1.0 + 1e-4) + 1e-9)
+    cand = maximal_sets(xy, R * (1.0 + RADIUS_SLACK) + 1e-9)  # as the optimiser
     opts = OptimiserOptions()
     masks = entry_masks(INST, cand, xy, opts.fill.position_angle_deg, opts.fill.park_move_limit_s)
     return cand, masks, len(ra), opts
@@ -63,7 +64,7 @@ def solve(slow: bool):
     try:
         t0 = time.perf_counter()
         with clock.effort(wall_limit_s=120.0):
-            cover, sub = _model(cand, masks, np.ones(n, bool), INST.n_arms, opts, Budget.start(BUDGET_S))
+            cover, _ = _model(cand, masks, np.ones(n, bool), INST.n_arms, opts, Budget.start(BUDGET_S))
         wall_s = time.perf_counter() - t0
     finally:
         effort.HighsMeter.on_callback = real

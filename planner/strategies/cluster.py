@@ -12,9 +12,8 @@ from __future__ import annotations
 
 from models import clock
 from models.budget import Budget
-from models.types import ArmTrajectory
 from planner.cluster import ClusterStats, plan_cluster, removal_sets
-from planner.commands import arm_trajectory, stop_count
+from planner.commands import arm_trajectory
 from planner.geometry import timed_collisions
 from planner.roadmap import RoadmapParams
 from planner.single_arm import SearchParams, SearchStats
@@ -22,11 +21,6 @@ from planner.strategy import Candidate, Leg, Refusal
 
 # cheapest and most often successful first: forward without head start for every set
 TRIES = ((0, False), (0, True), (3, False), (3, True))  # (lead steps, reverse)
-
-
-def stop_count_of(tr: ArmTrajectory) -> int:
-    """Start-stop cycles of one arm's trajectory (thesis 6.3.4.4)."""
-    return int(stop_count(tr.t_s, tr.theta1_rad, tr.theta2_rad))
 
 
 def search_params(leg: Leg) -> tuple[SearchParams, RoadmapParams]:
@@ -95,6 +89,5 @@ class Cluster:
             stats["attempt_log"] = [{"direction": "cluster", "verified": False}]
             return Refusal((), {}, stats)
         stats["attempt_log"] = [{"direction": "cluster"}]
-        stats["max_stops"] = max(stop_count_of(tr) for tr in out_c)
         stats["attempts"] = 1
         return Candidate(out_c, max(float(tr.t_s[-1]) for tr in out_c), "cluster", stats)

@@ -72,7 +72,6 @@ def finish(leg: Leg, search: DelaySearch, res: DelayResult) -> Candidate | Refus
     trajs = delay_trajectories(res.assignment, res.options, leg.n_arms, leg.options.dt_s)
     stats["attempts"] = 1
     stats["attempt_log"] = [{"direction": "delays"}]
-    stats["max_stops"] = max(res.options[k][p].stops for k, (p, _) in res.assignment.items())
     return Candidate(trajs, float(res.makespan_s), "delays", stats)
 
 

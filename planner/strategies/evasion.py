@@ -43,7 +43,6 @@ class Evasion:
         trajs = delay_trajectories(res.assignment, res.options, leg.n_arms, o.dt_s)
         stats["attempt_log"] = [{"direction": "evasion"}]
         stats["attempts"] = 1
-        stats["max_stops"] = max(res.options[k][p].stops for k, (p, _) in res.assignment.items())
         makespan = max(res.options[k][p].duration_s + t * o.dt_s for k, (p, t) in res.assignment.items())
         return Candidate(trajs, float(makespan), "evasion", stats)
 

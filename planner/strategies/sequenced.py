@@ -36,7 +36,6 @@ class Sequenced:
         if res.reversed:
             trajs = reverse_trajectories(trajs, leg.start_q, tl.makespan_s())
         stats["attempt_log"] = [{"direction": "sequenced"}]
-        stats["max_stops"] = max(len(m) for m in tl.moves) - 1 if any(tl.moves) else 0
         return Candidate(trajs, float(tl.makespan_s()), "sequenced", stats)
 
 
