@@ -19,6 +19,8 @@ and the measured figures are in docs/programme.md.
    when a commit gives back targets it had placed; then the next pointing is committed.
 5. **Spare arms** (:func:`.fill.spare_arms`): a pointing's last exposure is given up when
    other pointings take its targets in the exposures they already have.
+6. **Emptied exposures** (:mod:`.consolidate`): an exposure whose every target an idle arm
+   of another exposure (of any pointing holding it) can take as it stands is given up.
 
 The allocation each pointing keeps (its witness) goes to the plan, which keeps it when its own
 allocation of the pointing is not better: the plan has no more exposures than the optimiser
@@ -41,6 +43,7 @@ from models.types import AllocationResult
 from solvers.programme.angle import AngleChoice
 from solvers.programme.bound import RADIUS_SLACK, ExposureBound, lower_bound
 from solvers.programme.candidates import Candidates, maximal_sets
+from solvers.programme.consolidate import consolidate
 from solvers.programme.crowding import (
     CrowdingCells,
     crowding_cells,
@@ -143,6 +146,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
         done.add(j)
         pts.append(p)
     saved = spare_arms(f, pts, options.fill, budget)
+    emptied = consolidate(f, pts, options.fill, budget)
     pts = [p for p in pts if len(p.members)]
     mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
@@ -154,7 +158,8 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
              "model_status": first.status, "model_exposures": int(first.exposures.sum()),
              "model_pointings": int(np.count_nonzero(first.exposures)),
              "exposures_estimate": sum(p.exposures or 0 for p in pts),
-             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": saved}
+             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": saved,
+             "exposures_emptied": emptied}
     return ProgrammeResult(out, bound, stats)
 
 

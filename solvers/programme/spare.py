@@ -24,8 +24,8 @@ from models.incompatibility import build_assignments
 from models.instrument import Instrument
 from models.sky import sky_to_focal_mm, tangent_radius_mm
 
-__all__ = ["FEW_TARGETS", "IDLE_KINDS", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "Exposure", "only_here", "spare_arm_for",
-           "takers"]
+__all__ = ["FEW_TARGETS", "IDLE_KINDS", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "Exposure", "only_here", "placements",
+           "spare_arm_for", "takers"]
 
 #: An exposure observing at most this many targets is one the plan explains
 FEW_TARGETS = 2
@@ -62,6 +62,24 @@ def spare_arm_for(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float
         if ok[0]:
             return k, float(pose[0]), float(pose[1])
     return None
+
+
+def placements(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y_mm: float,
+               park_move_limit_s: float | None, allowed_arms: int | None = None,
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """For each of E configurations of one pointing (``q`` (E, n_arms, 2), ``idle``
+    (E, n_arms)), the idle arm that takes the FOV point as :func:`spare_arm_for` chooses it
+    (the lowest arm and branch first) and its pose: ``arm`` (E,), -1 where none can, and
+    ``pose`` (E, 2) joint angles (rad)."""
+    e = len(q)
+    arm, pose = np.full(e, -1, np.int64), np.zeros((e, 2))
+    for k, kpose, ok in _options(inst, np.asarray(q, float), np.asarray(idle, bool), x_mm, y_mm,
+                                 park_move_limit_s, allowed_arms):
+        new = ok & (arm < 0)
+        arm[new], pose[new] = k, kpose
+        if (arm >= 0).all():
+            break
+    return arm, pose
 
 
 def takers(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y_mm: float,
