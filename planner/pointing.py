@@ -77,6 +77,9 @@ class PointingOptions:
     #: :attr:`solvers.segmentation.Pointing.allocation`; target ids are replaced by the
     #: pointing's own, by index)
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
+    #: ``allocation`` is observed as it is, without a search of the plan's own (a pointing the
+    #: plan's consolidation changed, :mod:`planner.consolidation`)
+    allocation_final: bool = False
     #: the pointing's sky (:class:`planner.sky.SkyField`): its spare arms are placed on sky after
     #: the allocation (:func:`planner.sky.place_sky`); None: they rest where the allocator left them
     sky: SkyField | None = field(default=None, compare=False, repr=False)
@@ -174,11 +177,14 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         return _not_attempted(inst, targets, options)
     budget = Budget.start(table.effort_share * share_s)  # the pointing's effort seconds
     kept = () if options.kept is None else kept_configurations(inst, targets, options.kept)
-    result = _allocate(inst, targets, options, kept, budget.share(table.allocation_share), progress)
     given = given_allocation(options, targets)
-    if given is not None and _allocation_rank(given) > _allocation_rank(result) and \
-            honours(inst, given, options.locked):
+    if given is not None and options.allocation_final and not kept and honours(inst, given, options.locked):
         result = given
+    else:
+        result = _allocate(inst, targets, options, kept, budget.share(table.allocation_share), progress)
+        if given is not None and _allocation_rank(given) > _allocation_rank(result) and \
+                honours(inst, given, options.locked):
+            result = given
     result, below = apply_exposure_rules(plain_reasons(result), targets, options.max_configurations,
                                          options.rules)
     skyed = None if options.sky is None else with_kept(replace(result, configurations=place_sky(

@@ -403,7 +403,7 @@ def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> Point
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
-                              observing_rules(req), p.allocation, kept=kept_of(req, p.id))
+                              observing_rules(req), p.allocation, p.allocation_final, kept=kept_of(req, p.id))
     options = dataclasses.replace(options, locked=plan_locks.member_locks(
         req, [req.targets[int(k)] for k in p.target_indices]))
     pa = adapters.requested_angle_deg(req.position_angle_deg) if p.position_angle_deg is None else p.position_angle_deg
@@ -515,11 +515,15 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
     history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit), compute)
-    stage(stages.ASSEMBLING)
     pointings = [answers[i] for i in range(len(seg.pointings))]
     advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
+    from service.plan_consolidation import consolidated  # it plans pointings with this module
+
+    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, rounds_limit_s(req, limit),
+                                                 budget.left_s)
+    stage(stages.ASSEMBLING)
     return seg, pointings, {
-        "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
+        **consolidation, "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": budget.elapsed_s(), **({} if advice is None else {"time_limit_advice": advice})}
 
 

@@ -28,6 +28,7 @@ from planner import stages
 from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
 from service import adapters, pipeline, plan_locks
 from service.jobs import JobStore
+from service.plan_consolidation import consolidated
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
 
@@ -123,14 +124,17 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit), compute)
     except _Stopped:
         return None
-    stage(stages.ASSEMBLING)
     pointings = [answers[i] for i in range(n)]
     advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
+    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history,
+                                                 pipeline.rounds_limit_s(req, limit),
+                                                 lambda: limit - (time.monotonic() - t0))
+    stage(stages.ASSEMBLING)
     few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)
     return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": computed[0], **epoch, **excluded,
+        "pointings_resumed": resumed, "pointings_computed": computed[0], **epoch, **excluded, **consolidation,
         **({} if advice is None else {"time_limit_advice": advice})}, few))
 
 

@@ -33,7 +33,7 @@ from models.types import AllocationResult, ArmAssignment, Unallocated
 from solvers.programme.fill import Field, FillOptions, Pointing, within, witness
 from solvers.programme.spare import IDLE_KINDS, placements
 
-__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "consolidate"]
+__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "consolidate", "empty_exposures"]
 
 #: effort seconds charged per test of one target against one pointing's exposures: its reach
 #: (per test) and the clearance to the other arms (per exposure tested); reference seconds
@@ -42,18 +42,21 @@ PLACEMENT_PER_EXPOSURE_S = 20e-6
 
 
 @dataclass
-class _Arms:
-    """One pointing's exposures as they stand: joint angles ``q`` (E, n_arms, 2), which arms
-    are ``idle`` (E, n_arms), the target each arm observes (programme index, -1: none) and
-    which exposures are still ``alive``."""
+class Arms:
+    """One pointing's exposures as they stand: its centre (sky, deg) and position angle, the
+    joint angles ``q`` (E, n_arms, 2), which arms are ``idle`` (E, n_arms), the target each
+    arm observes (programme index, -1: none) and which exposures are still ``alive``."""
 
+    centre: tuple[float, float]
+    pa_deg: float
     q: np.ndarray
     idle: np.ndarray
     target: np.ndarray
     alive: np.ndarray
 
-    def copy(self) -> _Arms:
-        return _Arms(self.q.copy(), self.idle.copy(), self.target.copy(), self.alive.copy())
+    def copy(self) -> Arms:
+        return Arms(self.centre, self.pa_deg, self.q.copy(), self.idle.copy(), self.target.copy(),
+                    self.alive.copy())
 
 
 def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
@@ -61,26 +64,33 @@ def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget
     that give or take targets are replaced by ones with their new members and allocations.
     Returns the exposures given up."""
     state = {j: _arms_of(f, p) for j, p in enumerate(pts) if p.allocation is not None and p.exposures}
-    if len(state) == 0:
-        return 0
-    focal: dict[tuple[int, int], tuple[float, float] | None] = {}
-    order = sorted(((int(np.count_nonzero(a.target[e] >= 0)), j, e) for j, a in state.items()
-                    for e in range(len(a.alive))))
-    saved = 0
-    for _, j, e in order:
-        if budget.expired():
-            break
-        trial = _emptied(f, pts, state, j, e, opts, focal)
-        if trial is not None:
-            state.update(trial)
-            saved += 1
+    saved = empty_exposures(f, state, opts.park_move_limit_s, opts.arm_limits, budget)
     if saved:
         for j, a in state.items():
             pts[j] = _rebuilt(f, pts[j], a)
     return saved
 
 
-def _arms_of(f: Field, p: Pointing) -> _Arms:
+def empty_exposures(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
+                    arm_limits: tuple[int, ...] | None, budget: Budget) -> int:
+    """The pass of the module docstring on the pointings' exposures ``state`` (any keys), in
+    place; ``arm_limits``: per target of the programme, the bit mask of the arms it may use
+    (None: any). Returns the exposures given up (their ``alive`` turned False)."""
+    focal: dict[tuple[int, int], tuple[float, float] | None] = {}
+    order = sorted(((int(np.count_nonzero(a.target[e] >= 0)), j, e) for j, a in state.items()
+                    for e in np.flatnonzero(a.alive)))
+    saved = 0
+    for _, j, e in order:
+        if budget.expired():
+            break
+        trial = _emptied(f, state, j, int(e), park_move_limit_s, arm_limits, focal)
+        if trial is not None:
+            state.update(trial)
+            saved += 1
+    return saved
+
+
+def _arms_of(f: Field, p: Pointing) -> Arms:
     configs = p.allocation.configurations[:p.exposures]
     n = f.inst.n_arms
     q = np.zeros((len(configs), n, 2))
@@ -92,28 +102,27 @@ def _arms_of(f: Field, p: Pointing) -> _Arms:
             idle[e, a.arm] = a.kind in IDLE_KINDS
             if a.target_index is not None:
                 target[e, a.arm] = int(p.members[a.target_index])
-    return _Arms(q, idle, target, np.ones(len(configs), bool))
+    return Arms(p.centre, p.pa_deg, q, idle, target, np.ones(len(configs), bool))
 
 
-def _emptied(f: Field, pts: list[Pointing], state: dict[int, _Arms], j: int, e: int, opts: FillOptions,
-             focal: dict) -> dict[int, _Arms] | None:
+def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s: float | None,
+             arm_limits: tuple[int, ...] | None, focal: dict) -> dict[int, Arms] | None:
     """The pointings' exposures with exposure ``e`` of pointing ``j`` given up and each of its
     targets on an idle arm of another exposure; None when one of its targets fits nowhere."""
     trial = {j: state[j].copy()}
     trial[j].alive[e] = False
     for arm in np.flatnonzero(state[j].target[e] >= 0):
         t = int(state[j].target[e, arm])
-        best = None  # (targets observed, -pointing, -exposure, pointing, exposure, arm, pose)
+        best = None  # (targets observed, -pointing, -exposure), pointing, exposure, arm, pose
         for k, a in state.items():
-            xy = _focal(f, pts[k], t, k, focal)
+            xy = _focal(f, a, t, k, focal)
             cur = trial.get(k, a)
             live = np.flatnonzero(cur.alive)
             if xy is None or live.size == 0:
                 continue
             clock.charge(PLACEMENT_S + PLACEMENT_PER_EXPOSURE_S * live.size)
-            allowed = None if opts.arm_limits is None else int(opts.arm_limits[t])
-            arm_k, pose = placements(f.inst, cur.q[live], cur.idle[live], xy[0], xy[1], opts.park_move_limit_s,
-                                     allowed)
+            allowed = None if arm_limits is None else int(arm_limits[t])
+            arm_k, pose = placements(f.inst, cur.q[live], cur.idle[live], xy[0], xy[1], park_move_limit_s, allowed)
             for i in np.flatnonzero(arm_k >= 0):
                 x = int(live[i])
                 key = (int(np.count_nonzero(cur.target[x] >= 0)), -k, -x)
@@ -127,20 +136,20 @@ def _emptied(f: Field, pts: list[Pointing], state: dict[int, _Arms], j: int, e: 
     return trial
 
 
-def _focal(f: Field, p: Pointing, t: int, k: int, cache: dict) -> tuple[float, float] | None:
-    """Target ``t`` on the focal plane of pointing ``p`` (index ``k``), or None when the
+def _focal(f: Field, a: Arms, t: int, k: int, cache: dict) -> tuple[float, float] | None:
+    """Target ``t`` on the focal plane of pointing ``a`` (key ``k``), or None when the
     pointing's FOV does not hold it."""
     if (t, k) not in cache:
         idx = np.array([t])
-        if not within(f, idx, p.centre)[0]:
+        if not within(f, idx, a.centre)[0]:
             cache[(t, k)] = None
         else:
-            x, y = sky_to_focal_mm(f.ra_deg[idx], f.dec_deg[idx], p.centre[0], p.centre[1], f.scale, p.pa_deg)
+            x, y = sky_to_focal_mm(f.ra_deg[idx], f.dec_deg[idx], a.centre[0], a.centre[1], f.scale, a.pa_deg)
             cache[(t, k)] = (float(x[0]), float(y[0]))
     return cache[(t, k)]
 
 
-def _rebuilt(f: Field, p: Pointing, a: _Arms) -> Pointing:
+def _rebuilt(f: Field, p: Pointing, a: Arms) -> Pointing:
     """``p`` with the exposures of ``a`` still alive, its members those they observe and the
     members its allocation left unobserved (for a reason of the geometry)."""
     old = p.allocation
