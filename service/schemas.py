@@ -749,7 +749,11 @@ class PlanResponse(Response):
                          "as returned), `field_completeness` = allocated_targets / targets "
                          "(every target of the request) and `priority_completeness` (their "
                          "priority over the priority of every target); `telescope_time` is the "
-                         "sum of the pointings': " + TELESCOPE_TIME + ".")
+                         "sum of the pointings': " + TELESCOPE_TIME + "; `consolidation` (mode "
+                         "fewest-exposures): the exposures emptied into idle arms of the plan's "
+                         "other exposures (`exposures_emptied`), the pointings planned again, "
+                         "whether their plans were kept (`accepted`, else `reason`) and the "
+                         "exposures that saved (`exposures_saved`).")
     time_limit_advice: TimeLimitAdvice | None = Field(
         None, description="Set when the time limit left a pointing unplanned: the limit this "
         "field needs and whether to plan it as a job.")

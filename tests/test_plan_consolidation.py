@@ -1,0 +1,160 @@
+"""The plan's consolidation (planner.consolidation, service.plan_consolidation): after the
+rounds, exposures emptied into the idle arms of the plan's other exposures, the changed
+pointings planned again and kept only when better.
+
+Oracles: the independent verifier (planner.validate.validate_plan: every configuration and
+trajectory re-checked), the same plan with the consolidation's plans refused (what the rounds
+alone gave), forward kinematics and FCL on the regrouped allocations."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from benchmarks import programme_time as PT
+from models.budget import Budget
+from models.instrument import default_instrument
+from models.types import ArmAssignment, Configuration
+from planner.consolidation import PlannedPointing, accepted, consolidation_tasks, regroup
+from planner.programme import SHARES, PointingOutcome, RoundTask, usable_s
+from planner.validate import validate_plan
+from service import pipeline, plan_consolidation
+from service.schemas import PlanRequest
+from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
+
+INST = default_instrument()
+#: a small two-clump programme whose plan has an exposure the consolidation empties (30 targets)
+PROGRAMME = ("two-clump", 3)
+REQUEST = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 30}
+
+
+def _request() -> dict[str, Any]:
+    prog = PT.generated([PROGRAMME], n_range=(30, 60))[0]
+    return {**REQUEST, "targets": prog["targets"]}
+
+
+@pytest.fixture(scope="module")
+def plans() -> tuple[dict[str, Any], dict[str, Any]]:
+    """The plan, and the same plan with the consolidation's plans refused."""
+    req = PlanRequest.model_validate(_request())
+    plan = pipeline.plan(req, INST)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plan_consolidation, "accepted", lambda *a: False)
+        rounds_only = pipeline.plan(req, INST)
+    return plan, rounds_only
+
+
+def _observed(plan: dict[str, Any]) -> list[str]:
+    return sorted(a["target_id"] for p in plan["pointings"] for c in p["configurations"] for a in c["assignments"]
+                  if a["target_id"] is not None)
+
+
+def test_the_plan_takes_fewer_exposures_and_observes_every_target(plans) -> None:
+    plan, rounds_only = plans
+    c = plan["stats"]["consolidation"]
+    assert c["accepted"] and c["exposures_emptied"] >= 1 and c["exposures_saved"] >= 1
+    assert plan["stats"]["configurations"] == rounds_only["stats"]["configurations"] - c["exposures_saved"]
+    assert _observed(plan) == _observed(rounds_only) == sorted(t["id"] for t in _request()["targets"])
+    assert plan["executable"] and validate_plan(INST, plan).valid
+    assert plan["stats"]["exposures_gap"] < rounds_only["stats"]["exposures_gap"]
+
+
+def test_each_pointing_lists_what_it_observes(plans) -> None:
+    plan, _ = plans
+    ids = [t for p in plan["pointings"] for t in p["target_ids"]]
+    assert sorted(ids) == sorted(t["id"] for t in _request()["targets"])  # a partition
+    for p in plan["pointings"]:
+        seen = {a["target_id"] for c in p["configurations"] for a in c["assignments"] if a["target_id"]}
+        assert seen <= set(p["target_ids"])
+
+
+def test_refused_plans_leave_the_rounds_plan(plans) -> None:
+    _, rounds_only = plans
+    c = rounds_only["stats"]["consolidation"]
+    assert not c["accepted"] and c["exposures_emptied"] >= 1 and "reason" in c
+    assert rounds_only["executable"] and validate_plan(INST, rounds_only).valid
+
+
+def test_a_plan_job_gives_the_synchronous_plan(plans, tmp_path) -> None:
+    from service import jobs
+    from service.runners import LocalPoolRunner
+
+    plan, _ = plans
+    request = _request()
+    store = jobs.JobStore(tmp_path / "j.db")
+    store.init()
+    job_id = store.create("plan", request, time_limit_s=30.0, budget_s=3600.0)
+    assert store.claim("srv/1", lease_s=60.0) is not None
+    assert jobs.run_job(str(store.db_path), job_id, "plan", request, None, 30.0, 3600.0,
+                        owner="srv/1", runner=LocalPoolRunner()) == "done"
+    result = store.get(job_id)["result"]
+    assert [(p["target_ids"], len(p["configurations"])) for p in result["pointings"]] == \
+        [(p["target_ids"], len(p["configurations"])) for p in plan["pointings"]]
+    assert result["stats"]["consolidation"]["accepted"]
+
+
+# ------------------------------------------------------------------------ the domain parts
+
+
+def _planned(f, pts) -> list[PlannedPointing]:
+    out = []
+    for p in pts:
+        configs = tuple(Configuration(c.index, tuple(
+            a if a.target_index is None else ArmAssignment(a.arm, a.kind, a.theta1_rad, a.theta2_rad, a.x_mm, a.y_mm,
+                                                           int(p.members[a.target_index]),
+                                                           str(int(p.members[a.target_index])))
+            for a in c.assignments), c.total_priority, c.arm_yield, c.status) for c in p.allocation.configurations)
+        out.append(PlannedPointing(p.centre, p.pa_deg, configs, {}))
+    return out
+
+
+def test_regroup_gives_allocations_of_the_new_members() -> None:
+    """Regrouped allocations, read back as the optimiser's pointings, pass the checks of
+    tests/test_programme_consolidate.py, and every target is observed once."""
+    from solvers.programme.fill import Pointing
+
+    for seed in (1, 4):
+        f, pts = _overlapping(seed)
+        saved, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
+                                 Budget.start(30.0))
+        assert saved >= 1 and changed
+        new = list(pts)
+        for r in changed:
+            new[r.index] = Pointing(pts[r.index].centre, pts[r.index].pa_deg, np.array(r.members, np.int64),
+                                    len(r.allocation.configurations), allocation=r.allocation)
+            assert r.allocation.stats["n_targets"] == len(r.members)
+        assert sum(p.exposures for p in new) == sum(p.exposures for p in pts) - saved
+        observed = sorted(int(p.members[a.target_index]) for p in new for c in p.allocation.configurations
+                          for a in c.assignments if a.target_index is not None)
+        assert observed == list(range(18))
+        _check_exposures(f, new)
+
+
+def _outcome(i: int, effort_s: float, share_s: float) -> PointingOutcome:
+    return PointingOutcome(i, 1, share_s, effort_s, True, 0, 10, False, True)
+
+
+def test_consolidation_tasks_share_what_the_rounds_left() -> None:
+    history = [[_outcome(0, 8.0, 40.0), _outcome(1, 4.0, 40.0), _outcome(2, 4.0, 30.0)]]
+    needs = [40.0, 20.0, 30.0]
+    tasks = consolidation_tasks(needs, 120.0, history, [0, 2], spent_s=1.0)
+    left = usable_s(120.0) - 16.0 / SHARES.effort_share - 1.0
+    assert [t.index for t in tasks] == [0, 2] and all(t.round == 2 for t in tasks)
+    assert sum(t.share_s for t in tasks) == pytest.approx(left)
+    assert tasks[0].share_s / tasks[1].share_s == pytest.approx(40.0 / 30.0)
+    used = usable_s(120.0) - 80.0 - 0.3  # 0.3 s left: less than a pointing's least share
+    spent = [[_outcome(0, 0.8 * 40.0, 40.0), _outcome(1, 0.8 * 40.0, 40.0), _outcome(2, 0.8 * used, used)]]
+    assert 0.3 < SHARES.min_pointing_s
+    assert consolidation_tasks(needs, 120.0, spent, [0, 2]) == []
+    assert consolidation_tasks(needs, 120.0, history, [0, 2], spent_s=left) == []
+    assert isinstance(consolidation_tasks(needs, None, history, [1])[0], RoundTask)
+
+
+def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures() -> None:
+    old, new = [{"a", "b"}, {"c"}], [{"a"}, {"b", "c"}]
+    assert accepted(old, new, 3, 2, [True, True])
+    assert not accepted(old, new, 3, 3, [True, True])  # not fewer
+    assert not accepted(old, new, 3, 2, [True, False])  # a failed leg
+    assert not accepted(old, [{"a"}, {"c"}], 3, 2, [True, True])  # b lost
