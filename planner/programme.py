@@ -19,6 +19,9 @@ pointings; the policy is here, once:
    when it is better (:func:`better`). Rounds go on while a failed pointing can be given more
    than it had; so no pointing reports a failed leg while the plan's limit has time that
    could be given to it.
+3. **After the rounds** (mode "fewest-exposures"), :mod:`planner.consolidation` empties
+   exposures into idle arms of the plan's other exposures and plans the pointings it changed
+   again on what the rounds left, keeping their plans only when better.
 
 All shares are in wall-clock seconds; a pointing's searches get :attr:`ProgrammeShares.effort_share`
 of its share in effort seconds (``models.clock``), the rest is the margin by which a machine

@@ -17,7 +17,9 @@ of the pass cannot be emptied later in it either: one pass tries every exposure 
 
 This is where the pointings' overlaps pay: the segmentation and the commits give each target
 one pointing, and a pointing's last exposures observe the few targets left over, while
-exposures of the neighbouring pointings keep idle arms over the same sky.
+exposures of the neighbouring pointings keep idle arms over the same sky. The plan runs the
+same pass (:func:`empty_exposures`) on its own configurations after its rounds
+(:mod:`planner.consolidation`).
 """
 
 from __future__ import annotations
