@@ -8,9 +8,11 @@ same sky. Once every pointing is planned, :func:`regroup` runs the optimiser's p
 its targets fits, as the other exposures stand, on an idle arm of one of them) on the plan's
 configurations. The pointings it changes are planned again with those configurations as their
 allocation (:attr:`Regrouped.allocation`; the allocation is not searched again), each on a
-share of what the rounds left (:func:`consolidation_tasks`), and the new plans replace the old
-ones only when every one of them is executable, together they observe every target the old
-ones did and take fewer exposures (:func:`accepted`). Otherwise the plan stays as it was.
+share of what the rounds left in proportion to what it spent in them (:func:`consolidation_tasks`);
+when what they spent does not fit in what is left, the costliest is left out of the pass and
+the pass runs again (:func:`affordable`). The new plans replace the old ones only when every
+one of them is executable, together they observe every target the old ones did and take fewer
+exposures (:func:`accepted`). Otherwise the plan stays as it was.
 
 The pass reads the plan's outcomes and runs on the plan's effort clock, so the result is the
 same on one or many workers.
@@ -18,6 +20,7 @@ same on one or many workers.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 
@@ -27,13 +30,14 @@ from models.budget import Budget
 from models.instrument import Instrument
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, ArmAssignment, Configuration, Unallocated
-from planner.programme import PointingOutcome, RoundTask, _by_need, usable_s
+from planner.programme import PointingOutcome, RoundTask, usable_s
 from planner.shares import SHARES, ProgrammeShares
 from solvers.programme.consolidate import Arms, empty_exposures
 from solvers.programme.fill import Field
 from solvers.programme.spare import IDLE_KINDS
 
-__all__ = ["PlannedPointing", "Regrouped", "accepted", "consolidation_tasks", "regroup"]
+__all__ = ["PlannedPointing", "Regrouped", "accepted", "affordable", "consolidation_tasks", "costs", "left_s",
+           "regroup"]
 
 
 @dataclass(frozen=True)
@@ -61,10 +65,12 @@ class Regrouped:
 
 def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
             pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
-            arm_limits: tuple[int, ...] | None, budget: Budget) -> tuple[int, list[Regrouped]]:
-    """The exposures the pass gives up and the pointings it changes (module docstring)."""
+            arm_limits: tuple[int, ...] | None, budget: Budget, *,
+            frozen: frozenset[int] = frozenset()) -> tuple[int, list[Regrouped]]:
+    """The exposures the pass gives up and the pointings it changes (module docstring); the
+    pointings ``frozen`` neither give nor take a target."""
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
-    state = {j: _arms(inst, p) for j, p in enumerate(pointings) if p.configurations}
+    state = {j: _arms(inst, p) for j, p in enumerate(pointings) if p.configurations and j not in frozen}
     before = {j: a.copy() for j, a in state.items()}
     saved = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
     if saved == 0:
@@ -72,6 +78,46 @@ def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority:
     changed = [j for j, a in state.items()
                if not (np.array_equal(a.alive, before[j].alive) and np.array_equal(a.target, before[j].target))]
     return saved, [_regrouped(f, j, pointings[j], state[j]) for j in changed]
+
+
+def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
+               pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
+               arm_limits: tuple[int, ...] | None, budget: Budget, costs_s: Mapping[int, float], left_s: float,
+               table: ProgrammeShares = SHARES) -> tuple[int, list[Regrouped]]:
+    """:func:`regroup` with what planning the changed pointings again costs within ``left_s``:
+    each costs what it spent in the rounds (``costs_s``, :func:`costs`; at least
+    ``min_pointing_s``). While it does not fit, the costliest changed pointing is left out of
+    the pass and the pass runs again; (0, []) when nothing that fits empties an exposure."""
+    frozen: set[int] = set()
+    while not budget.expired():
+        saved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s, arm_limits, budget,
+                                 frozen=frozenset(frozen))
+        if not changed:
+            return 0, []
+        if sum(max(costs_s[r.index], table.min_pointing_s) for r in changed) <= left_s:
+            return saved, changed
+        frozen.add(max((r.index for r in changed), key=lambda j: (costs_s[j], j)))
+    return 0, []
+
+
+def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:
+    """What planning each pointing again costs: the most one of its rounds spent (wall-clock
+    seconds, counted as :func:`planner.programme.next_round` counts them)."""
+    out: dict[int, float] = {}
+    for outcomes in history:
+        for o in outcomes:
+            out[o.index] = max(out.get(o.index, 0.0), o.spent_s(table))
+    return out
+
+
+def left_s(limit_s: float | None, history: Sequence[Sequence[PointingOutcome]], spent_s: float = 0.0,
+           table: ProgrammeShares = SHARES) -> float:
+    """What the rounds (and ``spent_s`` more) left of the plan's usable limit, counted as
+    :func:`planner.programme.next_round` counts it."""
+    usable = usable_s(limit_s, table)
+    if math.isinf(usable):
+        return math.inf
+    return usable - spent_s - sum(o.spent_s(table) for outcomes in history for o in outcomes)
 
 
 def _arms(inst: Instrument, p: PlannedPointing) -> Arms:
@@ -115,21 +161,17 @@ def _assignment(f: Field, p: PlannedPointing, asg: ArmAssignment, t: int, q: np.
     return ArmAssignment(asg.arm, "target", float(q[0]), float(q[1]), float(x[0]), float(y[0]), pos[t], str(t))
 
 
-def consolidation_tasks(needs: Sequence[float], limit_s: float | None,
-                        history: Sequence[Sequence[PointingOutcome]], changed: Sequence[int], *,
-                        spent_s: float = 0.0, table: ProgrammeShares = SHARES) -> list[RoundTask]:
-    """The tasks that plan the ``changed`` pointings again, in the round after ``history``:
-    what the rounds left (counted as :func:`planner.programme.next_round` counts it) less
-    ``spent_s`` (the pass itself), split by need; none when that leaves a pointing less than
-    ``min_pointing_s`` (the plan then stays as it was)."""
-    usable = usable_s(limit_s, table)
-    spent = spent_s + sum(o.spent_s(table) for outcomes in history for o in outcomes)
-    left = (1e9 if np.isinf(usable) else usable - spent)
-    shares = _by_need(left, list(changed), needs, table) if left >= table.min_pointing_s else {}
-    if sorted(shares) != sorted(changed):
+def consolidation_tasks(costs_s: Mapping[int, float], left: float, round_: int, changed: Sequence[int],
+                        table: ProgrammeShares = SHARES) -> list[RoundTask]:
+    """The tasks that plan the ``changed`` pointings again in round ``round_``: ``left``
+    seconds split in proportion to their costs (each at least ``min_pointing_s``), so each
+    gets at least what it spent in the rounds; none when ``left`` is less than that."""
+    need = {i: max(costs_s[i], table.min_pointing_s) for i in changed}
+    total = sum(need.values())
+    if not changed or total > left:
         return []
-    r = len(history) + 1
-    return [RoundTask(i, r, shares[i]) for i in sorted(changed)]
+    scale = left / total if math.isfinite(left) else 1.0
+    return [RoundTask(i, round_, need[i] * scale) for i in sorted(changed)]
 
 
 def accepted(old_observed: Sequence[set[str]], new_observed: Sequence[set[str]], old_exposures: int,

@@ -16,7 +16,14 @@ from models.instrument import Instrument
 from models.locks import arm_limits
 from models.sky import tangent_radius_mm
 from models.types import ArmAssignment, Configuration
-from planner.consolidation import PlannedPointing, accepted, consolidation_tasks, regroup
+from planner.consolidation import (
+    PlannedPointing,
+    accepted,
+    affordable,
+    consolidation_tasks,
+    costs,
+    left_s,
+)
 from planner.programme import PointingOutcome
 from service import pipeline
 from service.lock_schemas import target_locks
@@ -35,17 +42,20 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
     """``seg`` and ``answers`` after the consolidation (module docstring of
     :mod:`planner.consolidation`), with the plan's ``consolidation`` stats; unchanged when the
     plan is not in mode "fewest-exposures", keeps configurations of a previous plan, or when
-    the pass empties no exposure or its plans are not accepted."""
+    the pass empties no exposure within what the rounds left or its plans are not accepted.
+    ``limit_s``: the rounds' limit; ``wall_left_s``: the wall-clock seconds the plan has left."""
     if pipeline.plan_mode(req) != "fewest-exposures" or req.keep_configurations is not None:
         return seg, answers, {}
     index = {t.id: i for i, t in enumerate(req.targets)}
     planned = [_planned(p, index) for p in answers]
     limits = arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms)
+    cost = costs(history)
     with clock.effort(wall_limit_s=max(min(wall_left_s(), PASS_EFFORT_S / 0.8), 0.0)) as effort:
-        saved, changed = regroup(inst, np.array([t.ra_deg for t in req.targets]),
-                                 np.array([t.dec_deg for t in req.targets]),
-                                 np.array([int(t.priority) for t in req.targets]), planned,
-                                 req.park_move_limit_s, limits, Budget.start(PASS_EFFORT_S))
+        saved, changed = affordable(inst, np.array([t.ra_deg for t in req.targets]),
+                                    np.array([t.dec_deg for t in req.targets]),
+                                    np.array([int(t.priority) for t in req.targets]), planned,
+                                    req.park_move_limit_s, limits, Budget.start(PASS_EFFORT_S), cost,
+                                    left_s(limit_s, history, PASS_EFFORT_S / 0.8))
     stats: dict[str, Any] = {"exposures_emptied": saved, "effort_s": effort.t_s,
                              "pointings": [answers[r.index]["id"] for r in changed], "accepted": False}
     if not changed:
@@ -60,9 +70,9 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
             p, target_indices=r.members, allocation=r.allocation, allocation_final=True,
             exposures=len(r.allocation.configurations), radius_mm=float(np.max(radius, initial=0.0)))
     new_seg = dataclasses.replace(seg, pointings=tuple(pointings))
-    tasks = consolidation_tasks(pipeline.pointing_needs(new_seg, req), limit_s, history,
-                                [r.index for r in changed], spent_s=effort.t_s / 0.8)
-    if not tasks:
+    tasks = consolidation_tasks(cost, left_s(limit_s, history, effort.t_s / 0.8), len(history) + 1,
+                                [r.index for r in changed])
+    if not tasks:  # a guard: the pass chose pointings whose costs fit in what was left
         return seg, answers, {"consolidation": {**stats, "reason": "no time left to plan the changed pointings"}}
     new = {t.index: pipeline.pointing_result(pipeline.pointing_task(req, new_seg, t), inst,
                                              wall_limit_s=max(wall_left_s(), 0.0)) for t in tasks}

@@ -8,6 +8,7 @@ alone gave), forward kinematics and FCL on the regrouped allocations."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -17,8 +18,16 @@ from benchmarks import programme_time as PT
 from models.budget import Budget
 from models.instrument import default_instrument
 from models.types import ArmAssignment, Configuration
-from planner.consolidation import PlannedPointing, accepted, consolidation_tasks, regroup
-from planner.programme import SHARES, PointingOutcome, RoundTask, usable_s
+from planner.consolidation import (
+    PlannedPointing,
+    accepted,
+    affordable,
+    consolidation_tasks,
+    costs,
+    left_s,
+    regroup,
+)
+from planner.programme import SHARES, PointingOutcome, usable_s
 from planner.validate import validate_plan
 from service import pipeline, plan_consolidation
 from service.schemas import PlanRequest
@@ -136,20 +145,37 @@ def _outcome(i: int, effort_s: float, share_s: float) -> PointingOutcome:
     return PointingOutcome(i, 1, share_s, effort_s, True, 0, 10, False, True)
 
 
-def test_consolidation_tasks_share_what_the_rounds_left() -> None:
-    history = [[_outcome(0, 8.0, 40.0), _outcome(1, 4.0, 40.0), _outcome(2, 4.0, 30.0)]]
-    needs = [40.0, 20.0, 30.0]
-    tasks = consolidation_tasks(needs, 120.0, history, [0, 2], spent_s=1.0)
-    left = usable_s(120.0) - 16.0 / SHARES.effort_share - 1.0
-    assert [t.index for t in tasks] == [0, 2] and all(t.round == 2 for t in tasks)
-    assert sum(t.share_s for t in tasks) == pytest.approx(left)
-    assert tasks[0].share_s / tasks[1].share_s == pytest.approx(40.0 / 30.0)
-    used = usable_s(120.0) - 80.0 - 0.3  # 0.3 s left: less than a pointing's least share
-    spent = [[_outcome(0, 0.8 * 40.0, 40.0), _outcome(1, 0.8 * 40.0, 40.0), _outcome(2, 0.8 * used, used)]]
-    assert 0.3 < SHARES.min_pointing_s
-    assert consolidation_tasks(needs, 120.0, spent, [0, 2]) == []
-    assert consolidation_tasks(needs, 120.0, history, [0, 2], spent_s=left) == []
-    assert isinstance(consolidation_tasks(needs, None, history, [1])[0], RoundTask)
+def test_costs_and_what_is_left_count_as_the_rounds_do() -> None:
+    history = [[_outcome(0, 8.0, 40.0), _outcome(1, 4.0, 40.0)], [_outcome(0, 16.0, 30.0)]]
+    assert costs(history) == {0: pytest.approx(16.0 / SHARES.effort_share), 1: pytest.approx(4.0 / SHARES.effort_share)}
+    assert left_s(120.0, history, 1.0) == pytest.approx(usable_s(120.0) - 28.0 / SHARES.effort_share - 1.0)
+
+
+def test_consolidation_tasks_give_each_pointing_at_least_what_it_spent() -> None:
+    cost = {0: 20.0, 1: 5.0, 2: 0.1}
+    tasks = consolidation_tasks(cost, 51.0, 3, [2, 0])
+    assert [t.index for t in tasks] == [0, 2] and all(t.round == 3 for t in tasks)
+    assert sum(t.share_s for t in tasks) == pytest.approx(51.0)
+    assert tasks[0].share_s >= 20.0 and tasks[1].share_s >= SHARES.min_pointing_s
+    assert tasks[0].share_s / tasks[1].share_s == pytest.approx(20.0 / SHARES.min_pointing_s)
+    assert consolidation_tasks(cost, 20.0, 3, [0, 2]) == []  # 20.5 needed
+    assert consolidation_tasks(cost, 51.0, 3, []) == []
+
+
+def test_affordable_leaves_the_costliest_pointing_out_until_the_rest_fits() -> None:
+    """Both pointings change when time is plenty; with less than the costlier one's cost
+    left, it is left out of the pass (it neither gives nor takes) and what changes fits."""
+    for seed in (1, 3, 4):
+        f, pts = _overlapping(seed)
+        planned = _planned(f, pts)
+        args = (INST, f.ra_deg, f.dec_deg, f.priority, planned, LIMIT_S, None)
+        free = regroup(*args, Budget.start(30.0))
+        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, math.inf) == free
+        assert {r.index for r in free[1]} == {0, 1}, "premise: the pass changes both"
+        saved, changed = affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 5.0)
+        assert all(r.index == 1 for r in changed)
+        assert saved == regroup(*args, Budget.start(30.0), frozen=frozenset({0}))[0]
+        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 0.1) == (0, [])
 
 
 def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures() -> None:
