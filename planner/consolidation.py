@@ -86,7 +86,7 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
                table: ProgrammeShares = SHARES) -> tuple[int, list[Regrouped]]:
     """:func:`regroup` with what planning the changed pointings again costs within ``left_s``:
     each costs what it spent in the rounds (``costs_s``, :func:`costs`; at least
-    ``min_pointing_s``). While it does not fit, the costliest changed pointing is left out of
+    ``min_pointing_s``). While they do not fit, the costliest changed pointing is left out of
     the pass and the pass runs again; (0, []) when nothing that fits empties an exposure."""
     frozen: set[int] = set()
     while not budget.expired():
@@ -101,12 +101,15 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
 
 
 def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:
-    """What planning each pointing again costs: the most one of its rounds spent (wall-clock
-    seconds, counted as :func:`planner.programme.next_round` counts them)."""
+    """What planning each pointing again costs, in wall-clock seconds counted as
+    :func:`planner.programme.next_round` counts them: the most one of its rounds spent on its
+    motion legs (the allocation is not searched again; a round the wall guard stopped counts
+    its whole share)."""
     out: dict[int, float] = {}
     for outcomes in history:
         for o in outcomes:
-            out[o.index] = max(out.get(o.index, 0.0), o.spent_s(table))
+            motion = o.share_s if o.overran else (o.effort_s - o.allocation_effort_s) / table.effort_share
+            out[o.index] = max(out.get(o.index, 0.0), motion)
     return out
 
 

@@ -118,6 +118,8 @@ class PointingPlan:
     effort_s: float = 0.0
     overran: bool = False
     telescope_time: TelescopeTime | None = None
+    #: the effort seconds of ``effort_s`` its allocation took (the rest went to the motion legs)
+    allocation_effort_s: float = 0.0
 
     @property
     def executable(self) -> bool:
@@ -168,7 +170,8 @@ def plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpti
     with clock.effort(wall_limit_s=wall_s) as effort:
         plan = _plan_pointing(inst, targets, options, 0.0 if cut else share_s, progress, table)
     return PointingPlan(plan.targets, plan.allocation, plan.sequence, plan.unplanned_reason,
-                        plan.stats, effort.t_s, effort.overran or cut, pointing_telescope_time(plan, options.rules))
+                        plan.stats, effort.t_s, effort.overran or cut, pointing_telescope_time(plan, options.rules),
+                        plan.allocation_effort_s)
 
 
 def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOptions,
@@ -191,6 +194,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
         inst, result.configurations, options.sky, options.park_move_limit_s)), kept)
     progress(ALLOCATION_PART)
     result = with_kept(result, kept)
+    allocation_s = budget.elapsed_s()
     motion_s = budget.left_s()
     legs = len(result.configurations) + 1
     if motion_s < MIN_LEG_S:
@@ -212,7 +216,7 @@ def _plan_pointing(inst: Instrument, targets: PlaneTargets, options: PointingOpt
     if options.locked:  # a locked target left out says so (after the rules read its reason)
         result = replace(result, unallocated=with_lock_reasons(result.unallocated, options.locked))
         seq = replace(seq, dropped=with_lock_reasons(seq.dropped, options.locked))
-    return PointingPlan(targets, result, seq, err, stats)
+    return PointingPlan(targets, result, seq, err, stats, allocation_effort_s=allocation_s)
 
 
 def _allocate(inst: Instrument, targets: PlaneTargets, options: PointingOptions,

@@ -253,6 +253,8 @@ class PointingOutcome:
     #: False when the pointing was not attempted for lack of time (no share, or a deadline
     #: with less than the least share left): its plan observes nothing and plans no leg.
     attempted: bool = True
+    #: the effort seconds of ``effort_s`` its allocation took (the rest: its motion legs)
+    allocation_effort_s: float = 0.0
 
     def spent_s(self, table: ProgrammeShares = SHARES) -> float:
         """The wall-clock share this outcome used up, counted deterministically (its effort

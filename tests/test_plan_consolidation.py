@@ -31,6 +31,7 @@ from planner.programme import SHARES, PointingOutcome, usable_s
 from planner.validate import validate_plan
 from service import pipeline, plan_consolidation
 from service.schemas import PlanRequest
+from tests.plan_jobs import plan_job_result
 from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
 
 INST = default_instrument()
@@ -87,18 +88,8 @@ def test_refused_plans_leave_the_rounds_plan(plans) -> None:
 
 
 def test_a_plan_job_gives_the_synchronous_plan(plans, tmp_path) -> None:
-    from service import jobs
-    from service.runners import LocalPoolRunner
-
     plan, _ = plans
-    request = _request()
-    store = jobs.JobStore(tmp_path / "j.db")
-    store.init()
-    job_id = store.create("plan", request, time_limit_s=30.0, budget_s=3600.0)
-    assert store.claim("srv/1", lease_s=60.0) is not None
-    assert jobs.run_job(str(store.db_path), job_id, "plan", request, None, 30.0, 3600.0,
-                        owner="srv/1", runner=LocalPoolRunner()) == "done"
-    result = store.get(job_id)["result"]
+    result = plan_job_result(tmp_path, _request(), 30.0)
     assert [(p["target_ids"], len(p["configurations"])) for p in result["pointings"]] == \
         [(p["target_ids"], len(p["configurations"])) for p in plan["pointings"]]
     assert result["stats"]["consolidation"]["accepted"]
@@ -141,14 +132,20 @@ def test_regroup_gives_allocations_of_the_new_members() -> None:
         _check_exposures(f, new)
 
 
-def _outcome(i: int, effort_s: float, share_s: float) -> PointingOutcome:
-    return PointingOutcome(i, 1, share_s, effort_s, True, 0, 10, False, True)
+def _outcome(i: int, effort_s: float, share_s: float, allocation_s: float = 0.0,
+             overran: bool = False) -> PointingOutcome:
+    return PointingOutcome(i, 1, share_s, effort_s, True, 0, 10, overran, True, allocation_s)
 
 
 def test_costs_and_what_is_left_count_as_the_rounds_do() -> None:
-    history = [[_outcome(0, 8.0, 40.0), _outcome(1, 4.0, 40.0)], [_outcome(0, 16.0, 30.0)]]
-    assert costs(history) == {0: pytest.approx(16.0 / SHARES.effort_share), 1: pytest.approx(4.0 / SHARES.effort_share)}
-    assert left_s(120.0, history, 1.0) == pytest.approx(usable_s(120.0) - 28.0 / SHARES.effort_share - 1.0)
+    """A pointing costs what its motion legs spent (its allocation is not searched again), the
+    most of its rounds; a round the wall guard stopped, its share; what is left counts every
+    round's whole effort."""
+    history = [[_outcome(0, 8.0, 40.0, 2.0), _outcome(1, 4.0, 40.0, 3.0), _outcome(2, 5.0, 6.0, 1.0, True)],
+               [_outcome(0, 16.0, 30.0, 12.0)]]
+    e = SHARES.effort_share
+    assert costs(history) == {0: pytest.approx(6.0 / e), 1: pytest.approx(1.0 / e), 2: 6.0}
+    assert left_s(120.0, history, 1.0) == pytest.approx(usable_s(120.0) - 28.0 / e - 6.0 - 1.0)
 
 
 def test_consolidation_tasks_give_each_pointing_at_least_what_it_spent() -> None:
@@ -184,3 +181,16 @@ def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures()
     assert not accepted(old, new, 3, 3, [True, True])  # not fewer
     assert not accepted(old, new, 3, 2, [True, False])  # a failed leg
     assert not accepted(old, [{"a"}, {"c"}], 3, 2, [True, True])  # b lost
+
+
+def test_every_round_records_what_its_allocation_took(plans) -> None:
+    """A round's outcome says how much of its effort the allocation took (the consolidation
+    prices a pointing's second plan by the rest), and reads back from the answer as it was."""
+    plan, _ = plans
+    rounds = [r for p in plan["pointings"] for r in p["stats"]["rounds"]]
+    assert rounds
+    for r in rounds:
+        assert 0.0 < r["allocation_effort_s"] <= r["effort_s"]
+    for i, p in enumerate(plan["pointings"]):
+        back = pipeline.outcomes_of(p, i)
+        assert [o.allocation_effort_s for o in back] == [r["allocation_effort_s"] for r in p["stats"]["rounds"]]

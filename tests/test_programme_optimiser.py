@@ -39,6 +39,7 @@ from solvers.programme.fill import Field, position_angle
 from solvers.programme.model import greedy_cover, solve_cover
 from solvers.programme.reach import arm_masks
 from solvers.segmentation import segment_field, smallest_enclosing_circle
+from tests.plan_jobs import plan_job_result
 
 INST = load_instrument()
 FOV_R = float(INST.fov_radius_mm)
@@ -627,19 +628,10 @@ def test_plan_never_needs_more_exposures_than_the_optimiser_counted(plan_run) ->
 def test_a_plan_job_gives_the_synchronous_plan(plan_run, tmp_path) -> None:
     """A plan job segments the same way (the optimiser on the effort clock) and plans the same
     pointings, angles and exposures as the synchronous plan."""
-    from service import jobs
-    from service.runners import LocalPoolRunner
-
     out, targets = plan_run
     request = {"targets": targets, "seed": 5, "segmentation_mode": "fewest-exposures",
                "time_limit_s": 20, "position_angle_deg": PLAN_PA}
-    store = jobs.JobStore(tmp_path / "j.db")
-    store.init()
-    job_id = store.create("plan", request, time_limit_s=20.0, budget_s=3600.0)
-    assert store.claim("srv/1", lease_s=60.0) is not None
-    assert jobs.run_job(str(store.db_path), job_id, "plan", request, None, 20.0, 3600.0,
-                        owner="srv/1", runner=LocalPoolRunner()) == "done"
-    result = store.get(job_id)["result"]
+    result = plan_job_result(tmp_path, request, 20.0)
     assert [(p["target_ids"], p["position_angle_deg"], len(p["configurations"])) for p in result["pointings"]] == \
         [(p["target_ids"], p["position_angle_deg"], len(p["configurations"])) for p in out["pointings"]]
     assert result["stats"]["exposures_lower_bound"] == out["stats"]["exposures_lower_bound"]

@@ -25,13 +25,13 @@ from planner import pointing, programme
 from planner.reassign import Placed, new_configuration
 from planner.sequence import SequenceOptions, SequencePlan, _Sequencer
 from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time, total
-from service import jobs, pipeline
+from service import pipeline
 from service.app import create_app
 from service.cli import main
-from service.runners import LocalPoolRunner
 from service.schemas import PlanRequest, PlanResponse
 from service.settings import Settings
 from service.tables import read_targets
+from tests.plan_jobs import plan_job_result
 
 ROOT = Path(__file__).resolve().parents[1]
 INST = pipeline.instrument_from(None)
@@ -176,13 +176,7 @@ def test_a_plan_job_applies_the_same_rules(tmp_path) -> None:
     request = {"targets": CLUMPS, "seed": 1, "time_limit_s": 30, "max_exposures": 2,
                "exposure_time_s": 60.0, "acquisition_s": 30.0}
     sync = pipeline.plan(PlanRequest.model_validate(request), INST)
-    store = jobs.JobStore(tmp_path / "j.db")
-    store.init()
-    job_id = store.create("plan", request, time_limit_s=30.0, budget_s=3600.0)
-    assert store.claim("srv/1", lease_s=60.0) is not None
-    assert jobs.run_job(str(store.db_path), job_id, "plan", request, None, 30.0, 3600.0,
-                        owner="srv/1", runner=LocalPoolRunner()) == "done"
-    result = store.get(job_id)["result"]  # type: ignore[index]
+    result = plan_job_result(tmp_path, request, 30.0)
     check_time(result, 60.0, 30.0)
     assert result["stats"]["telescope_time"] == pytest.approx(sync["stats"]["telescope_time"])
     assert [len(p["configurations"]) for p in result["pointings"]] == \
