@@ -212,15 +212,18 @@ def time_summary(t: dict[str, Any]) -> str:
 
 
 def exposures_summary(stats: Mapping[str, Any]) -> str:
-    """One line: the plan's exposures against the proven lower bound, and how many observe at
-    most 2 targets (and of those, how many only for targets no other exposure can take)."""
+    """One line: the plan's exposures against the proven lower bound, how many observe at
+    most 2 targets (and of those, how many only for targets no other exposure can take) and
+    how many the plan's consolidation saved (:mod:`planner.consolidation`)."""
     n = int(stats["configurations"])
     bound = stats.get("exposures_lower_bound")
     line = f"{plural(n, 'exposure')}" + ("" if bound is None else
                                          f", proven lower bound {bound} ({n / bound:.2f}x)" if bound else "")
     few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
+    saved = int((stats.get("consolidation") or {}).get("exposures_saved", 0))
     return line + (f"; {plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
-                   "targets no other exposure can take (only_here in plan.json)" if few else "")
+                   "targets no other exposure can take (only_here in plan.json)" if few else "") + (
+        f"; {plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures" if saved else "")
 
 
 def changes_summary(stats: dict[str, Any]) -> str:

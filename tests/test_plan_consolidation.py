@@ -194,3 +194,14 @@ def test_every_round_records_what_its_allocation_took(plans) -> None:
     for i, p in enumerate(plan["pointings"]):
         back = pipeline.outcomes_of(p, i)
         assert [o.allocation_effort_s for o in back] == [r["allocation_effort_s"] for r in p["stats"]["rounds"]]
+
+
+def test_the_cli_summary_says_what_the_consolidation_saved(plans) -> None:
+    from service.cli import exposures_summary
+
+    plan, rounds_only = plans
+    saved = plan["stats"]["consolidation"]["exposures_saved"]
+    line = exposures_summary(plan["stats"])
+    assert line.startswith(f"{plan['stats']['configurations']} exposure")
+    assert f"{saved} exposure{'' if saved == 1 else 's'} saved by moving targets onto idle arms" in line
+    assert "saved" not in exposures_summary(rounds_only["stats"])
