@@ -36,8 +36,26 @@ from solvers.programme.consolidate import Arms, empty_exposures
 from solvers.programme.fill import Field
 from solvers.programme.spare import IDLE_KINDS
 
-__all__ = ["PlannedPointing", "Regrouped", "accepted", "affordable", "consolidation_tasks", "costs", "left_s",
-           "regroup"]
+__all__ = ["MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "applies",
+           "consolidation_tasks", "costs", "left_s", "pass_wall_s", "regroup"]
+
+#: the segmentation mode whose plans are consolidated (the programme optimiser's)
+MODE = "fewest-exposures"
+#: the pass itself (its placement tests, every run of :func:`affordable`) runs on at most
+#: this many effort seconds
+PASS_EFFORT_S = 3.0
+
+
+def pass_wall_s(effort_s: float = PASS_EFFORT_S, table: ProgrammeShares = SHARES) -> float:
+    """The wall-clock seconds ``effort_s`` of the pass stand for, counted as the rounds count
+    a pointing's effort (over ``effort_share``)."""
+    return effort_s / table.effort_share
+
+
+def applies(mode: str, keeps_configurations: bool) -> bool:
+    """Whether a plan is consolidated: in :data:`MODE`, unless it keeps configurations of a
+    previous plan (those stay as they were)."""
+    return mode == MODE and not keeps_configurations
 
 
 @dataclass(frozen=True)

@@ -17,12 +17,15 @@ from models.locks import arm_limits
 from models.sky import tangent_radius_mm
 from models.types import ArmAssignment, Configuration
 from planner.consolidation import (
+    PASS_EFFORT_S,
     PlannedPointing,
     accepted,
     affordable,
+    applies,
     consolidation_tasks,
     costs,
     left_s,
+    pass_wall_s,
 )
 from planner.programme import PointingOutcome
 from service import pipeline
@@ -30,10 +33,7 @@ from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
 from solvers.segmentation import Segmentation
 
-__all__ = ["PASS_EFFORT_S", "consolidated"]
-
-#: the pass itself (its placement tests) runs on at most this many effort seconds
-PASS_EFFORT_S = 3.0
+__all__ = ["consolidated"]
 
 
 def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[dict[str, Any]],
@@ -41,21 +41,21 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
                  wall_left_s: Callable[[], float]) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
     """``seg`` and ``answers`` after the consolidation (module docstring of
     :mod:`planner.consolidation`), with the plan's ``consolidation`` stats; unchanged when the
-    plan is not in mode "fewest-exposures", keeps configurations of a previous plan, or when
+    plan is not consolidated (:func:`planner.consolidation.applies`), or when
     the pass empties no exposure within what the rounds left or its plans are not accepted.
     ``limit_s``: the rounds' limit; ``wall_left_s``: the wall-clock seconds the plan has left."""
-    if pipeline.plan_mode(req) != "fewest-exposures" or req.keep_configurations is not None:
+    if not applies(pipeline.plan_mode(req), req.keep_configurations is not None):
         return seg, answers, {}
     index = {t.id: i for i, t in enumerate(req.targets)}
     planned = [_planned(p, index) for p in answers]
     limits = arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms)
     cost = costs(history)
-    with clock.effort(wall_limit_s=max(min(wall_left_s(), PASS_EFFORT_S / 0.8), 0.0)) as effort:
+    with clock.effort(wall_limit_s=max(min(wall_left_s(), pass_wall_s()), 0.0)) as effort:
         saved, changed = affordable(inst, np.array([t.ra_deg for t in req.targets]),
                                     np.array([t.dec_deg for t in req.targets]),
                                     np.array([int(t.priority) for t in req.targets]), planned,
                                     req.park_move_limit_s, limits, Budget.start(PASS_EFFORT_S), cost,
-                                    left_s(limit_s, history, PASS_EFFORT_S / 0.8))
+                                    left_s(limit_s, history, pass_wall_s()))
     stats: dict[str, Any] = {"exposures_emptied": saved, "effort_s": effort.t_s,
                              "pointings": [answers[r.index]["id"] for r in changed], "accepted": False}
     if not changed:
@@ -70,7 +70,7 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
             p, target_indices=r.members, allocation=r.allocation, allocation_final=True,
             exposures=len(r.allocation.configurations), radius_mm=float(np.max(radius, initial=0.0)))
     new_seg = dataclasses.replace(seg, pointings=tuple(pointings))
-    tasks = consolidation_tasks(cost, left_s(limit_s, history, effort.t_s / 0.8), len(history) + 1,
+    tasks = consolidation_tasks(cost, left_s(limit_s, history, pass_wall_s(effort.t_s)), len(history) + 1,
                                 [r.index for r in changed])
     if not tasks:  # a guard: the pass chose pointings whose costs fit in what was left
         return seg, answers, {"consolidation": {**stats, "reason": "no time left to plan the changed pointings"}}

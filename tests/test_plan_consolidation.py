@@ -205,3 +205,16 @@ def test_the_cli_summary_says_what_the_consolidation_saved(plans) -> None:
     assert line.startswith(f"{plan['stats']['configurations']} exposure")
     assert f"{saved} exposure{'' if saved == 1 else 's'} saved by moving targets onto idle arms" in line
     assert "saved" not in exposures_summary(rounds_only["stats"])
+
+
+def test_only_programme_optimiser_plans_without_kept_configurations_are_consolidated() -> None:
+    from planner.consolidation import applies
+
+    assert applies("fewest-exposures", False)
+    assert not applies("fewest-exposures", True)
+    assert not applies("complete-linkage", False) and not applies("balanced", False)
+
+
+def test_a_complete_linkage_plan_has_no_consolidation() -> None:
+    req = PlanRequest.model_validate({**_request(), "segmentation_mode": "complete-linkage", "time_limit_s": 10})
+    assert "consolidation" not in pipeline.plan(req, INST)["stats"]
