@@ -22,19 +22,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from models.budget import Budget
 from models.instrument import Instrument
-from models.sky import sky_to_focal_mm
-from models.types import AllocationResult, ArmAssignment, Configuration, Unallocated
+from models.types import AllocationResult, ArmAssignment, Configuration
 from planner.programme import PointingOutcome, RoundTask, usable_s
 from planner.shares import SHARES, ProgrammeShares
-from solvers.programme.consolidate import Arms, empty_exposures
+from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures
 from solvers.programme.fill import Field
-from solvers.programme.spare import IDLE_KINDS
 
 __all__ = ["MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "applies",
            "consolidation_tasks", "costs", "left_s", "pass_wall_s", "regroup"]
@@ -88,14 +86,19 @@ def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority:
     """The exposures the pass gives up and the pointings it changes (module docstring); the
     pointings ``frozen`` neither give nor take a target."""
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
-    state = {j: _arms(inst, p) for j, p in enumerate(pointings) if p.configurations and j not in frozen}
-    before = {j: a.copy() for j, a in state.items()}
-    saved = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
-    if saved == 0:
-        return 0, []
-    changed = [j for j, a in state.items()
-               if not (np.array_equal(a.alive, before[j].alive) and np.array_equal(a.target, before[j].target))]
-    return saved, [_regrouped(f, j, pointings[j], state[j]) for j in changed]
+    state = {j: arms_of(inst.n_arms, p.centre, p.pa_deg, p.configurations, _programme_index)
+             for j, p in enumerate(pointings) if p.configurations and j not in frozen}
+    saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
+    out = []
+    for j in sorted(changed):
+        members, allocation = allocation_of(f, state[j], pointings[j].configurations, _programme_index,
+                                            pointings[j].unobserved, "consolidation")
+        out.append(Regrouped(j, members, allocation))
+    return saved, out
+
+
+def _programme_index(asg: ArmAssignment) -> int:
+    return int(asg.target_index)
 
 
 def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
@@ -139,47 +142,6 @@ def left_s(limit_s: float | None, history: Sequence[Sequence[PointingOutcome]], 
     if math.isinf(usable):
         return math.inf
     return usable - spent_s - sum(o.spent_s(table) for outcomes in history for o in outcomes)
-
-
-def _arms(inst: Instrument, p: PlannedPointing) -> Arms:
-    n, e = inst.n_arms, len(p.configurations)
-    q, idle, target = np.zeros((e, n, 2)), np.zeros((e, n), bool), np.full((e, n), -1, np.int64)
-    for i, c in enumerate(p.configurations):
-        for a in c.assignments:
-            q[i, a.arm] = (a.theta1_rad, a.theta2_rad)
-            idle[i, a.arm] = a.kind in IDLE_KINDS
-            if a.target_index is not None:
-                target[i, a.arm] = int(a.target_index)
-    return Arms(p.centre, p.pa_deg, q, idle, target, np.ones(e, bool))
-
-
-def _regrouped(f: Field, j: int, p: PlannedPointing, a: Arms) -> Regrouped:
-    observed = {int(t) for t in a.target[a.alive].ravel() if t >= 0}
-    members = tuple(sorted(observed | set(p.unobserved)))
-    pos = {g: i for i, g in enumerate(members)}
-    configs = []
-    for e in np.flatnonzero(a.alive):
-        arms = tuple(_assignment(f, p, asg, int(a.target[e, asg.arm]), a.q[e, asg.arm], pos)
-                     for asg in p.configurations[e].assignments)
-        configs.append(replace(p.configurations[e], index=len(configs), assignments=arms,
-                               total_priority=sum(int(f.priority[int(members[x.target_index])]) for x in arms
-                                                  if x.target_index is not None),
-                               arm_yield=sum(x.kind == "target" for x in arms)))
-    unallocated = tuple(Unallocated(pos[g], str(g), r) for g, r in sorted(p.unobserved.items()))
-    stats = {"source": "consolidation", "n_targets": len(members), "n_configurations": len(configs),
-             "n_allocated": len(observed), "field_completeness": len(observed) / len(members) if members else 1.0}
-    return Regrouped(j, members, AllocationResult(tuple(configs), unallocated, stats))
-
-
-def _assignment(f: Field, p: PlannedPointing, asg: ArmAssignment, t: int, q: np.ndarray,
-                pos: Mapping[int, int]) -> ArmAssignment:
-    """An arm's assignment in a regrouped exposure, its target relabelled to the members."""
-    if t < 0:
-        return asg
-    if asg.target_index is not None and int(asg.target_index) == t:
-        return replace(asg, target_index=pos[t], target_id=str(t))
-    x, y = sky_to_focal_mm(f.ra_deg[[t]], f.dec_deg[[t]], p.centre[0], p.centre[1], f.scale, p.pa_deg)
-    return ArmAssignment(asg.arm, "target", float(q[0]), float(q[1]), float(x[0]), float(y[0]), pos[t], str(t))
 
 
 def consolidation_tasks(costs_s: Mapping[int, float], left: float, round_: int, changed: Sequence[int],

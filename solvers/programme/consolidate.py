@@ -24,6 +24,7 @@ same pass (:func:`empty_exposures`) on its own configurations after its rounds
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -31,11 +32,12 @@ import numpy as np
 from models import clock
 from models.budget import Budget
 from models.sky import sky_to_focal_mm
-from models.types import AllocationResult, ArmAssignment, Unallocated
-from solvers.programme.fill import Field, FillOptions, Pointing, within, witness
+from models.types import AllocationResult, ArmAssignment, Configuration, Unallocated
+from solvers.programme.fill import Field, FillOptions, Pointing, within
 from solvers.programme.spare import IDLE_KINDS, placements
 
-__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "consolidate", "empty_exposures"]
+__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "allocation_of", "arms_of", "consolidate",
+           "empty_exposures"]
 
 #: effort seconds charged per test of one target against one pointing's exposures: its reach
 #: (per test) and the clearance to the other arms (per exposure tested); reference seconds
@@ -66,45 +68,78 @@ def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget
     that give or take targets are replaced by ones with their new members and allocations.
     Returns the exposures given up."""
     state = {j: _arms_of(f, p) for j, p in enumerate(pts) if p.allocation is not None and p.exposures}
-    saved = empty_exposures(f, state, opts.park_move_limit_s, opts.arm_limits, budget)
-    if saved:
-        for j, a in state.items():
-            pts[j] = _rebuilt(f, pts[j], a)
+    saved, changed = empty_exposures(f, state, opts.park_move_limit_s, opts.arm_limits, budget)
+    for j in changed:
+        pts[j] = _rebuilt(f, pts[j], state[j])
     return saved
 
 
 def empty_exposures(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
-                    arm_limits: tuple[int, ...] | None, budget: Budget) -> int:
+                    arm_limits: tuple[int, ...] | None, budget: Budget) -> tuple[int, set[int]]:
     """The pass of the module docstring on the pointings' exposures ``state`` (any keys), in
     place; ``arm_limits``: per target of the programme, the bit mask of the arms it may use
-    (None: any). Returns the exposures given up (their ``alive`` turned False)."""
+    (None: any). Returns the exposures given up (their ``alive`` turned False) and the keys of
+    the pointings that gave or took a target."""
     focal: dict[tuple[int, int], tuple[float, float] | None] = {}
     order = sorted(((int(np.count_nonzero(a.target[e] >= 0)), j, e) for j, a in state.items()
                     for e in np.flatnonzero(a.alive)))
-    saved = 0
+    saved, changed = 0, set()
     for _, j, e in order:
         if budget.expired():
             break
         trial = _emptied(f, state, j, int(e), park_move_limit_s, arm_limits, focal)
         if trial is not None:
             state.update(trial)
+            changed |= set(trial)
             saved += 1
-    return saved
+    return saved, changed
 
 
-def _arms_of(f: Field, p: Pointing) -> Arms:
-    configs = p.allocation.configurations[:p.exposures]
-    n = f.inst.n_arms
-    q = np.zeros((len(configs), n, 2))
-    idle = np.zeros((len(configs), n), bool)
-    target = np.full((len(configs), n), -1, np.int64)
+def arms_of(n_arms: int, centre: tuple[float, float], pa_deg: float, configs: Sequence[Configuration],
+            target_of: Callable[[ArmAssignment], int]) -> Arms:
+    """The exposures ``configs`` of a pointing as :class:`Arms`; ``target_of``: the programme
+    index of an observing arm's target."""
+    q = np.zeros((len(configs), n_arms, 2))
+    idle = np.zeros((len(configs), n_arms), bool)
+    target = np.full((len(configs), n_arms), -1, np.int64)
     for e, c in enumerate(configs):
         for a in c.assignments:
             q[e, a.arm] = (a.theta1_rad, a.theta2_rad)
             idle[e, a.arm] = a.kind in IDLE_KINDS
             if a.target_index is not None:
-                target[e, a.arm] = int(p.members[a.target_index])
-    return Arms(p.centre, p.pa_deg, q, idle, target, np.ones(len(configs), bool))
+                target[e, a.arm] = target_of(a)
+    return Arms(centre, pa_deg, q, idle, target, np.ones(len(configs), bool))
+
+
+def allocation_of(f: Field, a: Arms, configs: Sequence[Configuration], target_of: Callable[[ArmAssignment], int],
+                  unobserved: Mapping[int, str], source: str) -> tuple[tuple[int, ...], AllocationResult]:
+    """The exposures of ``a`` still alive (``configs``: the ones :func:`arms_of` read, in
+    order) as an allocation of the pointing's members: the targets they observe and
+    ``unobserved`` (programme index -> reason), ascending. It has the form of the optimiser's
+    witnesses (:func:`solvers.programme.fill.witness`: ``target_index`` into the members,
+    ``target_id`` the ``str`` of the programme index); ``source`` names it in its stats."""
+    observed = {int(t) for t in a.target[a.alive].ravel() if t >= 0}
+    members = tuple(sorted(observed | set(unobserved)))
+    pos = {g: i for i, g in enumerate(members)}
+    out = []
+    for e in np.flatnonzero(a.alive):
+        arms = tuple(_assignment(f, a, asg, int(a.target[e, asg.arm]), a.q[e, asg.arm], target_of, pos)
+                     for asg in configs[e].assignments)
+        out.append(replace(configs[e], index=len(out), assignments=arms,
+                           total_priority=sum(int(f.priority[members[x.target_index]]) for x in arms
+                                              if x.target_index is not None),
+                           arm_yield=sum(x.kind == "target" for x in arms)))
+    unallocated = tuple(Unallocated(pos[g], str(g), r) for g, r in sorted(unobserved.items()))
+    stats = {"source": source, "n_targets": len(members), "n_configurations": len(out),
+             "n_allocated": len(observed), "field_completeness": len(observed) / len(members) if members else 1.0,
+             "unallocated_by_reason": {r: sum(u.reason == r for u in unallocated)
+                                       for r in sorted({u.reason for u in unallocated})}}
+    return members, AllocationResult(tuple(out), unallocated, stats)
+
+
+def _arms_of(f: Field, p: Pointing) -> Arms:
+    return arms_of(f.inst.n_arms, p.centre, p.pa_deg, p.allocation.configurations[:p.exposures],
+                   lambda asg: int(p.members[asg.target_index]))
 
 
 def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s: float | None,
@@ -155,31 +190,22 @@ def _rebuilt(f: Field, p: Pointing, a: Arms) -> Pointing:
     """``p`` with the exposures of ``a`` still alive, its members those they observe and the
     members its allocation left unobserved (for a reason of the geometry)."""
     old = p.allocation
-    observed = {int(t) for t in a.target[a.alive].ravel() if t >= 0}
-    unobserved = {int(p.members[u.target_index]) for u in old.unallocated}
-    keep = np.array(sorted(observed | unobserved), dtype=np.int64)
-    if keep.size == 0:
-        return Pointing(p.centre, p.pa_deg, keep, 0, pa_search=p.pa_search)
-    ext = np.array(sorted(observed | {int(t) for t in p.members}), dtype=np.int64)
-    pos = {int(g): i for i, g in enumerate(ext)}
-    configs = []
-    for e in np.flatnonzero(a.alive):
-        c = old.configurations[e]
-        arms = tuple(_assignment(f, p, asg, int(a.target[e, asg.arm]), a.q[e, asg.arm], pos)
-                     for asg in c.assignments)
-        configs.append(replace(c, assignments=arms, arm_yield=sum(x.kind == "target" for x in arms)))
-    unallocated = tuple(Unallocated(pos[int(p.members[u.target_index])], u.target_id, u.reason)
-                        for u in old.unallocated)
-    result = AllocationResult(tuple(configs), unallocated, old.stats)
-    return Pointing(p.centre, p.pa_deg, keep, len(configs), allocation=witness(result, ext, keep, len(configs),
-                                                                                 f.priority),
-                    pa_search=p.pa_search)
+    members, allocation = allocation_of(f, a, old.configurations, lambda asg: int(p.members[asg.target_index]),
+                                        {int(p.members[u.target_index]): u.reason for u in old.unallocated},
+                                        "programme optimiser")
+    if not members:
+        return Pointing(p.centre, p.pa_deg, np.zeros(0, np.int64), 0, pa_search=p.pa_search)
+    return Pointing(p.centre, p.pa_deg, np.array(members, np.int64), len(allocation.configurations),
+                    allocation=allocation, pa_search=p.pa_search)
 
 
-def _assignment(f: Field, p: Pointing, asg: ArmAssignment, t: int, q: np.ndarray, pos: dict) -> ArmAssignment:
-    """An arm's assignment in a rebuilt exposure: as it was, or observing ``t`` (programme
-    index) at the pose ``q`` when it took that target."""
-    if t < 0 or (asg.target_index is not None and int(p.members[asg.target_index]) == t):
-        return asg if asg.target_index is None else replace(asg, target_index=pos[t])
-    x, y = sky_to_focal_mm(f.ra_deg[[t]], f.dec_deg[[t]], p.centre[0], p.centre[1], f.scale, p.pa_deg)
-    return ArmAssignment(asg.arm, "target", float(q[0]), float(q[1]), float(x[0]), float(y[0]), pos[t], str(t))
+def _assignment(f: Field, a: Arms, asg: ArmAssignment, t: int, pose: np.ndarray,
+                target_of: Callable[[ArmAssignment], int], pos: Mapping[int, int]) -> ArmAssignment:
+    """An arm's assignment in a rebuilt exposure: as it was (its target relabelled to the
+    members), or observing ``t`` (programme index) at ``pose`` when it took that target."""
+    if t < 0:
+        return asg
+    if asg.target_index is not None and target_of(asg) == t:
+        return replace(asg, target_index=pos[t], target_id=str(t))
+    x, y = sky_to_focal_mm(f.ra_deg[[t]], f.dec_deg[[t]], a.centre[0], a.centre[1], f.scale, a.pa_deg)
+    return ArmAssignment(asg.arm, "target", float(pose[0]), float(pose[1]), float(x[0]), float(y[0]), pos[t], str(t))
