@@ -55,7 +55,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "optimiser_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "optimiser_s", "variants_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -110,9 +110,26 @@ def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
     return max(limit_s - reserve_s(limit_s, table), 0.0)
 
 
-def optimiser_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
-    """The wall-clock seconds the programme optimiser of a plan limited to ``limit_s`` may
-    use (its searches get ``effort_share`` of them in effort seconds)."""
+def optimiser_s(limit_s: float | None, table: ProgrammeShares = SHARES, n_targets: int | None = None) -> float:
+    """The wall-clock seconds the programme optimiser of a plan of ``n_targets`` limited to
+    ``limit_s`` may use (its searches get ``effort_share`` of them in effort seconds): its
+    share, and :func:`variants_s` for its model's other variants."""
+    return _optimiser_share_s(limit_s, table) + variants_s(limit_s, table, n_targets)
+
+
+def variants_s(limit_s: float | None, table: ProgrammeShares = SHARES, n_targets: int | None = None) -> float:
+    """The wall-clock seconds the programme optimiser of a plan of ``n_targets`` limited to
+    ``limit_s`` may add for its model's other variants: what the usable time leaves beyond the
+    optimiser's share and ``variants_need_factor`` times the typical effort of the targets (in
+    wall-clock seconds), at most ``variants_max_s``; none without a limit or a count."""
+    if n_targets is None or limit_s is None or math.isinf(limit_s):
+        return 0.0
+    need_s = table.variants_need_factor * table.typical_effort_per_target_s * n_targets / table.effort_share
+    left_s = usable_s(limit_s, table) - _optimiser_share_s(limit_s, table) - need_s
+    return min(max(left_s, 0.0), table.variants_max_s)
+
+
+def _optimiser_share_s(limit_s: float | None, table: ProgrammeShares) -> float:
     if limit_s is None or math.isinf(limit_s):
         return table.optimiser_max_s
     return min(table.optimiser_share * usable_s(limit_s, table), table.optimiser_max_s)

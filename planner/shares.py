@@ -42,6 +42,13 @@ class ProgrammeShares:
     #: "fewest-exposures") may use, at most ``optimiser_max_s``: the pointings get the rest.
     optimiser_share: float = 0.08
     optimiser_max_s: float = 12.0
+    #: The programme optimiser may add up to ``variants_max_s`` for its model's other variants
+    #: (:data:`solvers.programme.optimiser.VARIANTS`: each a whole search, the one with the
+    #: fewest exposures kept) out of what the usable time leaves beyond its share and
+    #: ``variants_need_factor`` times the typical effort its targets need: only time the rounds
+    #: are not expected to use (none on a programme of 250 stars or more at 120 s).
+    variants_max_s: float = 12.0
+    variants_need_factor: float = 2.0
     #: Effort seconds a pointing's plan takes per target, measured by ``python
     #: benchmarks/time_need.py`` (docs/programme.md: 93 pointings of ten programmes of 63-181
     #: stars and the M67-like case; a pointing's effort follows its targets more closely than

@@ -29,25 +29,28 @@ from planner.programme import (
 __all__ = ["TimeAdvice", "needed_limit_s", "pointings_part_s", "time_advice"]
 
 
-def pointings_part_s(limit_s: float, optimiser: bool, table: ProgrammeShares = SHARES) -> float:
+def pointings_part_s(limit_s: float, optimiser: bool, table: ProgrammeShares = SHARES,
+                     n_targets: int | None = None) -> float:
     """What the pointings of a plan limited to ``limit_s`` share (the rounds' usable time):
     the limit less the programme optimiser's part (``optimiser``: segmentation mode
-    "fewest-exposures") and less the answer's reserve."""
-    rounds_s = limit_s - optimiser_s(limit_s, table) if optimiser else limit_s
+    "fewest-exposures", for a programme of ``n_targets``: :func:`planner.programme.optimiser_s`)
+    and less the answer's reserve."""
+    rounds_s = limit_s - optimiser_s(limit_s, table, n_targets) if optimiser else limit_s
     return usable_s(max(rounds_s, 0.0), table)
 
 
-def needed_limit_s(pointings_s: float, optimiser: bool, table: ProgrammeShares = SHARES) -> float:
+def needed_limit_s(pointings_s: float, optimiser: bool, table: ProgrammeShares = SHARES,
+                   n_targets: int | None = None) -> float:
     """The least limit, in whole seconds, whose :func:`pointings_part_s` holds
     ``pointings_s`` (the part grows with the limit, so a bisection finds it)."""
     if pointings_s <= 0:
         return 0.0
     lo, hi = 0.0, max(2.0 * pointings_s, 1.0)
-    while pointings_part_s(hi, optimiser, table) < pointings_s:
+    while pointings_part_s(hi, optimiser, table, n_targets) < pointings_s:
         hi *= 2.0
     for _ in range(60):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if pointings_part_s(mid, optimiser, table) < pointings_s else (lo, mid)
+        lo, hi = (mid, hi) if pointings_part_s(mid, optimiser, table, n_targets) < pointings_s else (lo, mid)
     return float(math.ceil(hi - 1e-9))
 
 
@@ -74,7 +77,7 @@ def _best(history: Sequence[Sequence[PointingOutcome]]) -> dict[int, PointingOut
 
 def time_advice(limit_s: float | None, needs: Sequence[float],
                 history: Sequence[Sequence[PointingOutcome]], optimiser: bool,
-                table: ProgrammeShares = SHARES) -> TimeAdvice | None:
+                table: ProgrammeShares = SHARES, n_targets: int | None = None) -> TimeAdvice | None:
     """The advice of a plan limited to ``limit_s`` whose rounds gave ``history``; None when
     every pointing with a need was planned, or when no limit bound it (a failed leg is then
     not for lack of time), or when the rounds ended with time left (their number, not the
@@ -90,7 +93,7 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     best = _best(history)
     waiting = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and not o.attempted))
     failed = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and o.attempted and not o.executable))
-    usable = pointings_part_s(limit_s, optimiser, table)
+    usable = pointings_part_s(limit_s, optimiser, table, n_targets)
     spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
     if not waiting and (not failed or usable - spent >= table.min_pointing_s):
         return None
@@ -103,7 +106,7 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
             estimate += o.spent_s(table)
         else:
             estimate += expected_share_s(needs[i], table)
-    needed = needed_limit_s(estimate, optimiser, table)
+    needed = needed_limit_s(estimate, optimiser, table, n_targets)
     if needed <= limit_s:
         needed = float(math.ceil(table.failed_growth * limit_s))
     return TimeAdvice(float(limit_s), needed, waiting, failed)

@@ -160,10 +160,11 @@ def field_args(req: SegmentationRequest, inst: Instrument) -> dict[str, Any]:
 
 
 def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None = None,
-            optimiser_s: float | None = None, mode_field: str = "mode") -> Segmentation:
+            optimiser_s: float | None = None, mode_field: str = "mode", variants_s: float = 0.0) -> Segmentation:
     """``solvers.programme.segment_programme`` on the request (thesis ch. 4; mode
     "fewest-exposures": the programme optimiser, allocating as ``fill`` says within
-    ``optimiser_s`` wall-clock seconds, on the effort clock as a pointing's plan)."""
+    ``optimiser_s`` wall-clock seconds, on the effort clock as a pointing's plan, the last
+    ``variants_s`` of them for its model's other variants)."""
     args = field_args(req, inst)
     if req.mode != "fewest-exposures":
         seg = segment_field(**args, seed=int(req.seed or 0))
@@ -177,7 +178,7 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
                                  mode=req.mode, threshold_mm=req.threshold_mm,
                                  tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,
                                  budget=Budget.start(programme.SHARES.effort_share * wall_s),
-                                 mode_field=mode_field)
+                                 mode_field=mode_field, variants_s=programme.SHARES.effort_share * variants_s)
 
 
 def segmentation(
@@ -315,7 +316,9 @@ def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = Non
                        angle_search=adapters.angle_search_in(req.position_angle_deg, req.position_angle_range_deg,
                                                              req.position_angle_step_deg),
                        arm_limits=arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms))
-    return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s), "segmentation_mode")
+    n = len(req.targets)
+    return segment(plan_segmentation(req), inst, fill, programme.optimiser_s(limit_s, n_targets=n),
+                   "segmentation_mode", programme.variants_s(limit_s, n_targets=n))
 
 
 def segment_kept(req: PlanRequest, inst: Instrument, limit_s: float | None) -> Segmentation:
@@ -369,7 +372,7 @@ def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:
     """What a plan limited to ``limit_s`` leaves its pointings after its segmentation."""
     if plan_mode(req) != "fewest-exposures":
         return limit_s
-    return limit_s - programme.optimiser_s(limit_s)
+    return limit_s - programme.optimiser_s(limit_s, n_targets=len(req.targets))
 
 
 def observing_rules(req: PlanRequest) -> ObservingRules:
@@ -542,7 +545,7 @@ def limit_advice(req: PlanRequest, seg: Segmentation, pointings: Sequence[dict[s
     its ``not_planned`` reason, naming the limit. ``sync_s``: the longest limit of a
     synchronous plan (None: the plan already runs as a job, so none is suggested)."""
     advice = time_advice(limit_s, pointing_needs(seg, req), history,
-                         plan_mode(req) == "fewest-exposures")
+                         plan_mode(req) == "fewest-exposures", n_targets=len(req.targets))
     if advice is None:
         return None
     needed = advice.needed_limit_s

@@ -19,7 +19,9 @@ from service.tables import read_target_table
 from solvers import effort
 from solvers.programme.bound import RADIUS_SLACK
 from solvers.programme.candidates import maximal_sets
-from solvers.programme.optimiser import OptimiserOptions, _model
+from solvers.programme.crowding import crowding_cells, exclusion_distance_mm
+from solvers.programme.fill import Field
+from solvers.programme.optimiser import VARIANTS, OptimiserOptions, _model, _Space
 from solvers.programme.reach import entry_masks
 from solvers.segmentation.field import field_plane
 
@@ -37,12 +39,14 @@ def first_model_inputs():
     ra = np.array([r["ra_deg"] for r in rows])
     dec = np.array([r["dec_deg"] for r in rows])
     R, scale = float(INST.fov_radius_mm), float(INST.plate_scale_arcsec_per_mm)
-    _, _, _, _, xy = field_plane(ra, dec, threshold_mm=None, tangent_point=None, fov_radius_mm=R,
-                                 plate_scale_arcsec_per_mm=scale)
+    ra, dec, _, tangent, xy = field_plane(ra, dec, threshold_mm=None, tangent_point=None, fov_radius_mm=R,
+                                          plate_scale_arcsec_per_mm=scale)
     cand = maximal_sets(xy, R * (1.0 + RADIUS_SLACK) + 1e-9)  # as the optimiser
     opts = OptimiserOptions()
     masks = entry_masks(INST, cand, xy, opts.fill.position_angle_deg, opts.fill.park_move_limit_s)
-    return cand, masks, len(ra), opts
+    f = Field(INST, ra, dec, np.ones(len(ra), np.int64))
+    space = _Space(f, cand, masks, crowding_cells(xy, exclusion_distance_mm(INST)), tangent)
+    return space, len(ra), opts
 
 
 def solve(slow: bool):
@@ -50,7 +54,7 @@ def solve(slow: bool):
     every HiGHS callback sleeps :data:`SLEEP_S` first. Returns the point where the run
     stopped (the callbacks it took) with its solution, the run's wall seconds and the seconds
     it slept."""
-    cand, masks, n, opts = first_model_inputs()
+    space, n, opts = first_model_inputs()
     real = effort.HighsMeter.on_callback
     calls = [0]
 
@@ -64,7 +68,7 @@ def solve(slow: bool):
     try:
         t0 = time.perf_counter()
         with clock.effort(wall_limit_s=120.0):
-            cover, _ = _model(cand, masks, np.ones(n, bool), INST.n_arms, opts, Budget.start(BUDGET_S))
+            cover, _ = _model(space, np.ones(n, bool), opts, VARIANTS[0], Budget.start(BUDGET_S))
         wall_s = time.perf_counter() - t0
     finally:
         effort.HighsMeter.on_callback = real

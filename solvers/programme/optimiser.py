@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models import clock
 from models.budget import Budget
 from models.instrument import Instrument
 from models.sky import focal_mm_to_sky
@@ -62,7 +63,7 @@ from solvers.programme.fill import (
 from solvers.programme.model import CoverSolution, solve_cover
 from solvers.programme.reach import entry_masks, reach_rows, shortlist
 
-__all__ = ["OptimisedPointing", "OptimiserOptions", "ProgrammeResult", "optimise"]
+__all__ = ["VARIANTS", "ModelVariant", "OptimisedPointing", "OptimiserOptions", "ProgrammeResult", "optimise"]
 
 
 #: the bound solves the model over every candidate only up to this many (set, member) entries
@@ -70,9 +71,26 @@ BOUND_MODEL_MAX_ENTRIES = 8_000
 
 
 @dataclass(frozen=True)
+class ModelVariant:
+    """One way to set the programme model: a pointing's cost in exposures (its acquisition
+    against an exposure and its reconfiguration) and whether the crowding rows are in it."""
+
+    pointing_cost: float = 0.3
+    crowding: bool = False
+
+
+#: The model's variants, searched in turn while the budget allows (the first always): each is
+#: a whole search (model, commits, spare arms), and the search whose real allocations take the
+#: least telescope time is kept. The model leaves out what the allocations meet (the other
+#: links' collisions, and crowding in the first variant), so which variant's pointings
+#: allocate best differs from programme to programme (docs/programme.md).
+VARIANTS = (ModelVariant(), ModelVariant(crowding=True), ModelVariant(pointing_cost=0.6))
+
+
+@dataclass(frozen=True)
 class OptimiserOptions:
-    """The allocation the feedback runs (as the plan's), and the optimiser's one table of
-    shares of its budget."""
+    """The allocation the feedback runs (as the plan's), the model's variants and the
+    optimiser's one table of shares of its budget."""
 
     fill: FillOptions = FillOptions()
     #: of the optimiser's budget: the bound (its cutting planes, then the model without reach
@@ -81,10 +99,11 @@ class OptimiserOptions:
     model_share: float = 0.15
     step_share: float = 0.03
     #: the cost of a pointing (its acquisition) in exposures (an exposure and its
-    #: reconfiguration): the plan's model minimises telescope time
+    #: reconfiguration): the searches are compared on telescope time
     pointing_cost: float = 0.3
     #: candidates the model chooses among (:func:`solvers.programme.reach.shortlist`)
     max_candidates: int = 150
+    variants: tuple[ModelVariant, ...] = VARIANTS
 
 
 @dataclass(frozen=True)
@@ -111,72 +130,137 @@ class ProgrammeResult:
 
 
 def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, float],
-             xy_mm: np.ndarray, options: OptimiserOptions, budget: Budget) -> ProgrammeResult:
+             xy_mm: np.ndarray, options: OptimiserOptions, budget: Budget, variants_s: float = 0.0,
+             ) -> ProgrammeResult:
     """The programme's pointings with the fewest exposures (module docstring), within
-    ``budget``. ``xy_mm``: the targets on the programme's tangent plane about ``tangent``."""
+    ``budget``, of which the last ``variants_s`` (effort seconds) are for the model's other
+    variants. ``xy_mm``: the targets on the programme's tangent plane about ``tangent``."""
+    first = budget if variants_s <= 0 else budget.child(max(budget.left_s() - variants_s, 0.0))
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
-    n, arms, R = len(f.ra_deg), inst.n_arms, f.radius_mm
+    arms, R = inst.n_arms, f.radius_mm
     cand = maximal_sets(xy_mm, R * (1.0 + RADIUS_SLACK) + 1e-9)  # every FOV set: a bound holds
     masks = options.fill.limited(entry_masks(inst, cand, xy_mm, options.fill.position_angle_deg,
                                              options.fill.park_move_limit_s), cand.index)
     cells = crowding_cells(xy_mm, exclusion_distance_mm(inst))
-    bound = _bound(xy_mm, R, arms, cand, budget.share(options.bound_share), options.fill.seed, cells)
-    todo = np.ones(n, bool)
-    pts: list[Pointing] = []
-    first: CoverSolution | None = None
-    cover, sub, done = None, None, set()
-    while todo.any():
-        if cover is None or any(int(cover.owner[i]) in done or cover.owner[i] < 0 for i in np.flatnonzero(todo)):
-            share = options.model_share if first is None else options.step_share
-            cover, sub = _model(cand, masks, todo, arms, options, budget.share(share))
-            first, done = (cover if first is None else first), set()
-        used = np.bincount(cover.owner[todo], minlength=len(sub))
-        if budget.expired():  # no time for the feedback: the model's pointings as they are
-            pts += [_unallocated(f, np.flatnonzero(todo & (cover.owner == j)), sub.centres_mm[j], tangent)
-                    for j in np.flatnonzero(used)]
+    bound = _bound(xy_mm, R, arms, cand, first.share(options.bound_share), options.fill.seed, cells)
+    space = _Space(f, cand, masks, cells, tangent)
+    t0 = clock.now()
+    best = _search(space, options, options.variants[0], first)
+    cost_s, length_s = clock.now() - t0, first.total_s
+    tried = [best]
+    for variant in options.variants[1:] if variants_s > 0 else ():
+        if budget.left_s() < cost_s or not best.complete:
             break
-        j = int(np.argmax(used))  # the model's largest pointing
-        given = np.flatnonzero(todo & (cover.owner == j))
-        elsewhere = np.zeros(n, bool)
-        for k in np.flatnonzero(used):
-            if k != j:
-                elsewhere[sub.of(k)] = True
-        p = commit(f, todo, given, _sky(sub.centres_mm[j], tangent, f.scale), elsewhere, options.fill, budget)
-        todo[p.members] = False
-        done.add(j)
-        pts.append(p)
-    saved = spare_arms(f, pts, options.fill, budget)
-    emptied = consolidate(f, pts, options.fill, budget)
-    pts = [p for p in pts if len(p.members)]
+        tried.append(_search(space, options, variant, budget.child(min(budget.left_s(), length_s))))
+        if tried[-1].complete and tried[-1].key(options.pointing_cost) < best.key(options.pointing_cost):
+            best = tried[-1]
+    pts = [p for p in best.pointings if len(p.members)]
     mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
                                   tuple(int(i) for i in p.members), p.exposures,
                                   tuple(int(i) for i in p.only_here),
                                   p.allocation, p.pa_search)
                 for p in pts)
-    stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": len(pts),
-             "model_status": first.status, "model_exposures": int(first.exposures.sum()),
-             "model_pointings": int(np.count_nonzero(first.exposures)),
-             "exposures_estimate": sum(p.exposures or 0 for p in pts),
-             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": saved,
-             "exposures_emptied": emptied}
+    stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": best.steps,
+             "model_status": best.cover.status, "model_exposures": int(best.cover.exposures.sum()),
+             "model_pointings": int(np.count_nonzero(best.cover.exposures)),
+             "exposures_estimate": best.exposures,
+             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": best.saved,
+             "exposures_emptied": best.emptied,
+             "model_variants": [{"pointing_cost": s.variant.pointing_cost, "crowding": s.variant.crowding,
+                                 "exposures": s.exposures, "pointings": len(s.pointings), "complete": s.complete,
+                                 "chosen": s is best} for s in tried]}
     return ProgrammeResult(out, bound, stats)
 
 
-def _model(cand: Candidates, masks: np.ndarray, todo: np.ndarray, arms: int, options: OptimiserOptions,
+@dataclass(frozen=True)
+class _Space:
+    """What every search of :func:`optimise` shares: the programme, its candidates, their
+    members' arm masks, the crowding cells and the tangent point."""
+
+    f: Field
+    cand: Candidates
+    masks: np.ndarray
+    cells: CrowdingCells
+    tangent: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class _Searched:
+    """One search's pointings (those given every target kept, empty ones left out later), the
+    model's first solution, its steps and what steps 5-6 saved."""
+
+    variant: ModelVariant
+    pointings: list[Pointing]
+    cover: CoverSolution
+    steps: int
+    saved: int
+    emptied: int
+
+    @property
+    def complete(self) -> bool:
+        """Every pointing got its allocation feedback (so its exposures are real)."""
+        return all(p.exposures is not None for p in self.pointings if len(p.members))
+
+    @property
+    def exposures(self) -> int:
+        return sum(p.exposures or 0 for p in self.pointings)
+
+    def key(self, pointing_cost: float) -> tuple[float, int]:
+        """Telescope time in exposures (each pointing its acquisition), then exposures."""
+        used = sum(1 for p in self.pointings if len(p.members))
+        return self.exposures + pointing_cost * used, self.exposures
+
+
+def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, budget: Budget) -> _Searched:
+    """Steps 3-6 of the module docstring with the model set as ``variant``, within ``budget``."""
+    f, todo = space.f, np.ones(len(space.f.ra_deg), bool)
+    pts: list[Pointing] = []
+    first: CoverSolution | None = None
+    cover, sub, done = None, None, set()
+    while todo.any():
+        if cover is None or any(int(cover.owner[i]) in done or cover.owner[i] < 0 for i in np.flatnonzero(todo)):
+            share = options.model_share if first is None else options.step_share
+            cover, sub = _model(space, todo, options, variant, budget.share(share))
+            first, done = (cover if first is None else first), set()
+        used = np.bincount(cover.owner[todo], minlength=len(sub))
+        if budget.expired():  # no time for the feedback: the model's pointings as they are
+            pts += [_unallocated(f, np.flatnonzero(todo & (cover.owner == j)), sub.centres_mm[j], space.tangent)
+                    for j in np.flatnonzero(used)]
+            break
+        j = int(np.argmax(used))  # the model's largest pointing
+        given = np.flatnonzero(todo & (cover.owner == j))
+        elsewhere = np.zeros(len(todo), bool)
+        for k in np.flatnonzero(used):
+            if k != j:
+                elsewhere[sub.of(k)] = True
+        p = commit(f, todo, given, _sky(sub.centres_mm[j], space.tangent, f.scale), elsewhere, options.fill,
+                   budget)
+        todo[p.members] = False
+        done.add(j)
+        pts.append(p)
+    steps = len(pts)
+    saved = spare_arms(f, pts, options.fill, budget)
+    emptied = consolidate(f, pts, options.fill, budget)
+    return _Searched(variant, pts, first, steps, saved, emptied)
+
+
+def _model(space: _Space, todo: np.ndarray, options: OptimiserOptions, variant: ModelVariant,
            budget: Budget) -> tuple[CoverSolution, Candidates]:
     """The programme model on the targets ``todo`` (bool mask), over its shortlist, with the
-    rows of arm reach. The crowding rows are left out of it: the feedback allocations see
-    crowding as it is, and the rows steer the model to pointings that take more exposures
-    (docs/programme.md)."""
-    n = len(todo)
-    sub, entries = cand.restrict(todo)
-    keep = shortlist(sub, n, masks[entries], arms, options.max_candidates)
+    rows of arm reach, and the crowding rows when ``variant`` says so: the feedback
+    allocations see crowding as it is, and the rows steer the model to pointings that take
+    more exposures on some programmes, fewer on others (docs/programme.md)."""
+    n, arms = len(todo), space.f.inst.n_arms
+    sub, entries = space.cand.restrict(todo)
+    keep = shortlist(sub, n, space.masks[entries], arms, options.max_candidates)
     sub, within_sub = sub.subset(keep)
     entries = entries[within_sub]
-    allowed, rows = reach_rows(sub, masks[entries], arms)
+    allowed, rows = reach_rows(sub, space.masks[entries], arms)
+    if variant.crowding:
+        rows = with_crowding(rows, sub, space.cells)
     cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
-                        pointing_cost=options.pointing_cost)
+                        pointing_cost=variant.pointing_cost)
     if cover.status == "timeout":  # the greedy start is a solution; a guard only
         raise RuntimeError("the programme model found no solution within its budget")
     return cover, sub

@@ -41,11 +41,12 @@ MAX_TARGETS = 1_000
 def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str = "complete-linkage",
                       threshold_mm: float | None = None, tangent_point: tuple[float, float] | None = None,
                       seed: int = 0, fill: FillOptions | None = None, budget: Budget | None = None,
-                      mode_field: str = "mode") -> Segmentation:
+                      mode_field: str = "mode", variants_s: float = 0.0) -> Segmentation:
     """The programme's pointings in ``mode`` (one of :data:`MODES`; ``threshold_mm`` is the
     complete linkage's, checked in every mode). ``fill``: how the plan
     allocates a pointing (the optimiser's feedback allocates the same way); ``budget``: the
-    optimiser's (default: 10 s on the caller's clock). With ``fill.angle_search`` (the
+    optimiser's (default: 10 s on the caller's clock), of which the last ``variants_s`` are for
+    its model's other variants (:data:`solvers.programme.optimiser.VARIANTS`). With ``fill.angle_search`` (the
     request's "auto") every pointing of every mode takes its best angle of that search
     (:func:`solvers.programme.angle.choose_angle`; in mode "fewest-exposures" before its
     allocation feedback). Raises InputError naming the field (``mode_field`` for the mode)."""
@@ -70,7 +71,7 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
         raise InputError("priority", f"expected {ra.size} priorities, got shape {prio.shape}")
     opts = OptimiserOptions(fill=FillOptions(seed=int(seed)) if fill is None else fill)
     t0 = time.perf_counter()
-    result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget)
+    result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget, variants_s)
     seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
     if opts.fill.angle_search is None:
         return seg
