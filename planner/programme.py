@@ -55,7 +55,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "optimiser_s", "variants_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -121,12 +121,24 @@ def variants_s(limit_s: float | None, table: ProgrammeShares = SHARES, n_targets
     """The wall-clock seconds the programme optimiser of a plan of ``n_targets`` limited to
     ``limit_s`` may add for its model's other variants: what the usable time leaves beyond the
     optimiser's share and ``variants_need_factor`` times the typical effort of the targets (in
-    wall-clock seconds), at most ``variants_max_s``; none without a limit or a count."""
+    wall-clock seconds, a pointing's fixed part counted once: ``fixed_need_targets``), at most
+    ``variants_max_s``; none without a limit or a count."""
     if n_targets is None or limit_s is None or math.isinf(limit_s):
         return 0.0
-    need_s = table.variants_need_factor * table.typical_effort_per_target_s * n_targets / table.effort_share
+    targets = n_targets + table.fixed_need_targets
+    need_s = table.variants_need_factor * table.typical_effort_per_target_s * targets / table.effort_share
     left_s = usable_s(limit_s, table) - _optimiser_share_s(limit_s, table) - need_s
     return min(max(left_s, 0.0), table.variants_max_s)
+
+
+def rounds_limit_s(limit_s: float, n_targets: int, variants_effort_s: float) -> float:
+    """What a plan of ``n_targets`` limited to ``limit_s`` leaves its pointings after the
+    programme optimiser: the limit less the optimiser's share and less the wall-clock seconds
+    its model's other variants used (``variants_effort_s`` effort seconds over
+    ``effort_share``, at most :func:`variants_s`): time the variants did not use goes to the
+    rounds."""
+    used_s = min(variants_effort_s / SHARES.effort_share, variants_s(limit_s, SHARES, n_targets))
+    return limit_s - _optimiser_share_s(limit_s, SHARES) - used_s
 
 
 def _optimiser_share_s(limit_s: float | None, table: ProgrammeShares) -> float:

@@ -368,11 +368,13 @@ def kept_of(req: PlanRequest, pointing_id: str) -> keep.KeptPointing | None:
     return next((k for k in adapters.kept_pointings(req.keep_configurations) if k.id == pointing_id), None)
 
 
-def rounds_limit_s(req: PlanRequest, limit_s: float) -> float:
-    """What a plan limited to ``limit_s`` leaves its pointings after its segmentation."""
+def rounds_limit_s(req: PlanRequest, limit_s: float, seg: Segmentation) -> float:
+    """What a plan limited to ``limit_s`` leaves its pointings after its segmentation ``seg``
+    (:func:`planner.programme.rounds_limit_s`)."""
     if plan_mode(req) != "fewest-exposures":
         return limit_s
-    return limit_s - programme.optimiser_s(limit_s, n_targets=len(req.targets))
+    used_s = (seg.stats.get("optimiser") or {}).get("variants_effort_s", 0.0)
+    return programme.rounds_limit_s(limit_s, len(req.targets), used_s)
 
 
 def observing_rules(req: PlanRequest) -> ObservingRules:
@@ -518,12 +520,12 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
             report(task.round, done + 1, len(tasks))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
-    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit), compute)
+    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit, seg), compute)
     pointings = [answers[i] for i in range(len(seg.pointings))]
     advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
     from service.plan_consolidation import consolidated  # it plans pointings with this module
 
-    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, rounds_limit_s(req, limit),
+    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, rounds_limit_s(req, limit, seg),
                                                  budget.left_s)
     stage(stages.ASSEMBLING)
     return seg, pointings, {

@@ -121,13 +121,13 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return [recorded(t) for t in tasks]  # type: ignore[misc]
 
     try:
-        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit), compute)
+        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute)
     except _Stopped:
         return None
     pointings = [answers[i] for i in range(n)]
     advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
     seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history,
-                                                 pipeline.rounds_limit_s(req, limit),
+                                                 pipeline.rounds_limit_s(req, limit, seg),
                                                  lambda: limit - (time.monotonic() - t0))
     stage(stages.ASSEMBLING)
     few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)

@@ -35,8 +35,8 @@ from tests.plan_jobs import plan_job_result
 from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
 
 INST = default_instrument()
-#: a small two-clump programme whose plan has an exposure the consolidation empties (55 targets)
-PROGRAMME = ("two-clump", 2)
+#: a small two-clump programme whose plan has an exposure the consolidation empties (30 targets)
+PROGRAMME = ("two-clump", 3)
 REQUEST = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 30}
 
 

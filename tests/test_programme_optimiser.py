@@ -667,5 +667,5 @@ def test_the_default_mode_is_complete_linkage_beyond_the_optimisers_size() -> No
     seg = pipeline.segment_plan(big, INST, 120.0)
     assert seg.stats["mode"] == "complete-linkage"
     assert sum(len(p.target_indices) for p in seg.pointings) == MAX_TARGETS + 1
-    assert pipeline.rounds_limit_s(big, 120.0) == 120.0
+    assert pipeline.rounds_limit_s(big, 120.0, seg) == 120.0
     assert pipeline.plan_mode(request(5, "balanced")) == "balanced"

@@ -29,7 +29,8 @@ FOV_R = float(INST.fov_radius_mm)
 def rounds_need_s(n: int) -> float:
     """What the rounds of ``n`` targets are expected to need at most, wall seconds (the
     variants leave at least this to them)."""
-    return SHARES.variants_need_factor * SHARES.typical_effort_per_target_s * n / SHARES.effort_share
+    targets = n + SHARES.fixed_need_targets  # a pointing's fixed part, once
+    return SHARES.variants_need_factor * SHARES.typical_effort_per_target_s * targets / SHARES.effort_share
 
 
 @pytest.mark.parametrize("limit_s", [10.0, 30.0, 60.0, 120.0, 300.0])
@@ -125,3 +126,18 @@ def test_the_searches_are_deterministic(with_variants) -> None:
     assert again.stats["optimiser"]["model_variants"] == with_variants.stats["optimiser"]["model_variants"]
     assert [tuple(p.target_indices) for p in again.pointings] == [
         tuple(p.target_indices) for p in with_variants.pointings]
+
+
+def test_the_rounds_get_the_time_the_variants_did_not_use() -> None:
+    share_s = optimiser_s(120.0)
+    for n, used_effort_s in ((40, 0.0), (40, 2.0), (150, 100.0), (300, 5.0)):
+        extra = min(used_effort_s / SHARES.effort_share, variants_s(120.0, n_targets=n))
+        assert programme.rounds_limit_s(120.0, n, used_effort_s) == pytest.approx(120.0 - share_s - extra)
+    assert programme.rounds_limit_s(120.0, 150, 0.0) == pytest.approx(120.0 - share_s)  # none used: none lost
+    assert programme.rounds_limit_s(120.0, 150, 1e9) == pytest.approx(120.0 - share_s - SHARES.variants_max_s)
+
+
+def test_the_searches_report_the_effort_the_variants_used(with_variants) -> None:
+    st = with_variants.stats["optimiser"]
+    assert len(st["model_variants"]) > 1 and 0.0 < st["variants_effort_s"] <= 6.0 + 1e-6
+    assert optimised(0.0).stats["optimiser"]["variants_effort_s"] == 0.0

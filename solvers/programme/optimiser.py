@@ -147,13 +147,14 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     t0 = clock.now()
     best = _search(space, options, options.variants[0], first)
     cost_s, length_s = clock.now() - t0, first.total_s
-    tried = [best]
+    tried, t1 = [best], clock.now()
     for variant in options.variants[1:] if variants_s > 0 else ():
         if budget.left_s() < cost_s or not best.complete:
             break
         tried.append(_search(space, options, variant, budget.child(min(budget.left_s(), length_s))))
         if tried[-1].complete and tried[-1].key(options.pointing_cost) < best.key(options.pointing_cost):
             best = tried[-1]
+    variants_effort_s = clock.now() - t1 if len(tried) > 1 else 0.0
     pts = [p for p in best.pointings if len(p.members)]
     mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
@@ -169,7 +170,8 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
              "exposures_emptied": best.emptied,
              "model_variants": [{"pointing_cost": s.variant.pointing_cost, "crowding": s.variant.crowding,
                                  "exposures": s.exposures, "pointings": len(s.pointings), "complete": s.complete,
-                                 "chosen": s is best} for s in tried]}
+                                 "chosen": s is best} for s in tried],
+             "variants_effort_s": variants_effort_s}
     return ProgrammeResult(out, bound, stats)
 
 
