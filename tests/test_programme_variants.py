@@ -101,6 +101,9 @@ def test_every_variant_is_searched_when_time_allows_and_the_best_is_kept(with_va
     assert st["exposures_estimate"] == chosen[0]["exposures"]
     assert sum(p.exposures or 0 for p in with_variants.pointings) == chosen[0]["exposures"]
     assert len(with_variants.pointings) == chosen[0]["pointings"]
+    # complete: every pointing kept its allocation, whose exposures are the ones counted
+    assert all(p.allocation is not None and len(p.allocation.configurations) == p.exposures
+               for p in with_variants.pointings)
 
 
 def test_the_kept_search_partitions_the_programme_inside_each_fov(with_variants) -> None:

@@ -201,8 +201,9 @@ class _Searched:
 
     @property
     def complete(self) -> bool:
-        """Every pointing got its allocation feedback (so its exposures are real)."""
-        return all(p.exposures is not None for p in self.pointings if len(p.members))
+        """Every pointing got its allocation feedback and keeps it as its witness (so its
+        exposures are real: a witness is None where the budget cut an allocation short)."""
+        return all(p.exposures is not None and p.allocation is not None for p in self.pointings if len(p.members))
 
     @property
     def exposures(self) -> int:
