@@ -223,7 +223,24 @@ def exposures_summary(stats: Mapping[str, Any]) -> str:
     saved = int((stats.get("consolidation") or {}).get("exposures_saved", 0))
     return line + (f"; {plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
                    "targets no other exposure can take (only_here in plan.json)" if few else "") + (
-        f"; {plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures" if saved else "")
+        f"; {plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures" if saved else ""
+    ) + _variant_kept(stats)
+
+
+def _variant_kept(stats: Mapping[str, Any]) -> str:
+    """'' or, when the programme optimiser kept another variant of its model than the first,
+    which and what the first's allocations took (``stats.segmentation.optimiser``)."""
+    tried = ((stats.get("segmentation") or {}).get("optimiser") or {}).get("model_variants") or []
+    kept = next((i for i, v in enumerate(tried) if v.get("chosen")), 0)
+    if kept == 0:
+        return ""
+    v, first = tried[kept], tried[0]
+    what = ("with the crowding rows" if v["crowding"] else "") + (
+        f"{' and ' if v['crowding'] else 'with '}a pointing weighed as {v['pointing_cost']:g} exposures"
+        if v["pointing_cost"] != first["pointing_cost"] else "")
+    return (f"; the programme optimiser kept its model {what} ({v['exposures']} exposures in "
+            f"{v['pointings']} pointings against {first['exposures']} in {first['pointings']} for the first "
+            f"of {len(tried)} searched)")
 
 
 def changes_summary(stats: dict[str, Any]) -> str:

@@ -144,3 +144,20 @@ def test_the_searches_report_the_effort_the_variants_used(with_variants) -> None
     st = with_variants.stats["optimiser"]
     assert len(st["model_variants"]) > 1 and 0.0 < st["variants_effort_s"] <= 6.0 + 1e-6
     assert optimised(0.0).stats["optimiser"]["variants_effort_s"] == 0.0
+
+
+def test_the_cli_summary_names_the_variant_kept_when_it_is_not_the_first() -> None:
+    from service.cli import exposures_summary
+
+    def stats(chosen: int) -> dict:
+        tried = [{"pointing_cost": v.pointing_cost, "crowding": v.crowding, "exposures": 20 - 2 * i,
+                  "pointings": 10 - i, "complete": True, "chosen": i == chosen} for i, v in enumerate(VARIANTS)]
+        return {"configurations": 18, "exposures_lower_bound": 13, "segmentation": {"optimiser": {"model_variants": tried}}}
+
+    assert "optimiser" not in exposures_summary(stats(0))
+    crowding = exposures_summary(stats(1))
+    assert "kept its model with the crowding rows (18 exposures in 9 pointings against 20 in 10" in crowding
+    assert "first of 3 searched" in crowding
+    dearer = exposures_summary(stats(2))
+    assert "with a pointing weighed as 0.6 exposures (16 exposures in 8 pointings" in dearer
+    assert "optimiser" not in exposures_summary({"configurations": 3})  # complete linkage: no optimiser
