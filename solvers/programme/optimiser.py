@@ -202,7 +202,8 @@ class _Searched:
     @property
     def complete(self) -> bool:
         """Every pointing got its allocation feedback and keeps it as its witness (so its
-        exposures are real: a witness is None where the budget cut an allocation short)."""
+        exposures are real: a pointing has no witness where its commit kept no exposure or its
+        allocation was cut short, and then its exposures are not counted)."""
         return all(p.exposures is not None and p.allocation is not None for p in self.pointings if len(p.members))
 
     @property
