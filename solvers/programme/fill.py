@@ -105,6 +105,9 @@ class Pointing:
     only_here: np.ndarray | None = None  # set once every pointing is known (mark_only_here)
     allocation: AllocationResult | None = None  # of ``members`` (ascending), its exposures kept
     pa_search: AngleChoice | None = None  # how ``pa_deg`` was chosen (None: not searched)
+    #: when its allocation kept no exposure: the exposures of that allocation observing its
+    #: members (at least 1), what the plan's own allocation of them is expected to take
+    estimate: int | None = None
 
 
 def within(f: Field, idx: np.ndarray, centre: tuple[float, float], margin_mm: float = RIM_MARGIN_MM) -> np.ndarray:
@@ -217,6 +220,9 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     if keep.size == 0:  # nothing worth an exposure: the model's targets, so that steps end
         keep = np.asarray(given, dtype=np.int64)
         p.exposures = None
+        mine = set(int(t) for t in keep)
+        p.estimate = max(1, sum(any(a.target_index is not None and int(members[a.target_index]) in mine
+                                    for a in c.assignments) for c in result.configurations))
     else:
         p.allocation = witness(result, members, keep, p.exposures, f.priority)
     p.members = keep

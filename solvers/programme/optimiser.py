@@ -201,19 +201,27 @@ class _Searched:
 
     @property
     def complete(self) -> bool:
-        """Every pointing got its allocation feedback and keeps it as its witness (so its
-        exposures are real: a pointing has no witness where its commit kept no exposure or its
-        allocation was cut short, and then its exposures are not counted)."""
-        return all(p.exposures is not None and p.allocation is not None for p in self.pointings if len(p.members))
+        """Every pointing got its allocation feedback: it keeps it as its witness, or its
+        allocation kept no exposure and estimates what the plan's will take (a pointing whose
+        allocation was cut short, or that the budget left unallocated, has neither, and then
+        the search's exposures are not all counted)."""
+        return all(_counted(p) is not None for p in self.pointings if len(p.members))
 
     @property
     def exposures(self) -> int:
-        return sum(p.exposures or 0 for p in self.pointings)
+        return sum(_counted(p) or 0 for p in self.pointings)
 
     def key(self, pointing_cost: float) -> tuple[float, int]:
         """Telescope time in exposures (each pointing its acquisition), then exposures."""
         used = sum(1 for p in self.pointings if len(p.members))
         return self.exposures + pointing_cost * used, self.exposures
+
+
+def _counted(p: Pointing) -> int | None:
+    """A pointing's exposures as a search counts them: its witness's, else its estimate."""
+    if p.exposures is not None and p.allocation is not None:
+        return p.exposures
+    return p.estimate
 
 
 def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, budget: Budget) -> _Searched:
