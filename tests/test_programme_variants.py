@@ -164,3 +164,26 @@ def test_the_cli_summary_names_the_variant_kept_when_it_is_not_the_first() -> No
     dearer = exposures_summary(stats(2))
     assert "with a pointing weighed as 0.6 exposures (16 exposures in 8 pointings" in dearer
     assert "optimiser" not in exposures_summary({"configurations": 3})  # complete linkage: no optimiser
+
+
+def test_a_commit_that_keeps_no_exposure_estimates_the_exposures_of_its_targets() -> None:
+    """With ``fill_min`` above the arms' count and every target held elsewhere, no exposure is
+    kept: the pointing keeps the model's targets, no witness, and an estimate of at least
+    ⌈observed / arms⌉ (an exposure observes at most one target per arm) and at most one
+    exposure per target."""
+    from solvers.programme.fill import Field, FillOptions, commit
+
+    ra, dec, prio = PROG
+    f = Field(INST, ra, dec, prio)
+    centre = (float(np.mean(ra)), float(np.mean(dec)))
+    inside = np.flatnonzero(tangent_radius_mm(ra, dec, *centre, SCALE) <= FOV_R - 1.0)
+    given = inside[:20]
+    todo = np.zeros(len(ra), bool)
+    todo[given] = True
+    with clock.effort():
+        p = commit(f, todo, given, centre, np.ones(len(ra), bool), FillOptions(seed=1, fill_min=13),
+                   Budget.start(5.0))
+        kept = commit(f, todo, given, centre, np.ones(len(ra), bool), FillOptions(seed=1), Budget.start(5.0))
+    assert p.exposures is None and p.allocation is None and sorted(p.members) == sorted(given)
+    assert math.ceil(len(given) / INST.n_arms) <= p.estimate <= len(given)
+    assert kept.allocation is not None and kept.estimate is None  # premise: the same pointing keeps some
