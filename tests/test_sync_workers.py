@@ -235,11 +235,16 @@ def test_a_client_that_leaves_stops_its_worker_computation(tmp_path, monkeypatch
     marker = tmp_path / "marker"
     req = {"targets": [{**SEG["targets"][0], "id": str(marker)}]}
     app = _app(tmp_path)
+    body = json.dumps(req).encode()
     with serve(app) as url:
-        with pytest.raises(httpx.ReadTimeout):
-            httpx.post(url + "/v1/segmentations", json=req, timeout=3.0)  # gives up
-        until(lambda: marker.exists() and marker.read_text() != "started", 10,
-              "the abandoned computation to stop")
+        port = int(url.rsplit(":", 1)[1])
+        with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+            s.sendall(b"POST /v1/segmentations HTTP/1.1\r\nHost: x\r\nContent-Type: "
+                      b"application/json\r\nContent-Length: " + str(len(body)).encode()
+                      + b"\r\n\r\n" + body)
+            until(marker.exists, 30, "the computation to start in its worker")
+        # the client has left while its computation runs
+        until(lambda: marker.read_text() != "started", 10, "the abandoned computation to stop")
         outcome, pid = marker.read_text().split()
         assert outcome == "cancelled"
         assert app.state.mxs.workers.pids() == [int(pid)]  # stopped, not killed
