@@ -21,6 +21,8 @@ and the measured figures are in docs/programme.md.
    other pointings take its targets in the exposures they already have.
 6. **Emptied exposures** (:mod:`.consolidate`): an exposure whose every target an idle arm
    of another exposure (of any pointing holding it) can take as it stands is given up.
+7. **Merged pointings** (:mod:`.merge`): two pointings one FOV holds become one when the
+   allocation of their members together takes no more exposures than the two apart.
 
 The allocation each pointing keeps (its witness) goes to the plan, which keeps it when its own
 allocation of the pointing is not better: the plan has no more exposures than the optimiser
@@ -60,6 +62,7 @@ from solvers.programme.fill import (
     recentre,
     spare_arms,
 )
+from solvers.programme.merge import merge_pointings
 from solvers.programme.model import CoverSolution, solve_cover
 from solvers.programme.reach import entry_masks, reach_rows, shortlist
 
@@ -98,12 +101,17 @@ class OptimiserOptions:
     bound_share: float = 0.1
     model_share: float = 0.15
     step_share: float = 0.03
+    #: of a search's budget, at most: its merges (step 7), which allocate pairs that may not
+    #: merge, so that they never take the time of the model's other variants
+    merge_share: float = 0.1
     #: the cost of a pointing (its acquisition) in exposures (an exposure and its
     #: reconfiguration): the searches are compared on telescope time
     pointing_cost: float = 0.3
     #: candidates the model chooses among (:func:`solvers.programme.reach.shortlist`)
     max_candidates: int = 150
     variants: tuple[ModelVariant, ...] = VARIANTS
+    #: step 7: merge pairs of pointings one FOV holds (:mod:`.merge`), within ``merge_share``
+    merge: bool = True
 
 
 @dataclass(frozen=True)
@@ -167,7 +175,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
              "model_pointings": int(np.count_nonzero(best.cover.exposures)),
              "exposures_estimate": best.exposures,
              "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": best.saved,
-             "exposures_emptied": best.emptied,
+             "exposures_emptied": best.emptied, "pointings_merged": best.merged,
              "model_variants": [{"pointing_cost": s.variant.pointing_cost, "crowding": s.variant.crowding,
                                  "exposures": s.exposures, "pointings": len(s.pointings), "complete": s.complete,
                                  "chosen": s is best} for s in tried],
@@ -190,7 +198,7 @@ class _Space:
 @dataclass(frozen=True)
 class _Searched:
     """One search's pointings (those given every target kept, empty ones left out later), the
-    model's first solution, its steps and what steps 5-6 saved."""
+    model's first solution, its steps and what steps 5-7 saved."""
 
     variant: ModelVariant
     pointings: list[Pointing]
@@ -198,6 +206,7 @@ class _Searched:
     steps: int
     saved: int
     emptied: int
+    merged: int
 
     @property
     def complete(self) -> bool:
@@ -225,7 +234,7 @@ def _counted(p: Pointing) -> int | None:
 
 
 def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, budget: Budget) -> _Searched:
-    """Steps 3-6 of the module docstring with the model set as ``variant``, within ``budget``."""
+    """Steps 3-7 of the module docstring with the model set as ``variant``, within ``budget``."""
     f, todo = space.f, np.ones(len(space.f.ra_deg), bool)
     pts: list[Pointing] = []
     first: CoverSolution | None = None
@@ -254,7 +263,9 @@ def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, bud
     steps = len(pts)
     saved = spare_arms(f, pts, options.fill, budget)
     emptied = consolidate(f, pts, options.fill, budget)
-    return _Searched(variant, pts, first, steps, saved, emptied)
+    pts = [p for p in pts if len(p.members)]
+    merged = merge_pointings(f, pts, options.fill, budget.share(options.merge_share)) if options.merge else 0
+    return _Searched(variant, pts, first, steps, saved, emptied, merged)
 
 
 def _model(space: _Space, todo: np.ndarray, options: OptimiserOptions, variant: ModelVariant,
