@@ -131,14 +131,15 @@ def variants_s(limit_s: float | None, table: ProgrammeShares = SHARES, n_targets
     return min(max(left_s, 0.0), table.variants_max_s)
 
 
-def rounds_limit_s(limit_s: float, n_targets: int, variants_effort_s: float) -> float:
+def rounds_limit_s(limit_s: float, n_targets: int, variants_effort_s: float,
+                   table: ProgrammeShares = SHARES) -> float:
     """What a plan of ``n_targets`` limited to ``limit_s`` leaves its pointings after the
     programme optimiser: the limit less the optimiser's share and less the wall-clock seconds
     its model's other variants used (``variants_effort_s`` effort seconds over
     ``effort_share``, at most :func:`variants_s`): time the variants did not use goes to the
     rounds."""
-    used_s = min(variants_effort_s / SHARES.effort_share, variants_s(limit_s, SHARES, n_targets))
-    return limit_s - _optimiser_share_s(limit_s, SHARES) - used_s
+    used_s = min(variants_effort_s / table.effort_share, variants_s(limit_s, table, n_targets))
+    return limit_s - _optimiser_share_s(limit_s, table) - used_s
 
 
 def _optimiser_share_s(limit_s: float | None, table: ProgrammeShares) -> float:

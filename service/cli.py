@@ -213,34 +213,42 @@ def time_summary(t: dict[str, Any]) -> str:
 
 def exposures_summary(stats: Mapping[str, Any]) -> str:
     """One line: the plan's exposures against the proven lower bound, how many observe at
-    most 2 targets (and of those, how many only for targets no other exposure can take) and
-    how many the plan's consolidation saved (:mod:`planner.consolidation`)."""
+    most 2 targets (and of those, how many only for targets no other exposure can take), what
+    the programme optimiser's search kept (:func:`_optimiser_parts`) and how many exposures
+    the plan's consolidation saved (:mod:`planner.consolidation`)."""
     n = int(stats["configurations"])
     bound = stats.get("exposures_lower_bound")
-    line = f"{plural(n, 'exposure')}" + ("" if bound is None else
-                                         f", proven lower bound {bound} ({n / bound:.2f}x)" if bound else "")
+    parts = [plural(n, "exposure") + (f", proven lower bound {bound} ({n / bound:.2f}x)" if bound else "")]
     few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
+    if few:
+        parts.append(f"{plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
+                     "targets no other exposure can take (only_here in plan.json)")
     saved = int((stats.get("consolidation") or {}).get("exposures_saved", 0))
-    return line + (f"; {plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
-                   "targets no other exposure can take (only_here in plan.json)" if few else "") + (
-        f"; {plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures" if saved else ""
-    ) + _variant_kept(stats)
+    if saved:
+        parts.append(f"{plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures")
+    return "; ".join(parts + _optimiser_parts(stats))
 
 
-def _variant_kept(stats: Mapping[str, Any]) -> str:
-    """'' or, when the programme optimiser kept another variant of its model than the first,
-    which and what the first's allocations took (``stats.segmentation.optimiser``)."""
-    tried = ((stats.get("segmentation") or {}).get("optimiser") or {}).get("model_variants") or []
+def _optimiser_parts(stats: Mapping[str, Any]) -> list[str]:
+    """What the programme optimiser's search kept (``stats.segmentation.optimiser``), when it
+    differs from its first search as the model gives it: another variant of its model (which,
+    and what the first's allocations took) and the pointings it merged."""
+    o = (stats.get("segmentation") or {}).get("optimiser") or {}
+    tried = o.get("model_variants") or []
     kept = next((i for i, v in enumerate(tried) if v.get("chosen")), 0)
-    if kept == 0:
-        return ""
-    v, first = tried[kept], tried[0]
-    what = ("with the crowding rows" if v["crowding"] else "") + (
-        f"{' and ' if v['crowding'] else 'with '}a pointing weighed as {v['pointing_cost']:g} exposures"
-        if v["pointing_cost"] != first["pointing_cost"] else "")
-    return (f"; the programme optimiser kept its model {what} ({v['exposures']} exposures in "
-            f"{v['pointings']} pointings against {first['exposures']} in {first['pointings']} for the first "
-            f"of {len(tried)} searched)")
+    parts = []
+    if kept:
+        v, first = tried[kept], tried[0]
+        what = [w for w in ("the crowding rows" if v["crowding"] else "",
+                            f"a pointing weighed as {v['pointing_cost']:g} exposures"
+                            if v["pointing_cost"] != first["pointing_cost"] else "") if w]
+        parts.append(f"the programme optimiser kept its model with {' and '.join(what)} ({v['exposures']} "
+                     f"exposures in {v['pointings']} pointings against {first['exposures']} in "
+                     f"{first['pointings']} for the first of {len(tried)} searched)")
+    merged = int(o.get("pointings_merged") or 0)
+    if merged:
+        parts.append(f"{plural(merged, 'pointing')} merged into another that one field of view holds")
+    return parts
 
 
 def changes_summary(stats: dict[str, Any]) -> str:

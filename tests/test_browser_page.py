@@ -166,6 +166,29 @@ def test_the_banner_says_what_a_short_limit_left_out(page, server) -> None:
     assert "too short" not in page.inner_text("#banner")
 
 
+def _optimiser_rows(s: dict) -> list[str]:
+    """The summary's "programme optimiser" row as the plan's stats give it (none when the
+    search the optimiser kept did not allocate every pointing)."""
+    o = s["segmentation"]["optimiser"]
+    tried = o["model_variants"]
+    kept = next((v for v in tried if v["chosen"]), None)
+    if kept is None or not kept["complete"]:
+        return []
+
+    def n(k: int, noun: str) -> str:
+        return f"{k} {noun}{'' if k == 1 else 's'}"
+
+    text = f"{n(kept['exposures'], 'configuration')} in {n(kept['pointings'], 'pointing')}"
+    if len(tried) > 1:
+        text += f", the best of {len(tried)} searches" + (
+            "" if kept is tried[0] else f" (the first: {tried[0]['exposures']} in {tried[0]['pointings']})")
+    if o["pointings_merged"]:
+        text += f"; {n(o['pointings_merged'], 'pointing')} merged into another that one field of view holds"
+    if o["exposures_emptied"]:
+        text += f"; {n(o['exposures_emptied'], 'configuration')} emptied into idle arms"
+    return ["programme optimiser" + text]
+
+
 def test_m67_result_first_screen_and_command_line(page, server) -> None:
     page.set_viewport_size({"width": 1280, "height": 800})
     _open(page, server)
@@ -181,6 +204,21 @@ def test_m67_result_first_screen_and_command_line(page, server) -> None:
         .find((r) => r.startsWith('proven lower bound'))""")
     assert bound_row == (f"proven lower bound on configurations{s['exposures_lower_bound']} "
                          f"(this plan: {s['configurations'] / s['exposures_lower_bound']:.2f}×)")
+    rows = page.evaluate("() => [...document.querySelectorAll('#summary tr')].map((tr) => tr.textContent)")
+    assert [r for r in rows if r.startswith("programme optimiser")] == _optimiser_rows(s)
+    # a search kept that is not the first, with merges, emptied exposures and a consolidation
+    tried = [{"pointing_cost": 0.3, "crowding": False, "exposures": 20, "pointings": 10, "complete": True,
+              "chosen": False},
+             {"pointing_cost": 0.6, "crowding": False, "exposures": 18, "pointings": 9, "complete": True,
+              "chosen": True}]
+    for merged, emptied, saved in ((2, 1, 3), (1, 0, 0), (0, 0, 1)):
+        stats = {"segmentation": {"optimiser": {"model_variants": tried, "pointings_merged": merged,
+                                                "exposures_emptied": emptied}},
+                 "consolidation": {"exposures_saved": saved}}
+        got = page.evaluate("(s) => programmeRows(s).map(([k, v]) => k + v)", stats)
+        assert got == _optimiser_rows(stats) + (
+            [f"configurations saved after planning (targets onto idle arms of others){saved}"] if saved else [])
+    assert page.evaluate("programmeRows({})") == []
     boxes = _first_screen(page)
     assert abs(boxes["result"]["top"]) < 1
     for k in ("summary", "sky"):  # whole, on the first screen

@@ -164,6 +164,10 @@ def test_the_cli_summary_names_the_variant_kept_when_it_is_not_the_first() -> No
     dearer = exposures_summary(stats(2))
     assert "with a pointing weighed as 0.6 exposures (16 exposures in 8 pointings" in dearer
     assert "optimiser" not in exposures_summary({"configurations": 3})  # complete linkage: no optimiser
+    merged = stats(0)
+    merged["segmentation"]["optimiser"]["pointings_merged"] = 2
+    assert exposures_summary(merged).endswith("; 2 pointings merged into another that one field of view holds")
+    assert "merged" not in exposures_summary(stats(1))
 
 
 def test_a_commit_that_keeps_no_exposure_estimates_the_exposures_of_its_targets() -> None:

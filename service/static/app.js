@@ -343,6 +343,28 @@ function showBanner(result) {
   b.hidden = false;
 }
 
+// Mode fewest-exposures: what the programme optimiser's search kept (its model's variants, the
+// pointings it merged, the configurations it emptied into idle arms) and the configurations the
+// consolidation after the rounds gave up. Rows for the summary table; none in the other modes.
+function programmeRows(s) {
+  const rows = [];
+  const o = (s.segmentation || {}).optimiser;
+  const tried = (o && o.model_variants) || [];
+  const kept = tried.find((v) => v.chosen);
+  if (kept && kept.complete) {
+    const first = tried[0];
+    let text = `${plural(kept.exposures, "configuration")} in ${plural(kept.pointings, "pointing")}`;
+    if (tried.length > 1) text += `, the best of ${tried.length} searches` +
+      (kept === first ? "" : ` (the first: ${first.exposures} in ${first.pointings})`);
+    if (o.pointings_merged) text += `; ${plural(o.pointings_merged, "pointing")} merged into another that one field of view holds`;
+    if (o.exposures_emptied) text += `; ${plural(o.exposures_emptied, "configuration")} emptied into idle arms`;
+    rows.push(["programme optimiser", text]);
+  }
+  const saved = (s.consolidation || {}).exposures_saved;
+  if (saved) rows.push(["configurations saved after planning (targets onto idle arms of others)", saved]);
+  return rows;
+}
+
 function showSummary(result, request, fate) {
   const s = result.stats || {};
   const n = request.targets.length;
@@ -359,6 +381,7 @@ function showSummary(result, request, fate) {
     `${s.exposures_lower_bound} (this plan: ${(s.configurations / s.exposures_lower_bound).toFixed(2)}×)`]);
   if (s.few_target_exposures) rows.push(["configurations observing at most 2 targets",
     `${s.few_target_exposures} (${s.few_target_exposures_only_here} only for targets no other configuration can take)`]);
+  rows.push(...programmeRows(s));
   for (const [k, label] of [["targets_moved", "targets moved to another configuration"],
     ["legs_via_park", "legs through park"], ["configurations_added", "configurations added"],
     ["targets_dropped", "targets dropped"]]) if (s[k]) rows.push([label, s[k]]);
