@@ -41,7 +41,7 @@ def _pointing(f: Field, members: np.ndarray, centre_mm: tuple[float, float]) -> 
     members = np.asarray(sorted(members), np.int64)
     assert fill.within(f, members, centre).all()
     p = Pointing(centre, 0.0, members)
-    result = fill._allocate(f, p, f.priority, OPTS, Budget.start(60.0))
+    result = fill.allocate_pointing(f, p, f.priority, OPTS, Budget.start(60.0))
     p.exposures = len(result.configurations)
     p.allocation = fill.witness(result, members, members, p.exposures, f.priority)
     assert p.allocation is not None

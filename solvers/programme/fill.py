@@ -33,7 +33,7 @@ from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
-           "commit", "pointing_angle", "position_angle", "recentre", "within"]
+           "allocate_pointing", "commit", "pointing_angle", "position_angle", "recentre", "within"]
 
 #: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
 #: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
@@ -185,7 +185,11 @@ def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
     return pa, AngleChoice(pa, tuple(lost), (), objective)
 
 
-def _allocate(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget) -> AllocationResult:
+def allocate_pointing(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget,
+                      ) -> AllocationResult:
+    """``p``'s members allocated as the plan allocates a pointing (at ``priority``), to
+    completeness, without the repacking post-pass, within ``opts.allocation_cap_s`` of
+    ``budget``."""
     m = p.members
     x, y = sky_to_focal_mm(f.ra_deg[m], f.dec_deg[m], p.centre[0], p.centre[1], f.scale, p.pa_deg)
     targets = PlaneTargets.from_lists([str(int(i)) for i in m], np.asarray(x, float), np.asarray(y, float),
@@ -215,7 +219,7 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
         return p
     raised = f.priority.astype(np.int64).copy()
     raised[members[only]] += ONLY_HERE_BOOST
-    result = _allocate(f, p, raised, opts, budget)
+    result = allocate_pointing(f, p, raised, opts, budget)
     keep, p.exposures = _kept(result, members, only, opts.fill_min)
     if keep.size == 0:  # nothing worth an exposure: the model's targets, so that steps end
         keep = np.asarray(given, dtype=np.int64)
@@ -336,7 +340,7 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
             continue
         members = np.union1d(q.members, inside)
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
-        result = _allocate(f, new, f.priority, opts, budget)
+        result = allocate_pointing(f, new, f.priority, opts, budget)
         observed = {int(members[a.target_index]) for c in result.configurations for a in c.assignments
                     if a.target_index is not None}
         if len(result.configurations) <= q.exposures and observed >= set(int(g) for g in q.members) | set(

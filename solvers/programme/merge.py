@@ -12,7 +12,7 @@ fill what the two left idle.
 Pairs are tried smallest first (fewest members together, then in the order of the
 pointings); a merge replaces the first of the two and the scan starts again, so a merged
 pointing may merge again. A pair whose allocation does not qualify is not tried twice. Each
-allocation is the commits' (:func:`solvers.programme.fill._allocate`: capped at
+allocation is the commits' (:func:`solvers.programme.fill.allocate_pointing`: capped at
 ``FillOptions.allocation_cap_s``, on the caller's budget); one cut short observes fewer
 targets and is not taken.
 """
@@ -28,7 +28,7 @@ from solvers.programme.fill import (
     Field,
     FillOptions,
     Pointing,
-    _allocate,
+    allocate_pointing,
     pointing_angle,
     recentre,
     within,
@@ -98,7 +98,7 @@ def _merged(f: Field, a: Pointing, b: Pointing, opts: FillOptions, budget: Budge
         return None
     pa, search = pointing_angle(f, members, centre, opts)
     one = Pointing(centre, pa, members, pa_search=search)
-    result = _allocate(f, one, f.priority, opts, budget)
+    result = allocate_pointing(f, one, f.priority, opts, budget)
     if not _observed(a) | _observed(b) <= _observed(one, result) or \
             len(result.configurations) > a.exposures + b.exposures:
         return None
