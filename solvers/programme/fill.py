@@ -188,8 +188,9 @@ def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
 def allocate_pointing(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget,
                       ) -> AllocationResult:
     """``p``'s members allocated as the plan allocates a pointing (at ``priority``), to
-    completeness, without the repacking post-pass, within ``opts.allocation_cap_s`` of
-    ``budget``."""
+    completeness, without the repacking post-pass, on
+    ``budget.part(min(opts.allocation_cap_s, budget.left_s()))``: :meth:`Budget.part` takes a
+    fraction of the budget's length, so the allocation may use the whole of ``budget``."""
     m = p.members
     x, y = sky_to_focal_mm(f.ra_deg[m], f.dec_deg[m], p.centre[0], p.centre[1], f.scale, p.pa_deg)
     targets = PlaneTargets.from_lists([str(int(i)) for i in m], np.asarray(x, float), np.asarray(y, float),

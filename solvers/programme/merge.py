@@ -12,9 +12,9 @@ fill what the two left idle.
 Pairs are tried smallest first (fewest members together, then in the order of the
 pointings); a merge replaces the first of the two and the scan starts again, so a merged
 pointing may merge again. A pair whose allocation does not qualify is not tried twice. Each
-allocation is the commits' (:func:`solvers.programme.fill.allocate_pointing`: capped at
-``FillOptions.allocation_cap_s``, on the caller's budget); one cut short observes fewer
-targets and is not taken.
+allocation is the commits' (:func:`solvers.programme.fill.allocate_pointing`), on the
+caller's budget (the optimiser gives the merges a tenth of a search's); one cut short observes
+fewer targets and is not taken.
 """
 
 from __future__ import annotations
