@@ -180,10 +180,10 @@ def _optimiser_rows(s: dict) -> list[str]:
 
     text = f"{n(kept['exposures'], 'configuration')} in {n(kept['pointings'], 'pointing')}"
     if len(tried) > 1:
-        text += f", the best of {len(tried)} searches" + (
-            "" if kept is tried[0] else f" (the first: {tried[0]['exposures']} in {tried[0]['pointings']})")
+        text += f" (best of {len(tried)} searches" + (
+            ")" if kept is tried[0] else f"; the first: {tried[0]['exposures']} in {tried[0]['pointings']})")
     if o["pointings_merged"]:
-        text += f"; {n(o['pointings_merged'], 'pointing')} merged into another that one field of view holds"
+        text += f"; {n(o['pointings_merged'], 'pointing')} merged"
     if o["exposures_emptied"]:
         text += f"; {n(o['exposures_emptied'], 'configuration')} emptied into idle arms"
     return ["programme optimiser" + text]
@@ -217,7 +217,7 @@ def test_m67_result_first_screen_and_command_line(page, server) -> None:
                  "consolidation": {"exposures_saved": saved}}
         got = page.evaluate("(s) => programmeRows(s).map(([k, v]) => k + v)", stats)
         assert got == _optimiser_rows(stats) + (
-            [f"configurations saved after planning (targets onto idle arms of others){saved}"] if saved else [])
+            [f"configurations emptied after planning{saved} (targets onto idle arms)"] if saved else [])
     assert page.evaluate("programmeRows({})") == []
     boxes = _first_screen(page)
     assert abs(boxes["result"]["top"]) < 1

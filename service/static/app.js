@@ -354,14 +354,14 @@ function programmeRows(s) {
   if (kept && kept.complete) {
     const first = tried[0];
     let text = `${plural(kept.exposures, "configuration")} in ${plural(kept.pointings, "pointing")}`;
-    if (tried.length > 1) text += `, the best of ${tried.length} searches` +
-      (kept === first ? "" : ` (the first: ${first.exposures} in ${first.pointings})`);
-    if (o.pointings_merged) text += `; ${plural(o.pointings_merged, "pointing")} merged into another that one field of view holds`;
+    if (tried.length > 1) text += ` (best of ${tried.length} searches` +
+      (kept === first ? ")" : `; the first: ${first.exposures} in ${first.pointings})`);
+    if (o.pointings_merged) text += `; ${plural(o.pointings_merged, "pointing")} merged`;
     if (o.exposures_emptied) text += `; ${plural(o.exposures_emptied, "configuration")} emptied into idle arms`;
     rows.push(["programme optimiser", text]);
   }
   const saved = (s.consolidation || {}).exposures_saved;
-  if (saved) rows.push(["configurations saved after planning (targets onto idle arms of others)", saved]);
+  if (saved) rows.push(["configurations emptied after planning", `${saved} (targets onto idle arms)`]);
   return rows;
 }
 
