@@ -33,7 +33,7 @@ from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
-           "allocate_pointing", "commit", "pointing_angle", "position_angle", "recentre", "within"]
+           "allocate_pointing", "commit", "observed_members", "pointing_angle", "position_angle", "recentre", "within"]
 
 #: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
 #: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
@@ -234,6 +234,12 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     return p
 
 
+def observed_members(members: np.ndarray, result: AllocationResult) -> set[int]:
+    """The targets (programme indices) that ``result``, an allocation of ``members``, observes."""
+    return {int(members[a.target_index]) for c in result.configurations for a in c.assignments
+            if a.target_index is not None}
+
+
 def witness(result: AllocationResult, members: np.ndarray, keep: np.ndarray, exposures: int,
             priority: np.ndarray) -> AllocationResult | None:
     """The feedback allocation as an allocation of ``keep`` (ascending target indices, ids
@@ -342,10 +348,8 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
         members = np.union1d(q.members, inside)
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = allocate_pointing(f, new, f.priority, opts, budget)
-        observed = {int(members[a.target_index]) for c in result.configurations for a in c.assignments
-                    if a.target_index is not None}
-        if len(result.configurations) <= q.exposures and observed >= set(int(g) for g in q.members) | set(
-                int(t) for t in inside):
+        if len(result.configurations) <= q.exposures and observed_members(members, result) >= set(
+                int(g) for g in q.members) | set(int(t) for t in inside):
             new.exposures = len(result.configurations)
             new.allocation = witness(result, members, members, new.exposures, f.priority)
             if new.allocation is not None:

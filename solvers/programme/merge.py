@@ -23,12 +23,12 @@ import numpy as np
 
 from models.budget import Budget
 from models.sky import tangent_radius_mm
-from models.types import AllocationResult
 from solvers.programme.fill import (
     Field,
     FillOptions,
     Pointing,
     allocate_pointing,
+    observed_members,
     pointing_angle,
     recentre,
     within,
@@ -41,49 +41,47 @@ __all__ = ["merge_pointings"]
 def merge_pointings(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
     """Merge pairs of ``pts`` in place (module docstring); returns the pointings merged away."""
     merged, failed = 0, set()
-    while not budget.expired():
-        for j, k in _pairs(f, pts):
-            key = (tuple(pts[j].members), tuple(pts[k].members))
-            if key in failed:
-                continue
-            if budget.expired():
-                return merged
-            one = _merged(f, pts[j], pts[k], opts, budget)
-            if one is None:
-                failed.add(key)
-                continue
-            pts[j] = one
-            del pts[k]
-            merged += 1
-            break
-        else:
-            return merged
+    while (found := _next_merge(f, pts, opts, budget, failed)) is not None:
+        j, k, one = found
+        pts[j] = one
+        del pts[k]
+        merged += 1
     return merged
+
+
+def _next_merge(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget, failed: set,
+                ) -> tuple[int, int, Pointing] | None:
+    """The first pair (j, k) of :func:`_pairs` not in ``failed`` that merges, with its merged
+    pointing; None when none does or the budget is spent. Pairs that do not merge join
+    ``failed`` (keyed by their members)."""
+    for j, k in _pairs(f, pts):
+        key = (tuple(pts[j].members), tuple(pts[k].members))
+        if key in failed:
+            continue
+        if budget.expired():
+            return None
+        one = _merged(f, pts[j], pts[k], opts, budget)
+        if one is not None:
+            return j, k, one
+        failed.add(key)
+    return None
 
 
 def _pairs(f: Field, pts: list[Pointing]) -> list[tuple[int, int]]:
     """Pairs (j < k) of allocated pointings whose centres are within a FOV diameter, fewest
     members together first."""
     live = [j for j, p in enumerate(pts) if _allocated(p)]
+    ra = np.array([pts[j].centre[0] for j in live])
+    dec = np.array([pts[j].centre[1] for j in live])
     out = []
-    for a, j in enumerate(live):
-        for k in live[a + 1:]:
-            d = tangent_radius_mm(np.array([pts[k].centre[0]]), np.array([pts[k].centre[1]]),
-                                  pts[j].centre[0], pts[j].centre[1], f.scale)[0]
-            if d <= 2.0 * f.radius_mm:
-                out.append((j, k))
+    for a, j in enumerate(live[:-1]):
+        d = tangent_radius_mm(ra[a + 1:], dec[a + 1:], ra[a], dec[a], f.scale)
+        out += [(j, k) for k, near in zip(live[a + 1:], d <= 2.0 * f.radius_mm, strict=True) if near]
     return sorted(out, key=lambda jk: (len(pts[jk[0]].members) + len(pts[jk[1]].members), jk))
 
 
 def _allocated(p: Pointing) -> bool:
     return len(p.members) > 0 and p.exposures is not None and p.allocation is not None
-
-
-def _observed(p: Pointing, result: AllocationResult | None = None) -> set[int]:
-    """The targets (programme indices) that ``result`` (default: ``p``'s witness) observes."""
-    r = p.allocation if result is None else result
-    return {int(p.members[x.target_index]) for c in r.configurations for x in c.assignments
-            if x.target_index is not None}
 
 
 def _merged(f: Field, a: Pointing, b: Pointing, opts: FillOptions, budget: Budget) -> Pointing | None:
@@ -99,8 +97,8 @@ def _merged(f: Field, a: Pointing, b: Pointing, opts: FillOptions, budget: Budge
     pa, search = pointing_angle(f, members, centre, opts)
     one = Pointing(centre, pa, members, pa_search=search)
     result = allocate_pointing(f, one, f.priority, opts, budget)
-    if not _observed(a) | _observed(b) <= _observed(one, result) or \
-            len(result.configurations) > a.exposures + b.exposures:
+    before = observed_members(a.members, a.allocation) | observed_members(b.members, b.allocation)
+    if not before <= observed_members(members, result) or len(result.configurations) > a.exposures + b.exposures:
         return None
     one.exposures = len(result.configurations)
     one.allocation = witness(result, members, members, one.exposures, f.priority)

@@ -163,7 +163,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
         if tried[-1].complete and tried[-1].key(options.pointing_cost) < best.key(options.pointing_cost):
             best = tried[-1]
     variants_effort_s = clock.now() - t1 if len(tried) > 1 else 0.0
-    pts = [p for p in best.pointings if len(p.members)]
+    pts = best.pointings
     mark_only_here(f, pts)
     out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
                                   tuple(int(i) for i in p.members), p.exposures,
@@ -197,8 +197,8 @@ class _Space:
 
 @dataclass(frozen=True)
 class _Searched:
-    """One search's pointings (those given every target kept, empty ones left out later), the
-    model's first solution, its steps and what steps 5-7 saved."""
+    """One search's pointings (those with members, after steps 5-7), the model's first
+    solution, its steps and what steps 5-7 saved."""
 
     variant: ModelVariant
     pointings: list[Pointing]
