@@ -25,7 +25,9 @@ Per programme and mode: exposures (configurations), pointings, ``stats.exposures
 and the gap exposures / bound when the plan reports a bound (and the trivial bound
 ceil(targets / 12) always), priority and field completeness, executable, telescope time
 (``stats.telescope_time.total_s`` when reported), wall time, the segmentation's (optimiser's)
-own time ``stats.segmentation.time_s`` and its fraction of the wall time, the exposures that
+own time ``stats.segmentation.time_s`` and its fraction of the wall time, whether the
+optimiser's wall-clock guard ended it (``optimiser_overran``: its pointings then depend on the
+machine's speed; counted per mode), the exposures that
 observe at most 2 targets and how many of those the plan flags as observing targets no other
 exposure can (a configuration key naming ``only``, when the plan has one; else null), and the
 ratio of the mode's exposures to complete-linkage's. The summary, per mode: total exposures,
@@ -224,6 +226,8 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
         "elapsed_s": None if s.get("elapsed_s") is None else round(float(s["elapsed_s"]), 3),
         "optimiser_s": None if seg_s is None else round(float(seg_s), 4),
         "optimiser_fraction": None if seg_s is None else round(float(seg_s) / wall_s, 4),
+        # the optimiser's wall-clock guard ended it: its pointings depend on the machine
+        "optimiser_overran": bool(((s.get("segmentation") or {}).get("optimiser") or {}).get("overran", False)),
         **small_exposures(plan),
     }
 
@@ -282,6 +286,7 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
             [x["optimiser_fraction"] for x in res if x["optimiser_fraction"] is not None]),
         "optimiser_fraction_max": max((x["optimiser_fraction"] for x in res
                                        if x["optimiser_fraction"] is not None), default=None),
+        "optimiser_overran": sum(x["optimiser_overran"] for x in res),
         "small_exposures_total": sum(x["small_exposures"] for x in res),
         "small_exposures_only_here_total": sum(only) if res and None not in only else None,
     }

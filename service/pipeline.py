@@ -173,12 +173,17 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
         return searched_angles(inst, seg, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
                                fill.angle_search, fill.park_move_limit_s)
     wall_s = programme.optimiser_s(None) if optimiser_s is None else float(optimiser_s)
-    with clock.effort(wall_limit_s=wall_s):
-        return segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
-                                 mode=req.mode, threshold_mm=req.threshold_mm,
-                                 tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,
-                                 budget=Budget.start(programme.SHARES.effort_share * wall_s),
-                                 mode_field=mode_field, variants_s=programme.SHARES.effort_share * variants_s)
+    with clock.effort(wall_limit_s=wall_s) as effort:
+        seg = segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
+                                mode=req.mode, threshold_mm=req.threshold_mm,
+                                tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,
+                                budget=Budget.start(programme.SHARES.effort_share * wall_s),
+                                mode_field=mode_field, variants_s=programme.SHARES.effort_share * variants_s)
+    # the optimiser's effort seconds, and whether its wall-clock guard (not its budget) ended
+    # it: then, and only then, its pointings depend on the machine's speed
+    optimiser = {**seg.stats.get("optimiser", {}), "effort_s": effort.t_s if not effort.overran else None,
+                 "overran": effort.overran}
+    return dataclasses.replace(seg, stats={**seg.stats, "optimiser": optimiser})
 
 
 def segmentation(

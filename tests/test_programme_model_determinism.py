@@ -83,3 +83,22 @@ def test_the_model_keeps_its_solution_on_a_slower_machine() -> None:
     assert slow == fast  # the run stopped at the same point of its search, with the same solution ...
     assert slept_s >= BUDGET_S  # ... on a machine made slower by its whole budget
     assert slow_s >= fast_s + BUDGET_S - 0.1
+
+
+def _segmentation(optimiser_s: float):
+    from service import pipeline
+    from service.schemas import SegmentationRequest
+
+    rows = read_target_table(str(CASE)).rows()[:14]
+    req = SegmentationRequest.model_validate({"targets": rows, "mode": "fewest-exposures", "seed": 1})
+    return pipeline.segment(req, INST, None, optimiser_s)
+
+
+def test_the_segmentation_says_whether_the_wall_clock_ended_the_optimiser() -> None:
+    """Within its budget the optimiser reports the effort seconds it spent; past its
+    wall-clock guard (a limit no machine meets), ``overran`` and no effort figure (the
+    readings past the guard are not seconds of work)."""
+    ample = _segmentation(600.0).stats["optimiser"]
+    assert ample["overran"] is False and 0.0 < ample["effort_s"] < 0.8 * 600.0
+    cut = _segmentation(1e-6).stats["optimiser"]
+    assert cut["overran"] is True and cut["effort_s"] is None

@@ -21,7 +21,7 @@ from benchmarks import programmes  # noqa: E402
 ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_bound",
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",
-            "optimiser_s", "optimiser_fraction", "small_exposures", "small_exposures_only_here",
+            "optimiser_s", "optimiser_fraction", "optimiser_overran", "small_exposures", "small_exposures_only_here",
             "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
             "violation_kinds", "validate_s"}
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
@@ -29,7 +29,7 @@ SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
                 "wall_s_total", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
-                "small_exposures_total", "small_exposures_only_here_total", "valid",
+                "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total", "valid",
                 "violations_total"}
 
 
@@ -103,6 +103,8 @@ def test_each_figure_is_what_its_plan_gives(smoke) -> None:
                 plan["stats"]["segmentation"]["time_s"], abs=1e-4)
             assert res["optimiser_fraction"] == pytest.approx(
                 res["optimiser_s"] / res["wall_s"], abs=2e-3)
+            optimiser = plan["stats"]["segmentation"].get("optimiser") or {}
+            assert res["optimiser_overran"] == bool(optimiser.get("overran", False))
             base = len([c for p in plans[(row["name"], pt.BASELINE)]["pointings"]
                         for c in p["configurations"]])
             assert res["ratio_to_complete_linkage"] == pytest.approx(len(configs) / base, abs=1e-4)
