@@ -40,13 +40,9 @@ from solvers.programme.candidates import Candidates
 __all__ = ["CoverSolution", "ReachRows", "greedy_cover", "solve_cover"]
 
 #: the HiGHS meter counts this many non-zeros per non-zero of the model: its MIP search
-#: works harder per callback than the allocator's models the meter's costs were fitted on.
-#: Fitted on the M67-like case (seed 4000), where the model's solves take 10.7 s of wall
-#: time: 3 charged them 5.4 effort seconds, 6 charges 5.4 for the 4.9 s they then take. The
-#: optimiser's effort must keep up with the wall clock (at least ``effort_share`` of it), or
-#: its wall-clock guard, not its budget, ends the searches and the plan depends on the
-#: machine.
-MODEL_WORK_FACTOR = 6
+#: works harder per callback than the allocator's models the meter's costs were fitted on
+#: (wall / effort seconds of about 4 on M67-like programmes with the plain count)
+MODEL_WORK_FACTOR = 3
 #: the LP solver of the MIP's root: HiGHS calls back in no root LP solve, so the root LP runs
 #: whole before the effort meter can stop the search; the interior-point solver takes a quarter
 #: of the dual simplex's time on the M67-like case's first model (0.55 s against 2.3 s), and
