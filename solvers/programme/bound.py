@@ -176,11 +176,11 @@ def _members(xy: np.ndarray, centres: np.ndarray, radius_mm: float, cells: _Cell
         if cells is not None:
             inside = np.logical_or.reduceat(inside, cells.starts, axis=1)
         r, col = np.nonzero(inside)
-        rows.append((r + s).astype(np.int32))
-        cols.append(col.astype(np.int32))
+        rows.append(r + s)
+        cols.append(col)
     r, col = np.concatenate(rows), np.concatenate(cols)
     counts = np.bincount(r, minlength=len(centres))
-    idx = np.full((len(centres), max(int(counts.max(initial=0)), 1)), -1, np.int32)
+    idx = np.full((len(centres), max(int(counts.max(initial=0)), 1)), -1, np.int64)
     idx[r, np.arange(len(r)) - np.repeat(np.cumsum(counts) - counts, counts)] = col
     return idx
 
