@@ -16,12 +16,8 @@ touches). So the discs centred on each target and those through each pair closer
 checks it on every disc.
 
 **The weights** come from a cutting-plane LP (:func:`lower_bound`): HiGHS maximises ``sum(w)``
-over the violated discs found so far; the heaviest discs of its answer are added (as rows of
-the same model, so each solve starts from the last basis) until none is violated, the rounds
-run out, or the LP's value can no longer beat the trivial or crowding bound (the LP over some
-discs is never lighter than over all, so rounding it up bounds what the rounds can still
-prove). The rounds weigh a sample of at most ``ROUND_CENTRES`` discs, whose members are found
-once (:func:`_members`). Whatever the LP returns is divided by the heaviest disc's
+over the violated discs found so far; the heaviest discs of its answer are added until none
+is violated or the rounds run out. Whatever the LP returns is divided by the heaviest disc's
 top-``arms`` weight over *all* discs, so the bound holds even when the cutting planes stop
 early. Targets in different components of the 2R-neighbour graph never share an exposure,
 so the bound is the sum over components of each component's weight rounded up.
@@ -63,10 +59,8 @@ MEMBER_TOL_MM = 1e-9
 #: the bound enumerates pair discs only up to this many centres; beyond, the trivial and
 #: component bounds alone are reported (still valid)
 MAX_CENTRES = 400_000
-#: cutting-plane rounds at most and discs added per round (the rounds also end when no
-#: disc is violated, or when the LP's value, rounded up per component, cannot beat the
-#: trivial or crowding bound)
-ROUNDS = 40
+#: cutting-plane rounds and discs added per round
+ROUNDS = 15
 CUTS_PER_ROUND = 200
 #: the cutting-plane rounds examine at most this many discs (every k-th): the final check
 #: examines them all, so the bound holds whatever the rounds saw
@@ -83,9 +77,7 @@ BLOCK_CELLS = 4_000_000
 class ExposureBound:
     """``exposures``: the proven lower bound; ``trivial``: ceil(t / arms); ``components``:
     groups of targets that can never share a FOV; ``weight``: the certified weights' sum
-    (before rounding per component; the rounds stop early when they cannot beat the trivial or
-    crowding bound, so it can be below it); ``method``: "lp" or "trivial" (too many discs to
-    check)."""
+    (before rounding per component); ``method``: "lp" or "trivial" (too many discs to check)."""
 
     exposures: int
     trivial: int
@@ -160,69 +152,27 @@ class _Cells:
         return _Cells(order, starts, size, order[starts])
 
 
-def _members(xy: np.ndarray, centres: np.ndarray, radius_mm: float, cells: _Cells | None) -> np.ndarray:
-    """For every centre, the cells with a member within ``radius_mm`` (without ``cells``: the
-    targets), as (k, m) indices padded with -1: the cutting-plane rounds weigh the same discs
-    again and again, so their members are found once."""
-    n = len(xy)
-    clock.charge(CELL_S * len(centres) * n)
-    r2 = (radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM) ** 2
-    block = max(1, BLOCK_CELLS // max(n, 1))
-    pts = xy if cells is None else xy[cells.order]
-    rows, cols = [], []
-    for s in range(0, len(centres), block):
-        c = centres[s:s + block]
-        inside = (c[:, 0, None] - pts[None, :, 0]) ** 2 + (c[:, 1, None] - pts[None, :, 1]) ** 2 <= r2
-        if cells is not None:
-            inside = np.logical_or.reduceat(inside, cells.starts, axis=1)
-        r, col = np.nonzero(inside)
-        rows.append(r + s)
-        cols.append(col)
-    r, col = np.concatenate(rows), np.concatenate(cols)
-    counts = np.bincount(r, minlength=len(centres))
-    idx = np.full((len(centres), max(int(counts.max(initial=0)), 1)), -1, np.int64)
-    idx[r, np.arange(len(r)) - np.repeat(np.cumsum(counts) - counts, counts)] = col
-    return idx
+def _lp(value: np.ndarray, cuts: list[np.ndarray]) -> np.ndarray:
+    """max sum(value * w) s.t. sum(w[cut]) <= 1 for every cut, 0 <= w <= 1 (HiGHS)."""
+    import highspy
 
-
-def _padded_top_sums(idx: np.ndarray, w: np.ndarray, arms: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_top_sums` on discs whose members :func:`_members` found: each disc's summed
-    weight of its ``arms`` heaviest cells and (k, arms) those cells (-1: fewer)."""
-    clock.charge(CELL_S * idx.size)
-    wm = np.where(idx >= 0, w[idx], -1.0)
-    k = min(arms, idx.shape[1])
-    part = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < idx.shape[1] else \
-        np.tile(np.arange(idx.shape[1]), (len(idx), 1))
-    top = np.take_along_axis(wm, part, axis=1)
-    return np.where(top > 0, top, 0.0).sum(axis=1), np.where(top >= 0, np.take_along_axis(idx, part, axis=1), -1)
-
-
-class _CutLP:
-    """max sum(value * w) s.t. sum(w[cut]) <= 1 for every cut added so far, 0 <= w <= 1
-    (HiGHS; each round adds its cuts as rows, so the simplex starts from the last basis)."""
-
-    def __init__(self, value: np.ndarray) -> None:
-        import highspy
-
-        n = len(value)
-        self.h = highspy.Highs()
-        self.h.setOptionValue("output_flag", False)
-        lp = highspy.HighsLp()
-        lp.num_col_, lp.num_row_ = n, 0
-        lp.col_cost_ = np.asarray(value, float)
-        lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
-        lp.sense_ = highspy.ObjSense.kMaximize
-        self.h.passModel(lp)
-
-    def solve(self, cuts: list[np.ndarray]) -> np.ndarray:
-        """Add ``cuts`` as rows and solve again: the weights w."""
-        index = np.concatenate(cuts).astype(np.int32)
-        starts = np.r_[0, np.cumsum([len(c) for c in cuts])[:-1]].astype(np.int32)
-        self.h.addRows(len(cuts), np.full(len(cuts), -np.inf), np.ones(len(cuts)), len(index), starts, index,
-                       np.ones(len(index)))
-        self.h.run()
-        clock.charge(LP_S)
-        return np.clip(np.asarray(self.h.getSolution().col_value, float), 0.0, 1.0)
+    n = len(value)
+    h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = n, len(cuts)
+    lp.col_cost_ = np.asarray(value, float)
+    lp.col_lower_, lp.col_upper_ = np.zeros(n), np.ones(n)
+    lp.row_lower_, lp.row_upper_ = np.full(len(cuts), -np.inf), np.ones(len(cuts))
+    lp.sense_ = highspy.ObjSense.kMaximize
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = np.r_[0, np.cumsum([len(c) for c in cuts])].astype(np.int32)
+    lp.a_matrix_.index_ = (np.concatenate(cuts) if cuts else np.zeros(0)).astype(np.int32)
+    lp.a_matrix_.value_ = np.ones(int(sum(len(c) for c in cuts)))
+    h.passModel(lp)
+    h.run()
+    clock.charge(LP_S)
+    return np.clip(np.asarray(h.getSolution().col_value, float), 0.0, 1.0)
 
 
 def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget | None = None,
@@ -247,35 +197,27 @@ def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget 
         return ExposureBound(max(trivial, graph_n, crowd), trivial, graph_n, float(n) / arms, "trivial")
     centres = disc_centres(xy, R)
     value = np.ones(n) if cells is None else cells.size.astype(float)
-    owner = labels if cells is None else labels[cells.first]  # a cell lies in one component
     w = np.ones(len(value))  # the LP with no cut yet
-    lp = _CutLP(value)
+    cuts: list[np.ndarray] = []
     rounds = 0
-    members = _members(xy, centres[::max(1, math.ceil(len(centres) / ROUND_CENTRES))], R, cells)
-    while rounds < ROUNDS and not _settled(w * value, owner, graph_n, max(trivial, crowd)):
+    sample = centres[::max(1, math.ceil(len(centres) / ROUND_CENTRES))]
+    while rounds < ROUNDS:
         rounds += 1
-        sums, tops = _padded_top_sums(members, w, arms)
+        sums, tops = _top_sums(xy, w, sample, R, arms, cells)
         worst = np.argsort(-sums, kind="stable")[:CUTS_PER_ROUND]
         worst = worst[sums[worst] > 1.0 + 1e-7]
         if worst.size == 0 or (budget is not None and budget.expired()):
             break
+        cuts.extend(np.unique(tops[j][tops[j] >= 0]) for j in worst)
         # a cut holds a disc's top targets; the disc's full member set is what binds, so the
         # next round re-checks every disc with the new weights
-        w = lp.solve([np.unique(tops[j][tops[j] >= 0]) for j in worst])
+        w = _lp(value, cuts)
     sums, _ = _top_sums(xy, w, centres, R, arms, cells)
     w = w / max(float(sums.max(initial=0.0)), 1e-12)
+    owner = labels if cells is None else labels[cells.first]  # a cell lies in one component
     per = np.bincount(owner, weights=w * value, minlength=graph_n)
     exposures = int(sum(math.ceil(v - 1e-9) for v in per))
     return ExposureBound(max(exposures, trivial, crowd), trivial, graph_n, float((w * value).sum()), "lp", rounds)
-
-
-def _settled(weight: np.ndarray, owner: np.ndarray, components: int, floor: int) -> bool:
-    """Whether the LP's weights (per cell, ``owner``: each cell's component), rounded up per
-    component, are at most ``floor``: the certified weights are never heavier than the LP's
-    (its optimum over all discs is at most its optimum over some), so no later round can
-    raise the bound above the trivial or crowding bound."""
-    per = np.bincount(owner, weights=weight, minlength=components)
-    return sum(math.ceil(v - 1e-9) for v in per) <= floor
 
 
 def _components(n: int, pairs: np.ndarray) -> tuple[int, np.ndarray]:
