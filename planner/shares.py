@@ -49,6 +49,13 @@ class ProgrammeShares:
     #: are not expected to use (none on a programme of 250 stars or more at 120 s).
     variants_max_s: float = 12.0
     variants_need_factor: float = 2.0
+    #: The programme optimiser's wall-clock guard, in wall-clock seconds per second of its
+    #: share: its work is charged below its CPU time (its model's HiGHS solves at about half,
+    #: its allocations at about 0.75: 15 effort seconds for 22 s on the M67-like case), so
+    #: at the pointings' margin (1 / ``effort_share``) the guard, not its budget, ended its
+    #: searches and its pointings depended on the machine's speed
+    #: (``stats.segmentation.optimiser.overran``).
+    optimiser_guard_factor: float = 1.6
     #: Effort seconds a pointing's plan takes per target, measured by ``python
     #: benchmarks/time_need.py`` (docs/programme.md: 93 pointings of ten programmes of 63-181
     #: stars and the M67-like case; a pointing's effort follows its targets more closely than
