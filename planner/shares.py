@@ -52,9 +52,9 @@ class ProgrammeShares:
     #: The programme optimiser's wall-clock guard, in wall-clock seconds per second of its
     #: share: its work is charged below its CPU time (its model's HiGHS solves at about half,
     #: its allocations at about 0.75: 15 effort seconds for 22 s on the M67-like case), so
-    #: at the pointings' margin (1 / ``effort_share``) the guard, not its budget, ended its
-    #: searches and its pointings depended on the machine's speed
-    #: (``stats.segmentation.optimiser.overran``).
+    #: at the pointings' margin (1 / ``effort_share``) the guard, not its budget, would end
+    #: its searches and its pointings would depend on the machine's speed
+    #: (``stats.segmentation.optimiser.overran`` says when the guard fires).
     optimiser_guard_factor: float = 1.6
     #: Effort seconds a pointing's plan takes per target, measured by ``python
     #: benchmarks/time_need.py`` (docs/programme.md: 93 pointings of ten programmes of 63-181
