@@ -55,7 +55,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -129,6 +129,13 @@ def variants_s(limit_s: float | None, table: ProgrammeShares = SHARES, n_targets
     need_s = table.variants_need_factor * table.typical_effort_per_target_s * targets / table.effort_share
     left_s = usable_s(limit_s, table) - _optimiser_share_s(limit_s, table) - need_s
     return min(max(left_s, 0.0), table.variants_max_s)
+
+
+def optimiser_guard_s(optimiser_s: float, table: ProgrammeShares = SHARES) -> float:
+    """The programme optimiser's wall-clock guard for ``optimiser_s`` wall-clock seconds of
+    share (``optimiser_guard_factor`` times it): past it the guard, not the optimiser's
+    budget, ends the searches."""
+    return table.optimiser_guard_factor * optimiser_s
 
 
 def rounds_limit_s(limit_s: float, n_targets: int, variants_effort_s: float,

@@ -173,7 +173,7 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
         return searched_angles(inst, seg, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
                                fill.angle_search, fill.park_move_limit_s)
     wall_s = programme.optimiser_s(None) if optimiser_s is None else float(optimiser_s)
-    with clock.effort(wall_limit_s=programme.SHARES.optimiser_guard_factor * wall_s) as effort:
+    with clock.effort(wall_limit_s=programme.optimiser_guard_s(wall_s)) as effort:
         seg = segment_programme(inst, args["ra_deg"], args["dec_deg"], [t.priority for t in req.targets],
                                 mode=req.mode, threshold_mm=req.threshold_mm,
                                 tangent_point=args["tangent_point"], seed=int(req.seed or 0), fill=fill,

@@ -348,8 +348,7 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
         members = np.union1d(q.members, inside)
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = allocate_pointing(f, new, f.priority, opts, budget)
-        if len(result.configurations) <= q.exposures and observed_members(members, result) >= set(
-                int(g) for g in q.members) | set(int(t) for t in inside):
+        if len(result.configurations) <= q.exposures and observed_members(members, result) >= set(members.tolist()):
             new.exposures = len(result.configurations)
             new.allocation = witness(result, members, members, new.exposures, f.priority)
             if new.allocation is not None:
