@@ -361,6 +361,9 @@ def main(argv: list[str] | None = None,
                     help="each plan's time_limit_s (default: the plan default, 120 s)")
     ap.add_argument("--case", action="append", default=[], metavar="FILE",
                     help="a target table planned as one more programme (repeatable)")
+    ap.add_argument("--targets", type=int, nargs=2, default=list(N_RANGE), metavar=("MIN", "MAX"),
+                    help=f"each generated programme's stars, drawn in [MIN, MAX] (default {N_RANGE[0]} "
+                         f"{N_RANGE[1]}; 300 300: the programmes of the optimiser's time goal)")
     ap.add_argument("--smoke", action="store_true",
                     help="two small programmes with a short limit (CI)")
     args = ap.parse_args(argv)
@@ -368,13 +371,16 @@ def main(argv: list[str] | None = None,
     unknown = [s for s in shapes if s not in ALL_SHAPES]
     if unknown:
         ap.error(f"unknown shapes {unknown}; known: {', '.join(ALL_SHAPES)}")
+    if not 1 <= args.targets[0] <= args.targets[1]:
+        ap.error(f"--targets: need 1 <= MIN <= MAX, got {args.targets[0]} {args.targets[1]}")
     time_limit_s = args.time_limit
     if args.smoke:
         progs = generated(SMOKE["programmes"], n_range=SMOKE["n_range"])
         if time_limit_s is None:
             time_limit_s = SMOKE["time_limit_s"]
     else:
-        progs = generated((shapes[i % len(shapes)], args.seed0 + i) for i in range(args.n))
+        progs = generated(((shapes[i % len(shapes)], args.seed0 + i) for i in range(args.n)),
+                          n_range=(args.targets[0], args.targets[1]))
     try:
         progs += [case_programme(path, args.seed0) for path in args.case]
     except ValueError as exc:  # service.tables' TargetFileError names the file and the row

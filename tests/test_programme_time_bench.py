@@ -180,3 +180,12 @@ def test_the_original_shapes_are_unchanged_and_the_new_ones_in_range() -> None:
             assert 50 <= len(a) <= 300
             dec = [t["dec_deg"] for t in a]
             assert (max(dec) - min(dec)) * 60 <= 15.0 + 1e-6
+
+
+def test_targets_sets_the_generated_programmes_size_and_is_checked(capsys) -> None:
+    progs = pt.generated([(shape, 5) for shape in pt.SHAPES], n_range=(300, 300))
+    assert [len(p["targets"]) for p in progs] == [300] * len(pt.SHAPES)
+    assert all(p["params"]["n"] == 300 for p in progs)
+    with pytest.raises(SystemExit):
+        pt.main(["--targets", "300", "200", "--n", "1"])
+    assert "--targets" in capsys.readouterr().err

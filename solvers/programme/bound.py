@@ -108,26 +108,33 @@ def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: flo
     """For every centre, the summed weight of its ``arms`` heaviest cells with a member within
     ``radius_mm`` (``w``: per cell; without ``cells`` every target is its own cell) and
     (k, arms) indices of those cells (-1: fewer)."""
-    n = len(xy)
-    m = n if cells is None else cells.count
-    k = min(arms, m)
-    clock.charge(CELL_S * len(centres) * n)
-    sums = np.empty(len(centres))
-    tops = np.full((len(centres), k), -1, dtype=np.int64)
+    block = max(1, BLOCK_CELLS // max(len(xy), 1))
+    parts = [_heaviest(_inside(xy, centres[s:s + block], radius_mm, cells), w, arms)
+             for s in range(0, len(centres), block)]
+    if not parts:
+        return np.empty(0), np.full((0, min(arms, len(w))), -1, dtype=np.int64)
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+def _inside(xy: np.ndarray, centres: np.ndarray, radius_mm: float, cells: _Cells | None) -> np.ndarray:
+    """(k, cells) whether each of the discs at ``centres`` holds a member of each cell (every
+    target its own cell without ``cells``); charges the (disc, target) cells examined."""
+    clock.charge(CELL_S * len(centres) * len(xy))
     r2 = (radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM) ** 2
-    block = max(1, BLOCK_CELLS // max(n, 1))
     pts = xy if cells is None else xy[cells.order]
-    for s in range(0, len(centres), block):
-        c = centres[s:s + block]
-        inside = (c[:, 0, None] - pts[None, :, 0]) ** 2 + (c[:, 1, None] - pts[None, :, 1]) ** 2 <= r2
-        if cells is not None:
-            inside = np.logical_or.reduceat(inside, cells.starts, axis=1)
-        wm = np.where(inside, w[None, :], -1.0)
-        idx = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < m else np.tile(np.arange(m), (len(c), 1))
-        top = np.take_along_axis(wm, idx, axis=1)
-        sums[s:s + block] = np.where(top > 0, top, 0.0).sum(axis=1)
-        tops[s:s + block] = np.where(top >= 0, idx, -1)
-    return sums, tops
+    inside = (centres[:, 0, None] - pts[None, :, 0]) ** 2 + (centres[:, 1, None] - pts[None, :, 1]) ** 2 <= r2
+    return inside if cells is None else np.logical_or.reduceat(inside, cells.starts, axis=1)
+
+
+def _heaviest(inside: np.ndarray, w: np.ndarray, arms: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per disc of the membership ``inside`` (k, cells), the summed weight of its ``arms``
+    heaviest cells (``w``) and their indices (-1: fewer)."""
+    m = inside.shape[1]
+    k = min(arms, m)
+    wm = np.where(inside, w[None, :], -1.0)
+    idx = np.argpartition(-wm, k - 1, axis=1)[:, :k] if k < m else np.tile(np.arange(m), (len(wm), 1))
+    top = np.take_along_axis(wm, idx, axis=1)
+    return np.where(top > 0, top, 0.0).sum(axis=1), np.where(top >= 0, idx, -1)
 
 
 @dataclass(frozen=True)
@@ -201,9 +208,16 @@ def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget 
     cuts: list[np.ndarray] = []
     rounds = 0
     sample = centres[::max(1, math.ceil(len(centres) / ROUND_CENTRES))]
+    held = None  # the sample's membership: found in the first round, read by every round
+    block = max(1, BLOCK_CELLS // n)
     while rounds < ROUNDS:
         rounds += 1
-        sums, tops = _top_sums(xy, w, sample, R, arms, cells)
+        if held is None:  # each round is charged its whole sample (CELL_S per disc and target)
+            held = np.concatenate([_inside(xy, sample[s:s + block], R, cells)
+                                   for s in range(0, len(sample), block)])
+        else:
+            clock.charge(CELL_S * len(sample) * n)
+        sums, tops = _heaviest(held, w, arms)
         worst = np.argsort(-sums, kind="stable")[:CUTS_PER_ROUND]
         worst = worst[sums[worst] > 1.0 + 1e-7]
         if worst.size == 0 or (budget is not None and budget.expired()):
