@@ -12,7 +12,10 @@ share of what the rounds left in proportion to what it spent in them (:func:`con
 when what they spent does not fit in what is left, the costliest is left out of the pass and
 the pass runs again (:func:`affordable`). The new plans replace the old ones only when every
 one of them is executable, together they observe every target the old ones did and take fewer
-exposures (:func:`accepted`). Otherwise the plan stays as it was.
+exposures (:func:`accepted`). A changed pointing whose new plan has a failed leg is planned
+again, on another seed, with what the rounds and the pass's plans left (:func:`retry_tasks`),
+before the new plans are judged: a pass is not given up for a leg while the limit has time for
+it. Otherwise the plan stays as it was.
 
 The pass reads the plan's outcomes and runs on the plan's effort clock, so the result is the
 same on one or many workers.
@@ -29,13 +32,13 @@ import numpy as np
 from models.budget import Budget
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration
-from planner.programme import PointingOutcome, RoundTask, usable_s
+from planner.programme import PointingOutcome, RoundTask, better, usable_s
 from planner.shares import SHARES, ProgrammeShares
 from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures
 from solvers.programme.fill import Field
 
 __all__ = ["MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "applies",
-           "consolidation_tasks", "costs", "left_s", "pass_wall_s", "regroup"]
+           "consolidation_tasks", "costs", "left_s", "pass_wall_s", "regroup", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
@@ -155,6 +158,30 @@ def consolidation_tasks(costs_s: Mapping[int, float], left: float, round_: int, 
         return []
     scale = left / total if math.isfinite(left) else 1.0
     return [RoundTask(i, round_, need[i] * scale) for i in sorted(changed)]
+
+
+def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Sequence[Sequence[PointingOutcome]],
+                spent_s: float, tries: Sequence[Sequence[PointingOutcome]],
+                table: ProgrammeShares = SHARES) -> list[RoundTask]:
+    """The pass's next plans of its changed pointings, after ``tries`` (the outcomes of each
+    of its plans so far, the first :func:`consolidation_tasks`): the pointings whose best plan
+    of the pass has a failed leg, each with what the rounds (``history``), the pass (``spent_s``)
+    and its plans left, split as :func:`consolidation_tasks` splits it (in proportion to their
+    costs, each at least what it spent in the rounds). None when every one is executable, when
+    that is not enough for them, or after ``table.rounds`` plans of the pass; the round numbers
+    go on from the rounds' (each plan on another seed)."""
+    if not tries or len(tries) >= table.rounds:
+        return []
+    best: dict[int, PointingOutcome] = {}
+    for outcomes in tries:
+        for o in outcomes:
+            if o.index not in best or better(o, best[o.index]):
+                best[o.index] = o
+    failed = sorted(i for i, o in best.items() if o.attempted and not o.executable)
+    if not failed:
+        return []
+    left = left_s(limit_s, [*history, *tries], spent_s, table)
+    return consolidation_tasks(costs_s, left, len(history) + len(tries) + 1, failed, table)
 
 
 def accepted(old_observed: Sequence[set[str]], new_observed: Sequence[set[str]], old_exposures: int,

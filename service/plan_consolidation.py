@@ -26,8 +26,9 @@ from planner.consolidation import (
     costs,
     left_s,
     pass_wall_s,
+    retry_tasks,
 )
-from planner.programme import PointingOutcome
+from planner.programme import PointingOutcome, RoundTask
 from service import pipeline
 from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
@@ -74,8 +75,8 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
                                 [r.index for r in changed])
     if not tasks:  # a guard: the pass chose pointings whose costs fit in what was left
         return seg, answers, {"consolidation": {**stats, "reason": "no time left to plan the changed pointings"}}
-    new = {t.index: pipeline.pointing_result(pipeline.pointing_task(req, new_seg, t), inst,
-                                             wall_limit_s=max(wall_left_s(), 0.0)) for t in tasks}
+    new = _replanned(req, inst, new_seg, tasks, wall_left_s,
+                     lambda tries: retry_tasks(cost, limit_s, history, pass_wall_s(effort.t_s), tries))
     ok = accepted([_observed(answers[i]) for i in new], [_observed(a) for a in new.values()],
                   sum(len(answers[i]["configurations"]) for i in new),
                   sum(len(a["configurations"]) for a in new.values()), [a["executable"] for a in new.values()])
@@ -87,6 +88,24 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
         out[i] = {**a, "stats": {**a["stats"], "rounds": rounds}}
     saved_exposures = sum(len(answers[i]["configurations"]) - len(out[i]["configurations"]) for i in new)
     return new_seg, out, {"consolidation": {**stats, "accepted": True, "exposures_saved": saved_exposures}}
+
+
+def _replanned(req: PlanRequest, inst: Instrument, seg: Segmentation, tasks: Sequence[RoundTask],
+               wall_left_s: Callable[[], float],
+               again: Callable[[list[list[PointingOutcome]]], list[RoundTask]]) -> dict[int, dict[str, Any]]:
+    """The changed pointings planned on ``tasks``, then again on the tasks ``again`` gives for
+    the outcomes so far (:func:`planner.consolidation.retry_tasks`), each pointing's best plan
+    kept (:func:`service.pipeline.keep_better`): {pointing index: PlanPointing dict}."""
+    new: dict[int, dict[str, Any]] = {}
+    tries: list[list[PointingOutcome]] = []
+    while tasks:
+        for t in tasks:
+            answer = pipeline.pointing_result(pipeline.pointing_task(req, seg, t), inst,
+                                              wall_limit_s=max(wall_left_s(), 0.0))
+            new[t.index] = pipeline.keep_better(new.get(t.index), answer, t.index)
+        tries.append([pipeline.outcomes_of(new[t.index], t.index)[-1] for t in tasks])
+        tasks = again(tries)
+    return new
 
 
 def _planned(p: dict[str, Any], index: dict[str, int]) -> PlannedPointing:

@@ -26,8 +26,9 @@ from planner.consolidation import (
     costs,
     left_s,
     regroup,
+    retry_tasks,
 )
-from planner.programme import SHARES, PointingOutcome, usable_s
+from planner.programme import SHARES, PointingOutcome, RoundTask, usable_s
 from planner.validate import validate_plan
 from service import pipeline, plan_consolidation
 from service.schemas import PlanRequest
@@ -157,6 +158,63 @@ def test_consolidation_tasks_give_each_pointing_at_least_what_it_spent() -> None
     assert tasks[0].share_s / tasks[1].share_s == pytest.approx(20.0 / SHARES.min_pointing_s)
     assert consolidation_tasks(cost, 20.0, 3, [0, 2]) == []  # 20.5 needed
     assert consolidation_tasks(cost, 51.0, 3, []) == []
+
+
+def _tried(i: int, round_: int, share_s: float, effort_s: float, executable: bool) -> PointingOutcome:
+    return PointingOutcome(i, round_, share_s, effort_s, executable, 0 if executable else 1, 10, False, True, 0.0)
+
+
+def test_a_changed_pointing_with_a_failed_leg_is_planned_again_on_what_is_left() -> None:
+    """Only the pointings whose best plan of the pass failed, on everything the rounds, the
+    pass and its plans left (counted here from the outcomes, as next_round counts a round),
+    split by cost, the next round number; none once every one is executable, when too little
+    is left, or after ``rounds`` plans."""
+    e = SHARES.effort_share
+    history = [[_outcome(0, 8.0, 40.0, 2.0), _outcome(1, 4.0, 40.0, 3.0), _outcome(2, 4.0, 20.0, 1.0)]]
+    cost = costs(history)
+    first = [_tried(0, 2, 10.0, 6.0, True), _tried(1, 2, 3.0, 2.4, False), _tried(2, 2, 5.0, 4.0, False)]
+    tasks = retry_tasks(cost, 120.0, history, 0.5, [first])
+    left = usable_s(120.0) - 16.0 / e - 0.5 - 12.4 / e
+    assert [t.index for t in tasks] == [1, 2] and {t.round for t in tasks} == {3}
+    assert sum(t.share_s for t in tasks) == pytest.approx(left)
+    assert tasks[1].share_s / tasks[0].share_s == pytest.approx(cost[2] / cost[1])
+    # a pointing whose earlier plan of the pass was executable is not planned again
+    second = [_tried(1, 3, tasks[0].share_s, 1.0, True), _tried(2, 3, tasks[1].share_s, 2.0, False)]
+    assert [t.index for t in retry_tasks(cost, 120.0, history, 0.5, [first, second])] == [2]
+    assert [t.index for t in retry_tasks(cost, 120.0, history, 0.5, [first, [_tried(2, 3, 9.0, 2.0, True)]])] == [1]
+    assert retry_tasks(cost, 120.0, history, 0.5, [[_tried(1, 2, 3.0, 2.4, True)]]) == []
+    assert retry_tasks(cost, 30.0, history, 0.5, [first]) == []  # the rounds left too little
+    assert retry_tasks(cost, 120.0, history, 0.5, [first] * SHARES.rounds) == []
+    assert retry_tasks(cost, 120.0, history, 0.5, []) == []
+
+
+def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypatch) -> None:
+    """service.plan_consolidation's loop: every task planned, the failed one again on the
+    tasks the policy gives for the outcomes so far, each pointing's best plan kept with every
+    outcome recorded."""
+    calls = []
+
+    def result(task, inst, progress=None, *, wall_limit_s=None):
+        calls.append((task.index, task.round))
+        ok = task.index != 1 or task.round >= 4
+        out = PointingOutcome(task.index, task.round, task.share_s, 0.5 * task.share_s, ok, 0 if ok else 2, 10)
+        return {"id": f"P{task.index}", "executable": ok, "stats": {"rounds": [pipeline.outcome_out(out)]}}
+
+    monkeypatch.setattr(pipeline, "pointing_result", result)
+    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t: t)
+    seen = []
+
+    def again(tries):
+        seen.append([(o.index, o.round, o.executable) for o in tries[-1]])
+        failed = [o.index for o in tries[-1] if not o.executable]
+        return [RoundTask(i, tries[-1][0].round + 1, 4.0) for i in failed]
+
+    new = plan_consolidation._replanned(None, INST, None, [RoundTask(0, 3, 2.0), RoundTask(1, 3, 2.0)],
+                                        lambda: 100.0, again)
+    assert calls == [(0, 3), (1, 3), (1, 4)]
+    assert seen == [[(0, 3, True), (1, 3, False)], [(1, 4, True)]]
+    assert new[0]["executable"] and new[1]["executable"]
+    assert [r["round"] for r in new[1]["stats"]["rounds"]] == [3, 4]
 
 
 def test_affordable_leaves_the_costliest_pointing_out_until_the_rest_fits() -> None:
