@@ -12,9 +12,10 @@ share of what the rounds left in proportion to what it spent in them (:func:`con
 when what they spent does not fit in what is left, the costliest is left out of the pass and
 the pass runs again (:func:`affordable`). The new plans replace the old ones only when every
 one of them is executable, together they observe every target the old ones did and take fewer
-exposures (:func:`accepted`). A changed pointing whose new plan has a failed leg is planned
-again, on another seed, with what the rounds and the pass's plans left (:func:`retry_tasks`),
-before the new plans are judged: a pass is not given up for a leg while the limit has time for
+exposures (:func:`accepted`). A changed pointing whose new plan has a failed leg, or an
+exposure its motion planner added for a moved target, is planned again, on another seed, with
+what the rounds and the pass's plans left (:func:`retry_tasks`), before the new plans are
+judged: a pass is not given up, nor its saving cut, for a leg while the limit has time for
 it. Otherwise the plan stays as it was.
 
 The pass reads the plan's outcomes and runs on the plan's effort clock, so the result is the
@@ -24,6 +25,7 @@ same on one or many workers.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -165,7 +167,10 @@ def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Se
                 table: ProgrammeShares = SHARES) -> list[RoundTask]:
     """The pass's next plans of its changed pointings, after ``tries`` (the outcomes of each
     of its plans so far, the first :func:`consolidation_tasks`): the pointings whose best plan
-    of the pass has a failed leg, each with what the rounds (``history``), the pass (``spent_s``)
+    of the pass has a failed leg, or (once) takes an exposure the motion planner added for a
+    target it moved (another seed and more time may route the arms without it; the best plan
+    is the one with fewer exposures, :func:`planner.programme.rank`), each with what the
+    rounds (``history``), the pass (``spent_s``)
     and its plans left, split as :func:`consolidation_tasks` splits it (in proportion to their
     costs, each at least what it spent in the rounds). None when every one is executable, when
     that is not enough for them, or after ``table.rounds`` plans of the pass; the round numbers
@@ -177,7 +182,9 @@ def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Se
         for o in outcomes:
             if o.index not in best or better(o, best[o.index]):
                 best[o.index] = o
-    failed = sorted(i for i, o in best.items() if o.attempted and not o.executable)
+    tried = Counter(o.index for outcomes in tries for o in outcomes)
+    failed = sorted(i for i, o in best.items()
+                    if o.attempted and (not o.executable or (o.exposures_added and tried[i] < 2)))
     if not failed:
         return []
     left = left_s(limit_s, [*history, *tries], spent_s, table)

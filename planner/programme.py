@@ -292,6 +292,10 @@ class PointingOutcome:
     attempted: bool = True
     #: the effort seconds of ``effort_s`` its allocation took (the rest: its motion legs)
     allocation_effort_s: float = 0.0
+    #: the exposures its plan takes, and how many of them the motion planner added for targets
+    #: it moved (0: not recorded)
+    exposures: int = 0
+    exposures_added: int = 0
 
     def spent_s(self, table: ProgrammeShares = SHARES) -> float:
         """The wall-clock share this outcome used up, counted deterministically (its effort
@@ -301,11 +305,11 @@ class PointingOutcome:
         return self.share_s if self.overran else min(self.effort_s / table.effort_share, self.share_s)
 
 
-def rank(o: PointingOutcome) -> tuple[bool, bool, int, int]:
+def rank(o: PointingOutcome) -> tuple[bool, bool, int, int, int]:
     """How good a pointing's plan is: attempted first (a plan not attempted for lack of time
     observes nothing, though no leg of it failed), then executable, then fewer failed legs,
-    then more targets observed."""
-    return (o.attempted, o.executable, -o.failed_legs, o.observed)
+    then more targets observed, then fewer exposures."""
+    return (o.attempted, o.executable, -o.failed_legs, o.observed, -o.exposures)
 
 
 def better(new: PointingOutcome, old: PointingOutcome) -> bool:

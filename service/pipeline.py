@@ -453,7 +453,8 @@ def pointing_result(task: PointingTask, inst: Instrument,
     observed = sum(1 for c in out["configurations"] for a in c["assignments"]
                    if a["target_id"] is not None)
     o = PointingOutcome(task.index, task.round, task.share_s, pp.effort_s, out["executable"],
-                        failed, observed, pp.overran, pp.allocation is not None, pp.allocation_effort_s)
+                        failed, observed, pp.overran, pp.allocation is not None, pp.allocation_effort_s,
+                        len(out["configurations"]), int(out["stats"]["motion"].get("configurations_added", 0)))
     out["stats"].update({"compute_s": time.monotonic() - t0,
                          "effort": {"effort_s": pp.effort_s, "overran": pp.overran},
                          "rounds": [outcome_out(o)]})
@@ -464,7 +465,8 @@ def outcome_out(o: PointingOutcome) -> dict[str, Any]:
     """One round's outcome as an entry of a PlanPointing's ``stats.rounds``."""
     return {"round": o.round, "share_s": o.share_s, "effort_s": o.effort_s,
             "executable": o.executable, "failed_legs": o.failed_legs, "observed": o.observed,
-            "overran": o.overran, "attempted": o.attempted, "allocation_effort_s": o.allocation_effort_s}
+            "overran": o.overran, "attempted": o.attempted, "allocation_effort_s": o.allocation_effort_s,
+            "exposures": o.exposures, "exposures_added": o.exposures_added}
 
 
 def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
@@ -473,7 +475,8 @@ def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
     return [PointingOutcome(index, int(r["round"]), float(r["share_s"]), float(r["effort_s"]),
                             bool(r["executable"]), int(r["failed_legs"]), int(r["observed"]),
                             bool(r["overran"]), bool(r.get("attempted", True)),
-                            float(r.get("allocation_effort_s", 0.0)))
+                            float(r.get("allocation_effort_s", 0.0)), int(r.get("exposures", 0)),
+                            int(r.get("exposures_added", 0)))
             for r in answer.get("stats", {}).get("rounds", [])]
 
 

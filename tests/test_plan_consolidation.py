@@ -8,6 +8,7 @@ alone gave), forward kinematics and FCL on the regrouped allocations."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -28,7 +29,7 @@ from planner.consolidation import (
     regroup,
     retry_tasks,
 )
-from planner.programme import SHARES, PointingOutcome, RoundTask, usable_s
+from planner.programme import SHARES, PointingOutcome, RoundTask, better, usable_s
 from planner.validate import validate_plan
 from service import pipeline, plan_consolidation
 from service.schemas import PlanRequest
@@ -186,6 +187,15 @@ def test_a_changed_pointing_with_a_failed_leg_is_planned_again_on_what_is_left()
     assert retry_tasks(cost, 30.0, history, 0.5, [first]) == []  # the rounds left too little
     assert retry_tasks(cost, 120.0, history, 0.5, [first] * SHARES.rounds) == []
     assert retry_tasks(cost, 120.0, history, 0.5, []) == []
+    # an executable plan with an exposure the motion planner added is planned again, once
+    added = [dataclasses.replace(_tried(1, 2, 3.0, 2.4, True), exposures=5, exposures_added=1)]
+    again = retry_tasks(cost, 120.0, history, 0.5, [added])
+    assert [(t.index, t.round) for t in again] == [(1, 3)]
+    assert retry_tasks(cost, 120.0, history, 0.5, [added, [dataclasses.replace(added[0], round=3)]]) == []
+    # a second plan without the addition is the better one, so nothing is due after it
+    fewer = dataclasses.replace(added[0], round=3, exposures=4, exposures_added=0)
+    assert better(fewer, added[0]) and not better(added[0], fewer)
+    assert not better(dataclasses.replace(added[0], round=3), added[0])  # a tie keeps the old
 
 
 def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypatch) -> None:
@@ -252,6 +262,11 @@ def test_every_round_records_what_its_allocation_took(plans) -> None:
     for i, p in enumerate(plan["pointings"]):
         back = pipeline.outcomes_of(p, i)
         assert [o.allocation_effort_s for o in back] == [r["allocation_effort_s"] for r in p["stats"]["rounds"]]
+        assert [(o.exposures, o.exposures_added) for o in back] == [
+            (r["exposures"], r["exposures_added"]) for r in p["stats"]["rounds"]]
+        # the plan returned is one of its rounds', with its exposures and the motion planner's additions
+        assert (len(p["configurations"]), p["stats"]["motion"]["configurations_added"]) in [
+            (o.exposures, o.exposures_added) for o in back]
 
 
 def test_the_cli_summary_says_what_the_consolidation_saved(plans) -> None:
