@@ -34,7 +34,7 @@ import numpy as np
 from models.budget import Budget
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration
-from planner.programme import PointingOutcome, RoundTask, better, usable_s
+from planner.programme import PointingOutcome, RoundTask, best_outcomes, usable_s
 from planner.shares import SHARES, ProgrammeShares
 from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures
 from solvers.programme.fill import Field
@@ -177,11 +177,7 @@ def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Se
     go on from the rounds' (each plan on another seed)."""
     if not tries or len(tries) >= table.rounds:
         return []
-    best: dict[int, PointingOutcome] = {}
-    for outcomes in tries:
-        for o in outcomes:
-            if o.index not in best or better(o, best[o.index]):
-                best[o.index] = o
+    best = best_outcomes(tries)
     tried = Counter(o.index for outcomes in tries for o in outcomes)
     failed = sorted(i for i, o in best.items()
                     if o.attempted and (not o.executable or (o.exposures_added and tried[i] < 2)))

@@ -53,7 +53,7 @@ __all__ = [
     "ALLOCATION_PART", "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "FIRST_ROUND_DONE", "SEGMENTED", "SHARES",
     "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan", "allocation_options",
     "pointing_telescope_time",
-    "ProgrammeShares", "RoundTask", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
+    "ProgrammeShares", "RoundTask", "best_outcomes", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
     "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
@@ -317,6 +317,17 @@ def better(new: PointingOutcome, old: PointingOutcome) -> bool:
     return rank(new) > rank(old)
 
 
+def best_outcomes(history: Sequence[Sequence[PointingOutcome]]) -> dict[int, PointingOutcome]:
+    """Each pointing's best outcome over the rounds ``history`` (:func:`better`: of equals,
+    the earliest)."""
+    best: dict[int, PointingOutcome] = {}
+    for outcomes in history:
+        for o in outcomes:
+            if o.index not in best or better(o, best[o.index]):
+                best[o.index] = o
+    return best
+
+
 def next_round(needs: Sequence[float], limit_s: float | None,
                history: Sequence[Sequence[PointingOutcome]],
                table: ProgrammeShares = SHARES) -> list[RoundTask]:
@@ -334,13 +345,8 @@ def next_round(needs: Sequence[float], limit_s: float | None,
     usable = usable_s(limit_s, table)
     if math.isinf(usable):
         return []  # without a limit every pointing already had all the time it asked for
-    best: dict[int, PointingOutcome] = {}
-    spent = 0.0
-    for outcomes in history:
-        for o in outcomes:
-            spent += o.spent_s(table)
-            if o.index not in best or better(o, best[o.index]):
-                best[o.index] = o
+    best = best_outcomes(history)
+    spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
     failed = [i for i, o in best.items() if o.attempted and not o.executable]
     left = usable - spent
     if left < table.min_pointing_s:

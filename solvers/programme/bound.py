@@ -108,6 +108,7 @@ def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: flo
     """For every centre, the summed weight of its ``arms`` heaviest cells with a member within
     ``radius_mm`` (``w``: per cell; without ``cells`` every target is its own cell) and
     (k, arms) indices of those cells (-1: fewer)."""
+    clock.charge(CELL_S * len(centres) * len(xy))
     block = max(1, BLOCK_CELLS // max(len(xy), 1))
     parts = [_heaviest(_inside(xy, centres[s:s + block], radius_mm, cells), w, arms)
              for s in range(0, len(centres), block)]
@@ -118,8 +119,7 @@ def _top_sums(xy: np.ndarray, w: np.ndarray, centres: np.ndarray, radius_mm: flo
 
 def _inside(xy: np.ndarray, centres: np.ndarray, radius_mm: float, cells: _Cells | None) -> np.ndarray:
     """(k, cells) whether each of the discs at ``centres`` holds a member of each cell (every
-    target its own cell without ``cells``); charges the (disc, target) cells examined."""
-    clock.charge(CELL_S * len(centres) * len(xy))
+    target its own cell without ``cells``)."""
     r2 = (radius_mm * (1.0 + MEMBER_REL_TOL) + MEMBER_TOL_MM) ** 2
     pts = xy if cells is None else xy[cells.order]
     inside = (centres[:, 0, None] - pts[None, :, 0]) ** 2 + (centres[:, 1, None] - pts[None, :, 1]) ** 2 <= r2
@@ -208,15 +208,11 @@ def lower_bound(xy: np.ndarray, fov_radius_mm: float, arms: int, budget: Budget 
     cuts: list[np.ndarray] = []
     rounds = 0
     sample = centres[::max(1, math.ceil(len(centres) / ROUND_CENTRES))]
-    held = None  # the sample's membership: found in the first round, read by every round
-    block = max(1, BLOCK_CELLS // n)
+    block = max(1, BLOCK_CELLS // n)  # the sample's membership, found once for every round
+    held = np.concatenate([_inside(xy, sample[s:s + block], R, cells) for s in range(0, len(sample), block)])
     while rounds < ROUNDS:
         rounds += 1
-        if held is None:  # each round is charged its whole sample (CELL_S per disc and target)
-            held = np.concatenate([_inside(xy, sample[s:s + block], R, cells)
-                                   for s in range(0, len(sample), block)])
-        else:
-            clock.charge(CELL_S * len(sample) * n)
+        clock.charge(CELL_S * len(sample) * n)  # each round is charged its whole sample
         sums, tops = _heaviest(held, w, arms)
         worst = np.argsort(-sums, kind="stable")[:CUTS_PER_ROUND]
         worst = worst[sums[worst] > 1.0 + 1e-7]
