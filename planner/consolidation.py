@@ -36,17 +36,22 @@ from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration
 from planner.programme import PointingOutcome, RoundTask, best_outcomes, usable_s
 from planner.shares import SHARES, ProgrammeShares
-from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures
+from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures, thin_moves
 from solvers.programme.fill import Field
+from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "applies",
-           "consolidation_tasks", "costs", "left_s", "pass_wall_s", "regroup", "retry_tasks"]
+__all__ = ["MAX_PASSES", "MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+           "consolidation_tasks", "costs", "few_observed", "left_s", "pass_wall_s", "regroup", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
 #: the pass itself (its placement tests, every run of :func:`affordable`) runs on at most
 #: this many effort seconds
 PASS_EFFORT_S = 3.0
+#: passes at most: a pass runs again on the plan an accepted pass left (its new plans move
+#: arms and free others, so another exposure's targets may fit where none did), while each
+#: is accepted (:func:`another_pass`)
+MAX_PASSES = 4
 
 
 def pass_wall_s(effort_s: float = PASS_EFFORT_S, table: ProgrammeShares = SHARES) -> float:
@@ -87,19 +92,22 @@ class Regrouped:
 def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
             pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
             arm_limits: tuple[int, ...] | None, budget: Budget, *,
-            frozen: frozenset[int] = frozenset()) -> tuple[int, list[Regrouped]]:
-    """The exposures the pass gives up and the pointings it changes (module docstring); the
-    pointings ``frozen`` neither give nor take a target."""
+            frozen: frozenset[int] = frozenset()) -> tuple[int, int, list[Regrouped]]:
+    """The exposures the pass gives up, the targets it moves out of exposures observing few
+    targets (:func:`solvers.programme.consolidate.thin_moves`, after the exposures emptied)
+    and the pointings it changes (module docstring); the pointings ``frozen`` neither give nor
+    take a target."""
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
     state = {j: arms_of(inst.n_arms, p.centre, p.pa_deg, p.configurations, _programme_index)
              for j, p in enumerate(pointings) if p.configurations and j not in frozen}
     saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
+    emptied, moved, thinned = thin_moves(f, state, park_move_limit_s, arm_limits, budget)
     out = []
-    for j in sorted(changed):
+    for j in sorted(changed | thinned):
         members, allocation = allocation_of(f, state[j], pointings[j].configurations, _programme_index,
                                             pointings[j].unobserved, "consolidation")
         out.append(Regrouped(j, members, allocation))
-    return saved, out
+    return saved + emptied, moved, out
 
 
 def _programme_index(asg: ArmAssignment) -> int:
@@ -109,21 +117,21 @@ def _programme_index(asg: ArmAssignment) -> int:
 def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
                pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
                arm_limits: tuple[int, ...] | None, budget: Budget, costs_s: Mapping[int, float], left_s: float,
-               table: ProgrammeShares = SHARES) -> tuple[int, list[Regrouped]]:
+               table: ProgrammeShares = SHARES) -> tuple[int, int, list[Regrouped]]:
     """:func:`regroup` with what planning the changed pointings again costs within ``left_s``:
     each costs what it spent in the rounds (``costs_s``, :func:`costs`; at least
     ``min_pointing_s``). While they do not fit, the costliest changed pointing is left out of
-    the pass and the pass runs again; (0, []) when nothing that fits empties an exposure."""
+    the pass and the pass runs again; (0, 0, []) when nothing that fits changes."""
     frozen: set[int] = set()
     while not budget.expired():
-        saved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s, arm_limits, budget,
-                                 frozen=frozenset(frozen))
+        saved, moved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s, arm_limits,
+                                        budget, frozen=frozenset(frozen))
         if not changed:
-            return 0, []
+            return 0, 0, []
         if sum(max(costs_s[r.index], table.min_pointing_s) for r in changed) <= left_s:
-            return saved, changed
+            return saved, moved, changed
         frozen.add(max((r.index for r in changed), key=lambda j: (costs_s[j], j)))
-    return 0, []
+    return 0, 0, []
 
 
 def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:
@@ -187,10 +195,25 @@ def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Se
     return consolidation_tasks(costs_s, left, len(history) + len(tries) + 1, failed, table)
 
 
+def another_pass(accepted_passes: Sequence[bool], max_passes: int = MAX_PASSES) -> bool:
+    """Whether the plan runs the pass again after passes whose plans were kept or not
+    (``accepted_passes``, in order): while every pass so far was accepted, at most
+    ``max_passes`` in all (the time each takes is counted as the first's is)."""
+    return len(accepted_passes) < max_passes and all(accepted_passes)
+
+
+def few_observed(targets_per_exposure: Sequence[int], few: int = FEW_TARGETS) -> int:
+    """The targets observed in exposures observing at most ``few`` (each exposure's count of
+    targets in ``targets_per_exposure``): what moving targets out of such exposures lowers."""
+    return sum(n for n in targets_per_exposure if n <= few)
+
+
 def accepted(old_observed: Sequence[set[str]], new_observed: Sequence[set[str]], old_exposures: int,
-             new_exposures: int, executable: Sequence[bool]) -> bool:
+             new_exposures: int, executable: Sequence[bool], old_few: int = 0, new_few: int = 0) -> bool:
     """Whether the changed pointings' new plans replace their old ones: every one executable,
-    together observing every target the old ones did, in fewer exposures."""
+    together observing every target the old ones did, in fewer exposures, or in as many with
+    fewer targets in exposures observing few (``old_few``/``new_few``, :func:`few_observed`)."""
     old_all = set().union(*old_observed)
     new_all = set().union(*new_observed)
-    return all(executable) and new_all >= old_all and new_exposures < old_exposures
+    fewer = new_exposures < old_exposures or (new_exposures == old_exposures and new_few < old_few)
+    return all(executable) and new_all >= old_all and fewer

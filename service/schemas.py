@@ -753,7 +753,9 @@ class PlanResponse(Response):
                          "fewest-exposures): the exposures emptied into idle arms of the plan's "
                          "other exposures (`exposures_emptied`), the pointings planned again, "
                          "whether their plans were kept (`accepted`, else `reason`) and the "
-                         "exposures that saved (`exposures_saved`).")
+                         "exposures that saved (`exposures_saved`), summed over the passes "
+                         "whose plans were kept; `passes`: each pass's own figures (a pass runs "
+                         "again on the plan an accepted pass left).")
     time_limit_advice: TimeLimitAdvice | None = Field(
         None, description="Set when the time limit left a pointing unplanned: the limit this "
         "field needs and whether to plan it as a job.")

@@ -18,6 +18,7 @@ import pytest
 from benchmarks import programme_time as PT
 from models.budget import Budget
 from models.instrument import default_instrument
+from models.sky import sky_to_focal_mm
 from models.types import ArmAssignment, Configuration
 from planner.consolidation import (
     PlannedPointing,
@@ -33,6 +34,7 @@ from planner.programme import SHARES, PointingOutcome, RoundTask, better, usable
 from planner.validate import validate_plan
 from service import pipeline, plan_consolidation
 from service.schemas import PlanRequest
+from solvers.programme.fill import within
 from tests.plan_jobs import plan_job_result
 from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
 
@@ -119,8 +121,8 @@ def test_regroup_gives_allocations_of_the_new_members() -> None:
 
     for seed in (1, 4):
         f, pts = _overlapping(seed)
-        saved, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
-                                 Budget.start(30.0))
+        saved, _, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
+                                    Budget.start(30.0))
         assert saved >= 1 and changed
         new = list(pts)
         for r in changed:
@@ -219,10 +221,11 @@ def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypa
         failed = [o.index for o in tries[-1] if not o.executable]
         return [RoundTask(i, tries[-1][0].round + 1, 4.0) for i in failed]
 
-    new = plan_consolidation._replanned(None, INST, None, [RoundTask(0, 3, 2.0), RoundTask(1, 3, 2.0)],
-                                        lambda: 100.0, again)
+    new, tries = plan_consolidation._replanned(None, INST, None, [RoundTask(0, 3, 2.0), RoundTask(1, 3, 2.0)],
+                                               lambda: 100.0, again)
     assert calls == [(0, 3), (1, 3), (1, 4)]
     assert seen == [[(0, 3, True), (1, 3, False)], [(1, 4, True)]]
+    assert [[(o.index, o.round, o.executable) for o in t] for t in tries] == seen
     assert new[0]["executable"] and new[1]["executable"]
     assert [r["round"] for r in new[1]["stats"]["rounds"]] == [3, 4]
 
@@ -236,11 +239,11 @@ def test_affordable_leaves_the_costliest_pointing_out_until_the_rest_fits() -> N
         args = (INST, f.ra_deg, f.dec_deg, f.priority, planned, LIMIT_S, None)
         free = regroup(*args, Budget.start(30.0))
         assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, math.inf) == free
-        assert {r.index for r in free[1]} == {0, 1}, "premise: the pass changes both"
-        saved, changed = affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 5.0)
+        assert {r.index for r in free[2]} == {0, 1}, "premise: the pass changes both"
+        saved, _, changed = affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 5.0)
         assert all(r.index == 1 for r in changed)
         assert saved == regroup(*args, Budget.start(30.0), frozen=frozenset({0}))[0]
-        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 0.1) == (0, [])
+        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 0.1) == (0, 0, [])
 
 
 def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures() -> None:
@@ -249,6 +252,18 @@ def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures()
     assert not accepted(old, new, 3, 3, [True, True])  # not fewer
     assert not accepted(old, new, 3, 2, [True, False])  # a failed leg
     assert not accepted(old, [{"a"}, {"c"}], 3, 2, [True, True])  # b lost
+    # as many exposures: kept only with fewer targets in exposures observing few
+    assert accepted(old, new, 3, 3, [True, True], old_few=4, new_few=3)
+    assert not accepted(old, new, 3, 3, [True, True], old_few=3, new_few=3)
+    assert not accepted(old, new, 3, 4, [True, True], old_few=4, new_few=0)
+    assert accepted(old, new, 3, 2, [True, True], old_few=0, new_few=2)  # an exposure fewer wins
+
+
+def test_few_observed_counts_targets_in_exposures_of_at_most_two() -> None:
+    from planner.consolidation import few_observed
+
+    assert few_observed([12, 3, 2, 1, 0]) == 3
+    assert few_observed([5, 2], few=5) == 7 and few_observed([]) == 0
 
 
 def test_every_round_records_what_its_allocation_took(plans) -> None:
@@ -291,3 +306,108 @@ def test_only_programme_optimiser_plans_without_kept_configurations_are_consolid
 def test_a_complete_linkage_plan_has_no_consolidation() -> None:
     req = PlanRequest.model_validate({**_request(), "segmentation_mode": "complete-linkage", "time_limit_s": 10})
     assert "consolidation" not in pipeline.plan(req, INST)["stats"]
+
+
+def test_the_pass_runs_again_while_it_is_accepted() -> None:
+    from planner.consolidation import MAX_PASSES, another_pass
+
+    assert another_pass([]) and another_pass([True]) and another_pass([True] * (MAX_PASSES - 1))
+    assert not another_pass([True, False]) and not another_pass([False])
+    assert not another_pass([True] * MAX_PASSES)
+
+
+def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
+    """service.plan_consolidation's passes: each on the plan the accepted pass before it left,
+    with the outcomes of every earlier pass's plans and what their own work took counted as
+    spent; the stats sum the accepted passes and keep each pass's own."""
+    from planner.consolidation import pass_wall_s
+
+    rounds = [[PointingOutcome(0, 1, 10.0, 8.0, True, 0, 10)]]
+    seen = []
+
+    def one(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s):
+        k = len(seen)
+        seen.append((seg, len(history), spent_s))
+        tries = [[PointingOutcome(0, len(history) + 1, 2.0, 1.0, True, 0, 10)]]
+        stats = {"exposures_emptied": k + 1, "targets_moved_from_few": k, "effort_s": 0.5 * (k + 1),
+                 "pointings": [f"P{k}"], "accepted": k < 2}
+        if k < 2:
+            return f"seg{k + 1}", answers, {**stats, "exposures_saved": k + 1}, tries
+        return seg, answers, {**stats, "reason": "the changed pointings' plans were not better"}, tries
+
+    monkeypatch.setattr(plan_consolidation, "_pass", one)
+    monkeypatch.setattr(pipeline, "plan_mode", lambda req: "fewest-exposures")
+    req = PlanRequest.model_validate(_request())
+    seg, _, stats = plan_consolidation.consolidated(req, INST, "seg0", [], rounds, 100.0, lambda: 50.0)
+    assert seg == "seg2"  # the last accepted pass's plan
+    assert seen == [("seg0", 1, 0.0), ("seg1", 2, pass_wall_s(0.5)), ("seg2", 3, pass_wall_s(0.5) + pass_wall_s(1.0))]
+    c = stats["consolidation"]
+    assert c["accepted"] and c["exposures_saved"] == 3 and c["exposures_emptied"] == 3
+    assert c["targets_moved_from_few"] == 1
+    assert c["pointings"] == ["P0", "P1"] and "reason" not in c
+    assert c["effort_s"] == pytest.approx(3.0) and len(c["passes"]) == 3
+    assert c["passes"][2]["reason"] and not c["passes"][2]["accepted"]
+
+
+def _two_pointings(seed: int):
+    """Two pointings 60 mm apart over 30 targets all inside both fields: A allocated on 20,
+    B on 10, each to completeness on its own."""
+    from tests.test_programme_consolidate import _field, _pointing
+
+    rng = np.random.default_rng(seed)
+    r = 85.0 * np.sqrt(rng.random(30))
+    a = 2 * np.pi * rng.random(30)
+    f = _field(np.column_stack([30.0 + r * np.cos(a), r * np.sin(a)]), seed)
+    return f, [_pointing(f, np.arange(20), (0.0, 0.0)), _pointing(f, np.arange(20, 30), (60.0, 0.0))]
+
+
+def test_targets_leave_exposures_of_few_targets_for_fuller_ones() -> None:
+    """After the pass, no exposure observing two targets has one that an idle arm of an
+    exposure observing two or more could take (solvers.programme.spare.spare_arm_for on the
+    result); every exposure passes FCL and the reach checks, every target is still observed
+    once, and the targets in exposures of at most two fall by the targets moved."""
+    from planner.consolidation import few_observed
+    from solvers.programme.fill import Pointing
+    from solvers.programme.spare import IDLE_KINDS, spare_arm_for
+
+    moved_any = 0
+    for seed in (1, 6, 12, 19):
+        f, pts = _two_pointings(seed)
+        saved, moved, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
+                                        Budget.start(30.0))
+        moved_any += moved
+        new = list(pts)
+        for r in changed:
+            new[r.index] = Pointing(pts[r.index].centre, pts[r.index].pa_deg, np.array(r.members, np.int64),
+                                    len(r.allocation.configurations), allocation=r.allocation)
+        _check_exposures(f, new)
+        observed = sorted(int(p.members[a.target_index]) for p in new for c in p.allocation.configurations
+                          for a in c.assignments if a.target_index is not None)
+        assert observed == list(range(30))
+        assert sum(p.exposures for p in new) == sum(p.exposures for p in pts) - saved
+
+        def counts(ps):
+            return [sum(a.target_index is not None for a in c.assignments) for p in ps
+                    for c in p.allocation.configurations]
+        if not saved:
+            assert few_observed(counts(new)) == few_observed(counts(pts)) - moved
+        fuller = [(p, c) for p in new for c in p.allocation.configurations
+                  if sum(a.target_index is not None for a in c.assignments) >= 2]
+        for p in new:
+            for c in p.allocation.configurations:
+                if sum(a.target_index is not None for a in c.assignments) != 2:
+                    continue
+                for a in c.assignments:
+                    if a.target_index is None:
+                        continue
+                    t = int(p.members[a.target_index])
+                    for q, d in fuller:
+                        if d is c or not within(f, np.array([t]), q.centre)[0]:
+                            continue
+                        x, y = sky_to_focal_mm(f.ra_deg[[t]], f.dec_deg[[t]], q.centre[0], q.centre[1], f.scale,
+                                               q.pa_deg)
+                        arms = sorted(d.assignments, key=lambda b: b.arm)
+                        qq = np.array([[b.theta1_rad, b.theta2_rad] for b in arms])
+                        idle = np.array([b.kind in IDLE_KINDS for b in arms])
+                        assert spare_arm_for(INST, qq, idle, float(x[0]), float(y[0]), LIMIT_S) is None, (seed, t)
+    assert moved_any >= 3

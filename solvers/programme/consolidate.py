@@ -34,10 +34,10 @@ from models.budget import Budget
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, ArmAssignment, Configuration, Unallocated
 from solvers.programme.fill import Field, FillOptions, Pointing, within
-from solvers.programme.spare import IDLE_KINDS, placements
+from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, placements
 
 __all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "allocation_of", "arms_of", "consolidate",
-           "empty_exposures"]
+           "empty_exposures", "thin_moves"]
 
 #: effort seconds charged per test of one target against one pointing's exposures: its reach
 #: (per test) and the clearance to the other arms (per exposure tested); reference seconds
@@ -142,6 +142,39 @@ def _arms_of(f: Field, p: Pointing) -> Arms:
                    lambda asg: int(p.members[asg.target_index]))
 
 
+def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
+               arm_limits: tuple[int, ...] | None, budget: Budget, few: int = FEW_TARGETS) -> tuple[int, int, set[int]]:
+    """The exposures observing at most ``few`` targets (but more than one: an exposure of one
+    target is emptied or stays), in place: each of their targets that fits on an idle arm of an
+    exposure observing at least ``few`` goes there (the fullest first, as
+    :func:`empty_exposures` places), so that such an exposure keeps only targets no fuller
+    exposure can take. Returns the exposures emptied that way, the targets moved and the keys
+    of the pointings that gave or took a target."""
+    focal: dict[tuple[int, int], tuple[float, float] | None] = {}
+    order = sorted((n, j, int(e)) for j, a in state.items() for e in np.flatnonzero(a.alive)
+                   if 1 < (n := int(np.count_nonzero(a.target[e] >= 0))) <= few)
+    emptied, moved, changed = 0, 0, set()
+    for _, j, e in order:
+        if budget.expired():
+            break
+        trial: dict[int, Arms] = {}
+        for arm in np.flatnonzero(state[j].target[e] >= 0):
+            t = int(state[j].target[e, arm])
+            best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal, skip=(j, e), min_targets=few)
+            if best is not None:
+                _place(state, trial, best, t)
+                mine = trial.setdefault(j, state[j].copy())
+                mine.idle[e, arm], mine.target[e, arm] = True, -1
+                moved += 1
+        if trial:
+            state.update(trial)
+            changed |= set(trial)
+            if not (state[j].target[e] >= 0).any():
+                state[j].alive[e] = False
+                emptied += 1
+    return emptied, moved, changed
+
+
 def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s: float | None,
              arm_limits: tuple[int, ...] | None, focal: dict) -> dict[int, Arms] | None:
     """The pointings' exposures with exposure ``e`` of pointing ``j`` given up and each of its
@@ -150,27 +183,45 @@ def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s
     trial[j].alive[e] = False
     for arm in np.flatnonzero(state[j].target[e] >= 0):
         t = int(state[j].target[e, arm])
-        best = None  # (targets observed, -pointing, -exposure), pointing, exposure, arm, pose
-        for k, a in state.items():
-            xy = _focal(f, a, t, k, focal)
-            cur = trial.get(k, a)
-            live = np.flatnonzero(cur.alive)
-            if xy is None or live.size == 0:
-                continue
-            clock.charge(PLACEMENT_S + PLACEMENT_PER_EXPOSURE_S * live.size)
-            allowed = None if arm_limits is None else int(arm_limits[t])
-            arm_k, pose = placements(f.inst, cur.q[live], cur.idle[live], xy[0], xy[1], park_move_limit_s, allowed)
-            for i in np.flatnonzero(arm_k >= 0):
-                x = int(live[i])
-                key = (int(np.count_nonzero(cur.target[x] >= 0)), -k, -x)
-                if best is None or key > best[0]:
-                    best = (key, k, x, int(arm_k[i]), pose[i])
+        best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal)
         if best is None:
             return None
-        _, k, x, arm_k, pose = best
-        cur = trial.setdefault(k, state[k].copy())
-        cur.q[x, arm_k], cur.idle[x, arm_k], cur.target[x, arm_k] = pose, False, t
+        _place(state, trial, best, t)
     return trial
+
+
+def _taker(f: Field, state: dict[int, Arms], trial: dict[int, Arms], t: int, park_move_limit_s: float | None,
+           arm_limits: tuple[int, ...] | None, focal: dict, skip: tuple[int, int] | None = None,
+           min_targets: int = 0) -> tuple | None:
+    """The exposure alive in ``trial`` (else ``state``) that takes target ``t`` on an idle arm,
+    the fullest first (then the last pointing and exposure): ((targets observed, -pointing,
+    -exposure), pointing, exposure, arm, pose), or None; ``skip``: a (pointing, exposure) left
+    out; ``min_targets``: only exposures observing at least that many."""
+    best = None
+    for k, a in state.items():
+        xy = _focal(f, a, t, k, focal)
+        cur = trial.get(k, a)
+        live = np.flatnonzero(cur.alive & (np.count_nonzero(cur.target >= 0, axis=1) >= min_targets))
+        if skip is not None and skip[0] == k:
+            live = live[live != skip[1]]
+        if xy is None or live.size == 0:
+            continue
+        clock.charge(PLACEMENT_S + PLACEMENT_PER_EXPOSURE_S * live.size)
+        allowed = None if arm_limits is None else int(arm_limits[t])
+        arm_k, pose = placements(f.inst, cur.q[live], cur.idle[live], xy[0], xy[1], park_move_limit_s, allowed)
+        for i in np.flatnonzero(arm_k >= 0):
+            x = int(live[i])
+            key = (int(np.count_nonzero(cur.target[x] >= 0)), -k, -x)
+            if best is None or key > best[0]:
+                best = (key, k, x, int(arm_k[i]), pose[i])
+    return best
+
+
+def _place(state: dict[int, Arms], trial: dict[int, Arms], best: tuple, t: int) -> None:
+    """Target ``t`` on the arm :func:`_taker` chose, in ``trial``."""
+    _, k, x, arm_k, pose = best
+    cur = trial.setdefault(k, state[k].copy())
+    cur.q[x, arm_k], cur.idle[x, arm_k], cur.target[x, arm_k] = pose, False, t
 
 
 def _focal(f: Field, a: Arms, t: int, k: int, cache: dict) -> tuple[float, float] | None:
@@ -203,8 +254,8 @@ def _assignment(f: Field, a: Arms, asg: ArmAssignment, t: int, pose: np.ndarray,
                 target_of: Callable[[ArmAssignment], int], pos: Mapping[int, int]) -> ArmAssignment:
     """An arm's assignment in a rebuilt exposure: as it was (its target relabelled to the
     members), or observing ``t`` (programme index) at ``pose`` when it took that target."""
-    if t < 0:
-        return asg
+    if t < 0:  # idle; an arm whose target went to another exposure stays where it was, on blank sky
+        return asg if asg.target_index is None else replace(asg, kind="blank", target_index=None, target_id=None)
     if asg.target_index is not None and target_of(asg) == t:
         return replace(asg, target_index=pos[t], target_id=str(t))
     x, y = sky_to_focal_mm(f.ra_deg[[t]], f.dec_deg[[t]], a.centre[0], a.centre[1], f.scale, a.pa_deg)
