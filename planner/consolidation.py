@@ -6,17 +6,22 @@ few targets it has left while exposures of the neighbouring pointings keep idle 
 same sky. Once every pointing is planned, :func:`regroup` runs the optimiser's pass
 (:func:`solvers.programme.consolidate.empty_exposures`: an exposure is given up when each of
 its targets fits, as the other exposures stand, on an idle arm of one of them) on the plan's
-configurations. The pointings it changes are planned again with those configurations as their
-allocation (:attr:`Regrouped.allocation`; the allocation is not searched again), each on a
-share of what the rounds left in proportion to what it spent in them (:func:`consolidation_tasks`);
+configurations; when it empties none, it moves each target of an exposure observing two that
+an idle arm of a fuller exposure can take there (:func:`solvers.programme.consolidate.thin_moves`: such an
+exposure then keeps only targets no fuller exposure can take). The pointings it changes are
+planned again with those configurations as their allocation (:attr:`Regrouped.allocation`;
+the allocation is not searched again), each on a share of what the rounds left in proportion to what it spent in them (:func:`consolidation_tasks`);
 when what they spent does not fit in what is left, the costliest is left out of the pass and
 the pass runs again (:func:`affordable`). The new plans replace the old ones only when every
 one of them is executable, together they observe every target the old ones did and take fewer
-exposures (:func:`accepted`). A changed pointing whose new plan has a failed leg, or an
+exposures, or as many with fewer targets left in exposures observing few (:func:`accepted`,
+:func:`few_observed`). A changed pointing whose new plan has a failed leg, or an
 exposure its motion planner added for a moved target, is planned again, on another seed, with
 what the rounds and the pass's plans left (:func:`retry_tasks`), before the new plans are
 judged: a pass is not given up, nor its saving cut, for a leg while the limit has time for
-it. Otherwise the plan stays as it was.
+it. Otherwise the plan stays as it was. An accepted pass's new plans move arms, so the pass
+runs again on the plan it left, on what the rounds and the earlier passes left, while each
+is accepted (:func:`another_pass`, at most :data:`MAX_PASSES`).
 
 The pass reads the plan's outcomes and runs on the plan's effort clock, so the result is the
 same on one or many workers.
@@ -94,20 +99,23 @@ def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority:
             arm_limits: tuple[int, ...] | None, budget: Budget, *,
             frozen: frozenset[int] = frozenset()) -> tuple[int, int, list[Regrouped]]:
     """The exposures the pass gives up, the targets it moves out of exposures observing few
-    targets (:func:`solvers.programme.consolidate.thin_moves`, after the exposures emptied)
+    targets (:func:`solvers.programme.consolidate.thin_moves`, only when it empties none: a
+    pass that saves exposures is not made costlier, or riskier, by moves that save nothing)
     and the pointings it changes (module docstring); the pointings ``frozen`` neither give nor
     take a target."""
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
     state = {j: arms_of(inst.n_arms, p.centre, p.pa_deg, p.configurations, _programme_index)
              for j, p in enumerate(pointings) if p.configurations and j not in frozen}
     saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
-    emptied, moved, thinned = thin_moves(f, state, park_move_limit_s, arm_limits, budget)
+    moved = 0
+    if not changed:  # moves that save nothing never put a saving's plans at risk
+        saved, moved, changed = thin_moves(f, state, park_move_limit_s, arm_limits, budget)
     out = []
-    for j in sorted(changed | thinned):
+    for j in sorted(changed):
         members, allocation = allocation_of(f, state[j], pointings[j].configurations, _programme_index,
                                             pointings[j].unobserved, "consolidation")
         out.append(Regrouped(j, members, allocation))
-    return saved + emptied, moved, out
+    return saved, moved, out
 
 
 def _programme_index(asg: ArmAssignment) -> int:

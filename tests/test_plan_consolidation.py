@@ -370,16 +370,24 @@ def test_targets_leave_exposures_of_few_targets_for_fuller_ones() -> None:
     from solvers.programme.fill import Pointing
     from solvers.programme.spare import IDLE_KINDS, spare_arm_for
 
+    def applied(pts, changed):
+        new = list(pts)
+        for r in changed:
+            new[r.index] = Pointing(pts[r.index].centre, pts[r.index].pa_deg, np.array(r.members, np.int64),
+                                    len(r.allocation.configurations), allocation=r.allocation)
+        return new
+
     moved_any = 0
     for seed in (1, 6, 12, 19):
         f, pts = _two_pointings(seed)
         saved, moved, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
                                         Budget.start(30.0))
+        assert saved and not moved  # a pass that empties an exposure moves nothing else
+        pts = applied(pts, changed)  # the next pass runs on the plan this one left
+        saved, moved, changed = regroup(INST, f.ra_deg, f.dec_deg, f.priority, _planned(f, pts), LIMIT_S, None,
+                                        Budget.start(30.0))
         moved_any += moved
-        new = list(pts)
-        for r in changed:
-            new[r.index] = Pointing(pts[r.index].centre, pts[r.index].pa_deg, np.array(r.members, np.int64),
-                                    len(r.allocation.configurations), allocation=r.allocation)
+        new = applied(pts, changed)
         _check_exposures(f, new)
         observed = sorted(int(p.members[a.target_index]) for p in new for c in p.allocation.configurations
                           for a in c.assignments if a.target_index is not None)

@@ -19,7 +19,10 @@ This is where the pointings' overlaps pay: the segmentation and the commits give
 one pointing, and a pointing's last exposures observe the few targets left over, while
 exposures of the neighbouring pointings keep idle arms over the same sky. The plan runs the
 same pass (:func:`empty_exposures`) on its own configurations after its rounds
-(:mod:`planner.consolidation`).
+(:mod:`planner.consolidation`), and, when that empties none, :func:`thin_moves`: a target of
+an exposure observing two goes, by the same test, to an exposure observing at least two that can take it (the
+arm it leaves stays where it was, on blank sky), so that an exposure of few targets keeps only
+targets no fuller exposure can take (issue 38's rule for such exposures).
 """
 
 from __future__ import annotations
