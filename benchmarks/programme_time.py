@@ -177,6 +177,7 @@ def small_exposures(plan: dict[str, Any]) -> dict[str, Any]:
         stats = plan["stats"]
         return {"small_exposures": stats["few_target_exposures"],
                 "small_exposures_only_here": stats["few_target_exposures_only_here"],
+                "small_exposures_explained": stats.get("few_target_exposures_explained"),
                 "only_here_flag": "few_target_exposures"}
     count, flagged, key = 0, 0, None
     for p in plan["pointings"]:
@@ -262,6 +263,7 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
     gaps = [x["gap"] for x in res if x["gap"] is not None]
     tts = [x["telescope_time_s"] for x in res]
     only = [x["small_exposures_only_here"] for x in res]
+    explained = [x.get("small_exposures_explained") for x in res]
     return {
         "programmes": len(res),
         "errors": sum("error" in r["modes"].get(mode, {}) for r in rows),
@@ -289,6 +291,7 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
         "optimiser_overran": sum(x["optimiser_overran"] for x in res),
         "small_exposures_total": sum(x["small_exposures"] for x in res),
         "small_exposures_only_here_total": sum(only) if res and None not in only else None,
+        "small_exposures_explained_total": sum(explained) if res and None not in explained else None,
     }
 
 

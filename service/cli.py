@@ -221,8 +221,11 @@ def exposures_summary(stats: Mapping[str, Any]) -> str:
     parts = [plural(n, "exposure") + (f", proven lower bound {bound} ({n / bound:.2f}x)" if bound else "")]
     few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
     if few:
+        explained = int(stats.get("few_target_exposures_explained", only))
         parts.append(f"{plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
-                     "targets no other exposure can take (only_here in plan.json)")
+                     "targets no other exposure can take" + (
+                         f", {explained - only} more for targets only exposures of 1 target can take"
+                         if explained > only else "") + " (only_here in plan.json)")
     saved = int((stats.get("consolidation") or {}).get("exposures_saved", 0))
     if saved:
         parts.append(f"{plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures")

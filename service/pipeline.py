@@ -67,7 +67,7 @@ from service.schemas import (
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
-from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, Exposure, only_here
+from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, NOWHERE_ELSE, Exposure, only_here
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -729,6 +729,9 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "sky_arms": sum(int(c["stats"].get("sky_arms", 0)) for p in out for c in p["configurations"]),
             "few_target_exposures": len(few),
             "few_target_exposures_only_here": sum(
+                {o["target_id"] for o in f["only_here"] if o["reason"] in NOWHERE_ELSE} >= set(f["target_ids"])
+                for f in few),
+            "few_target_exposures_explained": sum(
                 {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"]) for f in few),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),

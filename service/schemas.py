@@ -552,11 +552,14 @@ class AssignmentOut(Response):
 
 class OnlyHereOut(Response):
     target_id: str
-    reason: Literal["outside_other_fields", "no_spare_arm"] = Field(
+    reason: Literal["outside_other_fields", "no_spare_arm", "takers_observe_fewer"] = Field(
         description="'outside_other_fields': no other exposure's field of view holds the target; "
                     "'no_spare_arm': no other exposure whose field holds it has an idle arm (at "
                     "park, on blank sky or on a sky position) that reaches it within the park move "
-                    "limit without coming closer to another arm than the collision buffer.")
+                    "limit without coming closer to another arm than the collision buffer; "
+                    "'takers_observe_fewer' (a target of an exposure observing 2): the only "
+                    "exposures that can take it observe 1 target, so moving it there would leave "
+                    "as many exposures observing few targets.")
 
 
 class ConfigurationOut(Response):
@@ -732,8 +735,10 @@ class FewTargetExposureOut(Response):
     configuration: int = Field(description="The exposure's `index` among its pointing's configurations.")
     target_ids: list[str] = Field(description="The targets it observes (at most 2).")
     only_here: list[OnlyHereOut] = Field(
-        description="Those of them no other exposure of the plan can take, and why; a target "
-                    "of the exposure missing here might be observed by another exposure.")
+        description="Those of them no other exposure of the plan can take, and why, and those "
+                    "only exposures observing 1 target can take ('takers_observe_fewer'); a "
+                    "target of the exposure missing here could be observed by an exposure "
+                    "observing at least 2.")
 
 
 class PlanResponse(Response):
@@ -773,7 +778,8 @@ class PlanResponse(Response):
     few_target_exposures: list[FewTargetExposureOut] = Field(
         default_factory=list, description="Every exposure observing at most 2 targets, with those "
         "of its targets no other exposure can take (`stats.few_target_exposures` counts them, "
-        "`stats.few_target_exposures_only_here` those whose every target is listed).")
+        "`stats.few_target_exposures_only_here` those whose every target no other exposure can "
+        "take, `stats.few_target_exposures_explained` those whose every target is listed).")
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

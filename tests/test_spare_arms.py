@@ -23,7 +23,9 @@ from service.settings import Settings
 from solvers.allocation import allocate
 from solvers.programme.spare import (
     NO_SPARE_ARM,
+    NOWHERE_ELSE,
     OUTSIDE_OTHER_FIELDS,
+    TAKERS_OBSERVE_FEWER,
     Exposure,
     only_here,
     spare_arm_for,
@@ -122,6 +124,27 @@ def test_only_here_gives_the_reasons_it_can_prove() -> None:
     assert got == {0: {0: NO_SPARE_ARM}, 2: {2: OUTSIDE_OTHER_FIELDS}}
 
 
+def test_only_here_says_when_only_exposures_of_fewer_targets_can_take_one() -> None:
+    """An exposure of two targets that only an exposure observing one can take (moving one
+    there leaves as many exposures of few targets): both listed as such; once that exposure
+    observes two, neither is listed (it could take them)."""
+    park = INST.park_configuration
+    scale = INST.plate_scale_arcsec_per_mm / 3600.0  # deg per mm
+    ra = np.array([10.0, 10.0 + 20 * scale, 10.0 - 30 * scale, 12.0, 10.0 + 50 * scale])
+    dec = np.full(5, 20.0)
+    all_idle, none_idle = np.ones(INST.n_arms, bool), np.zeros(INST.n_arms, bool)
+    e = [Exposure(10.0, 20.0, 0.0, park, none_idle, (0, 1)),
+         Exposure(10.0, 20.0, 0.0, park, all_idle, (2,)),
+         Exposure(12.0, 20.0, 0.0, park, all_idle, (3,))]
+    got = only_here(INST, ra, dec, e, LIMIT_S)
+    assert got == {0: {0: TAKERS_OBSERVE_FEWER, 1: TAKERS_OBSERVE_FEWER}, 1: {2: NO_SPARE_ARM},
+                   2: {3: OUTSIDE_OTHER_FIELDS}}
+    e[1] = Exposure(10.0, 20.0, 0.0, park, all_idle, (2, 4))  # observes two
+    got = only_here(INST, ra, dec, e, LIMIT_S)
+    assert 0 not in got and got[1] == {2: NO_SPARE_ARM, 4: NO_SPARE_ARM}
+    assert NOWHERE_ELSE == {OUTSIDE_OTHER_FIELDS, NO_SPARE_ARM}
+
+
 def test_a_plan_says_which_targets_of_a_small_exposure_no_other_can_take(tmp_path) -> None:
     """A lone star 1 deg from a small group: its pointing's one exposure observes it alone, and
     the plan says that no other exposure's field holds it."""
@@ -161,7 +184,10 @@ def test_the_plan_and_the_cli_count_the_exposures_observing_few_targets(tmp_path
     s = plan["stats"]
     few = plan["few_target_exposures"]
     explained = [f for f in few if {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"])]
+    nowhere = [f for f in few
+               if {o["target_id"] for o in f["only_here"] if o["reason"] in NOWHERE_ELSE} >= set(f["target_ids"])]
     assert s["few_target_exposures"] == len(few) >= 1
-    assert s["few_target_exposures_only_here"] == len(explained) >= 1
+    assert s["few_target_exposures_only_here"] == len(nowhere) >= 1
+    assert s["few_target_exposures_explained"] == len(explained) >= len(nowhere)
     assert (f"proven lower bound {s['exposures_lower_bound']}" in printed
-            and f"{len(few)} exposure" in printed and f"{len(explained)} of them only for" in printed)
+            and f"{len(few)} exposure" in printed and f"{len(nowhere)} of them only for" in printed)

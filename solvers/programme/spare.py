@@ -24,7 +24,8 @@ from models.incompatibility import build_assignments
 from models.instrument import Instrument
 from models.sky import sky_to_focal_mm, tangent_radius_mm
 
-__all__ = ["FEW_TARGETS", "IDLE_KINDS", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "Exposure", "only_here", "placements",
+__all__ = ["FEW_TARGETS", "IDLE_KINDS", "NOWHERE_ELSE", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "TAKERS_OBSERVE_FEWER",
+           "Exposure", "only_here", "placements",
            "spare_arm_for", "takers"]
 
 #: An exposure observing at most this many targets is one the plan explains
@@ -32,6 +33,12 @@ FEW_TARGETS = 2
 #: why a target of such an exposure can be observed in no other exposure of the plan
 OUTSIDE_OTHER_FIELDS = "outside_other_fields"
 NO_SPARE_ARM = "no_spare_arm"
+#: why a target of such an exposure (observing more than one) stays although another exposure
+#: could take it: every exposure that can observes fewer than FEW_TARGETS (moving it there
+#: leaves as many exposures observing few)
+TAKERS_OBSERVE_FEWER = "takers_observe_fewer"
+#: the reasons that no other exposure can observe a target at all
+NOWHERE_ELSE = frozenset({OUTSIDE_OTHER_FIELDS, NO_SPARE_ARM})
 #: the assignment kinds of an idle arm (at park, on blank sky, on a sky position); an arm out of
 #: service ("fixed") or observing a target is not idle
 IDLE_KINDS = frozenset({"park", "blank", "sky"})
@@ -120,8 +127,13 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
     """For every exposure observing at most ``few`` targets, its targets that no other exposure
     of the plan can take, with the reason: :data:`OUTSIDE_OTHER_FIELDS` (no other exposure's
     field of view holds it) or :data:`NO_SPARE_ARM` (no other exposure whose field holds it
-    has an idle arm that can observe it, :func:`spare_arm_for`). A target with neither is left
-    out: another exposure could take it. Returns {exposure index: {target index: reason}}."""
+    has an idle arm that can observe it, :func:`spare_arm_for`); and, of an exposure observing
+    more than one, its targets that only exposures observing fewer than ``few`` can take,
+    :data:`TAKERS_OBSERVE_FEWER` (moving one there leaves as many exposures observing few, and
+    this exposure could take it back; the consolidation's moves,
+    :func:`solvers.programme.consolidate.thin_moves`, go only to exposures observing at least
+    ``few``). A target with none of these is left out: an exposure observing at least ``few``
+    could take it. Returns {exposure index: {target index: reason}}."""
     ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
     scale = float(inst.plate_scale_arcsec_per_mm)
     groups = _pointings(exposures)
@@ -131,20 +143,23 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
             continue
         reasons = {}
         for t in e.targets:
-            held = taken = False
+            held, most = False, -1  # most: the most targets an exposure that can take it observes
             for g in groups:
                 others = g.members != j
                 if not others.any() or tangent_radius_mm(ra[t], dec[t], g.ra_deg, g.dec_deg, scale) > inst.fov_radius_mm:
                     continue
                 held = True
                 x, y = sky_to_focal_mm(ra[[t]], dec[[t]], g.ra_deg, g.dec_deg, scale, g.position_angle_deg)
-                if takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s).any():
-                    taken = True
+                ok = takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s)
+                most = max([most, *(len(exposures[m].targets) for m in g.members[others][ok])])
+                if most >= few:
                     break
             if not held:
                 reasons[t] = OUTSIDE_OTHER_FIELDS
-            elif not taken:
+            elif most < 0:
                 reasons[t] = NO_SPARE_ARM
+            elif len(e.targets) > 1 and most < few:
+                reasons[t] = TAKERS_OBSERVE_FEWER
         if reasons:
             out[j] = reasons
     return out
