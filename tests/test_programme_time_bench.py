@@ -22,14 +22,15 @@ ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_b
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",
             "optimiser_s", "optimiser_fraction", "optimiser_overran", "small_exposures", "small_exposures_only_here",
-            "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
+            "small_exposures_explained", "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
             "violation_kinds", "validate_s"}
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "ratio_to_complete_linkage_total", "ratio_to_complete_linkage", "with_bound",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
                 "wall_s_total", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
-                "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total", "valid",
+                "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total",
+                "small_exposures_explained_total", "valid",
                 "violations_total"}
 
 
@@ -88,6 +89,9 @@ def test_each_figure_is_what_its_plan_gives(smoke) -> None:
             assert res["valid"] and res["hash_ok"] and res["violations"] == 0  # every plan re-checks
             assert res["executable"] == all(p["executable"] for p in plan["pointings"])
             assert res["small_exposures"] == sum(len(obs) <= 2 for obs in observed)
+            few = plan["few_target_exposures"]
+            assert res["small_exposures_only_here"] <= res["small_exposures_explained"] == sum(
+                {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"]) for f in few)
             assert res["field_completeness"] == pytest.approx(len(seen) / len(prio), abs=1e-4)
             assert res["priority_completeness"] == pytest.approx(
                 sum(prio[t] for t in seen) / sum(prio.values()), abs=1e-4)
@@ -129,6 +133,7 @@ def test_the_summary_adds_up(smoke) -> None:
         assert s["executable"] == sum(plans[(n, mode)]["executable"] for n in names)
         assert s["wall_s_median"] == pytest.approx(statistics.median(r["wall_s"] for r in rows))
         assert s["small_exposures_total"] == sum(r["small_exposures"] for r in rows)
+        assert s["small_exposures_explained_total"] == sum(r["small_exposures_explained"] for r in rows)
         gaps = [r["gap"] for r in rows if r["gap"] is not None]
         assert s["with_bound"] == len(gaps)
         assert s["gap_median"] == (statistics.median(gaps) if gaps else None)
