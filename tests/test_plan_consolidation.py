@@ -419,3 +419,39 @@ def test_targets_leave_exposures_of_few_targets_for_fuller_ones() -> None:
                         idle = np.array([b.kind in IDLE_KINDS for b in arms])
                         assert spare_arm_for(INST, qq, idle, float(x[0]), float(y[0]), LIMIT_S) is None, (seed, t)
     assert moved_any >= 3
+
+
+#: a 48-target two-clump programme whose plan moves a target out of an exposure of two
+MOVES = ("two-clump", 1)
+
+
+@pytest.fixture(scope="module")
+def moved_plans() -> tuple[dict[str, Any], dict[str, Any]]:
+    """The plan of :data:`MOVES`, and the same plan with the consolidation's plans refused."""
+    prog = PT.generated([MOVES], n_range=(30, 60))[0]
+    req = PlanRequest.model_validate({**REQUEST, "seed": MOVES[1], "targets": prog["targets"]})
+    plan = pipeline.plan(req, INST)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(plan_consolidation, "accepted", lambda *a: False)
+        rounds_only = pipeline.plan(req, INST)
+    return plan, rounds_only
+
+
+def test_a_plan_moves_targets_out_of_exposures_of_two(moved_plans) -> None:
+    """The plan's pass moves a target of an exposure of two into a fuller exposure: as many
+    exposures as the rounds' plan, fewer targets in exposures of at most two, every target
+    observed, and the independent verifier passes it."""
+    from planner.consolidation import few_observed
+
+    plan, rounds_only = moved_plans
+    c = plan["stats"]["consolidation"]
+    assert c["accepted"] and c["targets_moved_from_few"] >= 1 and c["exposures_saved"] == 0
+    assert [p["accepted"] for p in c["passes"]] == [True, False]  # runs again, until a pass is not kept
+
+    def per_exposure(p):
+        return [sum(a["target_id"] is not None for a in cfg["assignments"]) for pt in p["pointings"]
+                for cfg in pt["configurations"]]
+    assert plan["stats"]["configurations"] == rounds_only["stats"]["configurations"]
+    assert few_observed(per_exposure(plan)) < few_observed(per_exposure(rounds_only))
+    assert _observed(plan) == _observed(rounds_only)
+    assert plan["executable"] and validate_plan(INST, plan).valid
