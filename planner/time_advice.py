@@ -20,7 +20,7 @@ from planner.programme import (
     SHARES,
     PointingOutcome,
     ProgrammeShares,
-    better,
+    best_outcomes,
     expected_share_s,
     optimiser_s,
     usable_s,
@@ -66,15 +66,6 @@ class TimeAdvice:
     failed: tuple[int, ...]
 
 
-def _best(history: Sequence[Sequence[PointingOutcome]]) -> dict[int, PointingOutcome]:
-    best: dict[int, PointingOutcome] = {}
-    for outcomes in history:
-        for o in outcomes:
-            if o.index not in best or better(o, best[o.index]):
-                best[o.index] = o
-    return best
-
-
 def time_advice(limit_s: float | None, needs: Sequence[float],
                 history: Sequence[Sequence[PointingOutcome]], optimiser: bool,
                 table: ProgrammeShares = SHARES, n_targets: int | None = None) -> TimeAdvice | None:
@@ -90,7 +81,7 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     short all the same is estimated at ``failed_growth`` times itself."""
     if limit_s is None or math.isinf(limit_s):
         return None
-    best = _best(history)
+    best = best_outcomes(history)
     waiting = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and not o.attempted))
     failed = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and o.attempted and not o.executable))
     usable = pointings_part_s(limit_s, optimiser, table, n_targets)
