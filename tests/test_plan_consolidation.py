@@ -91,12 +91,24 @@ def test_refused_plans_leave_the_rounds_plan(plans) -> None:
     assert rounds_only["executable"] and validate_plan(INST, rounds_only).valid
 
 
-def test_a_plan_job_gives_the_synchronous_plan(plans, tmp_path) -> None:
-    plan, _ = plans
-    result = plan_job_result(tmp_path, _request(), 30.0)
+#: a small programme for the job flow (two pointings, 12 targets)
+JOB = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 20}
+
+
+def test_a_plan_job_gives_the_synchronous_plan(tmp_path) -> None:
+    """The plan job's flow consolidates its plan as the synchronous plan does: the same
+    pointings and exposures, the same passes, a verified plan."""
+    prog = PT.generated([PROGRAMME], n_range=(12, 12))[0]
+    body = {**JOB, "targets": prog["targets"]}
+    plan = pipeline.plan(PlanRequest.model_validate(body), INST)
+    result = plan_job_result(tmp_path, body, 20.0)
     assert [(p["target_ids"], len(p["configurations"])) for p in result["pointings"]] == \
         [(p["target_ids"], len(p["configurations"])) for p in plan["pointings"]]
-    assert result["stats"]["consolidation"]["accepted"]
+    assert len(result["pointings"]) >= 2
+    passes = result["stats"]["consolidation"]["passes"]
+    assert passes and [p["pointings"] for p in passes] == \
+        [p["pointings"] for p in plan["stats"]["consolidation"]["passes"]]
+    assert result["executable"] and validate_plan(INST, result).valid
 
 
 # ------------------------------------------------------------------------ the domain parts
@@ -304,7 +316,7 @@ def test_only_programme_optimiser_plans_without_kept_configurations_are_consolid
 
 
 def test_a_complete_linkage_plan_has_no_consolidation() -> None:
-    req = PlanRequest.model_validate({**_request(), "segmentation_mode": "complete-linkage", "time_limit_s": 10})
+    req = PlanRequest.model_validate({**_request(), "segmentation_mode": "complete-linkage", "time_limit_s": 20})
     assert "consolidation" not in pipeline.plan(req, INST)["stats"]
 
 
