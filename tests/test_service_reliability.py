@@ -231,9 +231,9 @@ BIG_PLAN: dict[str, Any] = {"targets": [{"id": f"t{i}", "ra_deg": 34.7 + 0.01 * 
 
 
 def test_second_manager_requeues_only_expired_leases(tmp_path) -> None:
-    """Two real managers on one database: B's start-up recovery re-queues (and then runs) the
-    job of a dead server, whose lease expired, but leaves A's running job alone, also in its
-    later lease sweeps; when A stops, A's job goes back to the queue and B takes it."""
+    """Two real managers on one database: the job of a dead server, whose lease expired, is
+    re-queued (by B's start-up recovery, or by A's lease sweep when it comes first) and run,
+    but A's running job is left alone, also in B's later lease sweeps; when A stops, A's job goes back to the queue and B takes it."""
     db = tmp_path / "j.db"
     a = JobManager(db, PoolOptions(workers=1, lease_s=1.5))
     b = None
@@ -243,7 +243,8 @@ def test_second_manager_requeues_only_expired_leases(tmp_path) -> None:
         orphan = a.store.create("segmentation", SEG, time_limit_s=10.0)
         a.store.set_running(orphan, owner="dead-server/1", lease_s=-1)
         b = JobManager(db, PoolOptions(workers=1, lease_s=1.5))
-        assert (b.recovered.requeued, b.recovered.failed) == (1, 0)
+        # B's start-up recovery re-queues it, unless A's lease sweep (every 0.5 s) came first
+        assert b.recovered.failed == 0 and b.recovered.requeued <= 1
         done = until(lambda: (o := b.store.get(orphan))["status"] == "done" and o, 60,
                      "B to run the re-queued job")
         assert {t for p in done["result"]["pointings"] for t in p["target_ids"]} == {
