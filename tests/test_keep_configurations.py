@@ -12,6 +12,7 @@ import copy
 import csv
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,13 @@ TARGETS = field_targets()
 def plan(targets: list[dict[str, Any]], seed: int, keep: dict[str, Any] | None = None) -> dict[str, Any]:
     return pipeline.plan(PlanRequest(targets=targets, seed=seed, time_limit_s=LIMIT_S,
                                      keep_configurations=keep), INST)
+
+
+@pytest.fixture(scope="module")
+def client(tmp_path_factory: pytest.TempPathFactory) -> Iterator[TestClient]:
+    """One server for the module's API calls (its request workers start once)."""
+    with TestClient(create_app(Settings(job_db=tmp_path_factory.mktemp("keep") / "j.db"))) as c:
+        yield c
 
 
 @pytest.fixture(scope="module")
@@ -232,11 +240,9 @@ def colliding_arm(arms: list[dict[str, Any]]) -> tuple[int, tuple[float, float]]
     ("member", ["target_ids"], "not in the request"),
     ("xy", ["configurations", 0], "not the tip"),
 ])
-def test_a_tampered_kept_configuration_is_a_422_naming_it(base, tmp_path, how, loc_tail, words) -> None:
-    app = create_app(Settings(job_db=tmp_path / "j.db"))
+def test_a_tampered_kept_configuration_is_a_422_naming_it(base, client, how, loc_tail, words) -> None:
     body = {"targets": TARGETS, "seed": 1, "time_limit_s": LIMIT_S, "keep_configurations": tampered(base, how)}
-    with TestClient(app) as c:
-        r = c.post("/v1/plans", json=body)
+    r = client.post("/v1/plans", json=body)
     assert r.status_code == 422, r.text
     detail = r.json()["detail"][0]
     assert detail["loc"][:4] == ["body", "keep_configurations", "pointings", 0]
@@ -306,11 +312,9 @@ def test_pointing_options_refuse_anything_but_a_kept_pointing() -> None:
 # ------------------------------------------------------------- API and CLI
 
 
-def test_api_keeps_c1(base, tmp_path) -> None:
-    app = create_app(Settings(job_db=tmp_path / "j.db"))
+def test_api_keeps_c1(base, client) -> None:
     body = {"targets": TARGETS, "seed": 4, "time_limit_s": LIMIT_S, "keep_configurations": keep_from_plan(base, 1)}
-    with TestClient(app) as c:
-        r = c.post("/v1/plans", json=body)
+    r = client.post("/v1/plans", json=body)
     assert r.status_code == 200, r.text
     new = r.json()["pointings"][0]
     assert_same_configuration(base["pointings"][0]["configurations"][0], new["configurations"][0])

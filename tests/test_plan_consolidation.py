@@ -39,13 +39,13 @@ from tests.plan_jobs import plan_job_result
 from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
 
 INST = default_instrument()
-#: a small two-clump programme whose plan has an exposure the consolidation empties (30 targets)
-PROGRAMME = ("two-clump", 3)
-REQUEST = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 30}
+#: a small scattered programme whose plan has an exposure the consolidation empties (20 targets)
+PROGRAMME = ("scattered", 18)
+REQUEST = {"seed": 18, "segmentation_mode": "fewest-exposures", "time_limit_s": 20}
 
 
 def _request() -> dict[str, Any]:
-    prog = PT.generated([PROGRAMME], n_range=(30, 60))[0]
+    prog = PT.generated([PROGRAMME], n_range=(20, 20))[0]
     return {**REQUEST, "targets": prog["targets"]}
 
 
@@ -92,13 +92,14 @@ def test_refused_plans_leave_the_rounds_plan(plans) -> None:
 
 
 #: a small programme for the job flow (two pointings, 12 targets)
+JOB_PROGRAMME = ("two-clump", 3)
 JOB = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 20}
 
 
 def test_a_plan_job_gives_the_synchronous_plan(tmp_path) -> None:
     """The plan job's flow consolidates its plan as the synchronous plan does: the same
     pointings and exposures, the same passes, a verified plan."""
-    prog = PT.generated([PROGRAMME], n_range=(12, 12))[0]
+    prog = PT.generated([JOB_PROGRAMME], n_range=(12, 12))[0]
     body = {**JOB, "targets": prog["targets"]}
     plan = pipeline.plan(PlanRequest.model_validate(body), INST)
     result = plan_job_result(tmp_path, body, 20.0)
@@ -316,7 +317,8 @@ def test_only_programme_optimiser_plans_without_kept_configurations_are_consolid
 
 
 def test_a_complete_linkage_plan_has_no_consolidation() -> None:
-    req = PlanRequest.model_validate({**_request(), "segmentation_mode": "complete-linkage", "time_limit_s": 20})
+    req = PlanRequest.model_validate({**JOB, "segmentation_mode": "complete-linkage",
+                                      "targets": PT.generated([JOB_PROGRAMME], n_range=(12, 12))[0]["targets"]})
     assert "consolidation" not in pipeline.plan(req, INST)["stats"]
 
 
@@ -433,8 +435,8 @@ def test_targets_leave_exposures_of_few_targets_for_fuller_ones() -> None:
     assert moved_any >= 3
 
 
-#: a 48-target two-clump programme whose plan moves a target out of an exposure of two
-MOVES = ("two-clump", 1)
+#: a 20-target scattered programme whose plan moves a target out of an exposure of two
+MOVES = ("scattered", 5)
 
 
 def test_a_plan_moves_targets_out_of_exposures_of_two() -> None:
@@ -443,7 +445,7 @@ def test_a_plan_moves_targets_out_of_exposures_of_two() -> None:
     targets has each of its targets listed with a reason (the spare-arm test of
     solvers.programme.spare on the plan as returned), every target is observed and the
     independent verifier passes the plan."""
-    prog = PT.generated([MOVES], n_range=(30, 60))[0]
+    prog = PT.generated([MOVES], n_range=(20, 20))[0]
     req = PlanRequest.model_validate({**REQUEST, "seed": MOVES[1], "targets": prog["targets"]})
     plan = pipeline.plan(req, INST)
     c = plan["stats"]["consolidation"]
