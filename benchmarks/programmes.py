@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                     help="the plans' segmentation_mode (default: the plan's default)")
     args = ap.parse_args(argv)
     if args.smoke:
-        programmes = [("clumps", 3), ("scattered", 7)]
+        programmes = [("clumps", 2), ("scattered", 7)]
     else:
         programmes = [(args.shapes[i % len(args.shapes)], args.seed0 + i) for i in range(args.n)]
     out = {"params": vars(args), **run(programmes, 30 if args.smoke else None, args.segmentation_mode)}
