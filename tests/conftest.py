@@ -63,13 +63,3 @@ def compiled_kernels() -> None:
 
     compile_kernels()
 
-
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests of a module with a module-scoped fixture (a plan, a server) run on one
-    worker (``--dist loadgroup``, pyproject.toml): each worker running some of them would
-    build the fixture again."""
-    for item in items:
-        defs = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
-        if any(d.scope == "module" for fixturedefs in defs.values() for d in fixturedefs):
-            item.add_marker(pytest.mark.xdist_group(item.module.__name__ if item.module else item.nodeid))

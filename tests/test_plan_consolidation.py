@@ -39,6 +39,8 @@ from tests.plan_jobs import plan_job_result
 from tests.test_programme_consolidate import LIMIT_S, _check_exposures, _overlapping
 
 INST = default_instrument()
+#: the module's tests share its module-scoped plans: one pytest-xdist worker runs them all
+pytestmark = pytest.mark.xdist_group("test_plan_consolidation")
 #: a small scattered programme whose plan has an exposure the consolidation empties (20 targets)
 PROGRAMME = ("scattered", 18)
 REQUEST = {"seed": 18, "segmentation_mode": "fewest-exposures", "time_limit_s": 20}

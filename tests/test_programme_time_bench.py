@@ -18,6 +18,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks import programme_time as pt  # noqa: E402
 from benchmarks import programmes  # noqa: E402
 
+#: the module's tests share its module-scoped plans: one pytest-xdist worker runs them all
+pytestmark = pytest.mark.xdist_group("test_programme_time_bench")
+
 ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_bound",
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",

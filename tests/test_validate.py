@@ -27,6 +27,9 @@ from service.schemas import PlanRequest
 from service.settings import Settings
 from tests.tampered_plans import TAMPERS, tampered
 
+#: the module's tests share its module-scoped plans: one pytest-xdist worker runs them all
+pytestmark = pytest.mark.xdist_group("test_validate")
+
 INST = default_instrument()
 
 
