@@ -62,4 +62,3 @@ def compiled_kernels() -> None:
     from planner.clearance import compile_kernels
 
     compile_kernels()
-

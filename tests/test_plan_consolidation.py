@@ -98,11 +98,14 @@ JOB_PROGRAMME = ("two-clump", 3)
 JOB = {"seed": 3, "segmentation_mode": "fewest-exposures", "time_limit_s": 20}
 
 
+def _job_body() -> dict[str, Any]:
+    return {**JOB, "targets": PT.generated([JOB_PROGRAMME], n_range=(12, 12))[0]["targets"]}
+
+
 def test_a_plan_job_gives_the_synchronous_plan(tmp_path) -> None:
     """The plan job's flow consolidates its plan as the synchronous plan does: the same
     pointings and exposures, the same passes, a verified plan."""
-    prog = PT.generated([JOB_PROGRAMME], n_range=(12, 12))[0]
-    body = {**JOB, "targets": prog["targets"]}
+    body = _job_body()
     plan = pipeline.plan(PlanRequest.model_validate(body), INST)
     result = plan_job_result(tmp_path, body, 20.0)
     assert [(p["target_ids"], len(p["configurations"])) for p in result["pointings"]] == \
@@ -319,8 +322,7 @@ def test_only_programme_optimiser_plans_without_kept_configurations_are_consolid
 
 
 def test_a_complete_linkage_plan_has_no_consolidation() -> None:
-    req = PlanRequest.model_validate({**JOB, "segmentation_mode": "complete-linkage",
-                                      "targets": PT.generated([JOB_PROGRAMME], n_range=(12, 12))[0]["targets"]})
+    req = PlanRequest.model_validate({**_job_body(), "segmentation_mode": "complete-linkage"})
     assert "consolidation" not in pipeline.plan(req, INST)["stats"]
 
 
