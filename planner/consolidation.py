@@ -39,14 +39,21 @@ import numpy as np
 from models.budget import Budget
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration
+from planner.known_legs import new_legs
 from planner.programme import PointingOutcome, RoundTask, best_outcomes, usable_s
 from planner.shares import SHARES, ProgrammeShares
-from solvers.programme.consolidate import allocation_of, arms_of, empty_exposures, thin_moves
+from solvers.programme.consolidate import (
+    LegCosts,
+    allocation_of,
+    arms_of,
+    empty_exposures,
+    thin_moves,
+)
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
 __all__ = ["MAX_PASSES", "MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
-           "consolidation_tasks", "costs", "few_observed", "left_s", "pass_wall_s", "regroup", "retry_tasks"]
+           "consolidation_tasks", "costs", "few_observed", "left_s", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
@@ -97,19 +104,23 @@ class Regrouped:
 def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
             pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
             arm_limits: tuple[int, ...] | None, budget: Budget, *,
-            frozen: frozenset[int] = frozenset()) -> tuple[int, int, list[Regrouped]]:
+            frozen: frozenset[int] = frozenset(),
+            per_leg_s: Mapping[int, float] | None = None) -> tuple[int, int, list[Regrouped]]:
     """The exposures the pass gives up, the targets it moves out of exposures observing few
     targets (:func:`solvers.programme.consolidate.thin_moves`, only when it empties none: a
     pass that saves exposures is not made costlier, or riskier, by moves that save nothing)
     and the pointings it changes (module docstring); the pointings ``frozen`` neither give nor
-    take a target."""
+    take a target. ``per_leg_s`` (what planning one leg of each pointing again costs): a
+    target goes to the exposure whose legs cost least to plan again, then the fullest
+    (:class:`solvers.programme.consolidate.LegCosts`); None: the fullest."""
     f = Field(inst, np.asarray(ra_deg, float), np.asarray(dec_deg, float), np.asarray(priority, np.int64))
     state = {j: arms_of(inst.n_arms, p.centre, p.pa_deg, p.configurations, _programme_index)
              for j, p in enumerate(pointings) if p.configurations and j not in frozen}
-    saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget)
+    legs = None if per_leg_s is None else LegCosts.of(state, per_leg_s)
+    saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget, legs)
     moved = 0
     if not changed:  # moves that save nothing never put a saving's plans at risk
-        saved, moved, changed = thin_moves(f, state, park_move_limit_s, arm_limits, budget)
+        saved, moved, changed = thin_moves(f, state, park_move_limit_s, arm_limits, budget, legs=legs)
     out = []
     for j in sorted(changed):
         members, allocation = allocation_of(f, state[j], pointings[j].configurations, _programme_index,
@@ -127,19 +138,49 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
                arm_limits: tuple[int, ...] | None, budget: Budget, costs_s: Mapping[int, float], left_s: float,
                table: ProgrammeShares = SHARES) -> tuple[int, int, list[Regrouped]]:
     """:func:`regroup` with what planning the changed pointings again costs within ``left_s``:
-    each costs what it spent in the rounds (``costs_s``, :func:`costs`; at least
-    ``min_pointing_s``). While they do not fit, the costliest changed pointing is left out of
-    the pass and the pass runs again; (0, 0, []) when nothing that fits changes."""
-    frozen: set[int] = set()
+    each costs what it spent in the rounds on the legs it plans anew (:func:`replan_costs`;
+    at least ``min_pointing_s``). When they do not fit, the pass runs again with each target
+    given to the exposure whose legs cost least to plan again (``per_leg_s`` of
+    :func:`regroup`); while that does not fit either, the costliest changed pointing is left
+    out of the pass and both run again; (0, 0, []) when nothing that fits changes."""
+    per_leg = {j: costs_s.get(j, 0.0) / (len(p.configurations) + 1) for j, p in enumerate(pointings)}
+
+    def attempt(frozen: frozenset[int]) -> tuple[tuple[int, int, list[Regrouped]] | None, dict[int, float]]:
+        """The pass with ``frozen`` left out, when what it changes fits (else None), and the
+        costs of what its last run changed."""
+        need: dict[int, float] = {}
+        for thrifty in (None, per_leg):  # the fullest takers first; when that costs too much, the cheapest legs
+            saved, moved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s,
+                                            arm_limits, budget, frozen=frozen, per_leg_s=thrifty)
+            if not changed:
+                continue
+            need = replan_costs(costs_s, pointings, changed)
+            if sum(max(need[r.index], table.min_pointing_s) for r in changed) <= left_s:
+                return (saved, moved, changed), need
+        return None, need
+
+    frozen: frozenset[int] = frozenset()
     while not budget.expired():
-        saved, moved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s, arm_limits,
-                                        budget, frozen=frozenset(frozen))
-        if not changed:
+        fit, need = attempt(frozen)
+        if fit is not None:
+            return fit
+        if not need:
             return 0, 0, []
-        if sum(max(costs_s[r.index], table.min_pointing_s) for r in changed) <= left_s:
-            return saved, moved, changed
-        frozen.add(max((r.index for r in changed), key=lambda j: (costs_s[j], j)))
+        frozen = frozen | {max(need, key=lambda j: (need[j], j))}
     return 0, 0, []
+
+
+def replan_costs(costs_s: Mapping[int, float], pointings: Sequence[PlannedPointing],
+                 changed: Sequence[Regrouped]) -> dict[int, float]:
+    """What planning each ``changed`` pointing again costs when the legs of its plan are
+    reused where its new configurations make the same moves (:mod:`planner.known_legs`):
+    its cost in the rounds (``costs_s``, :func:`costs`) per leg, times the legs it plans anew
+    (:func:`planner.known_legs.new_legs`)."""
+    out = {}
+    for r in changed:
+        old = pointings[r.index].configurations
+        out[r.index] = costs_s[r.index] * new_legs(old, r.allocation.configurations) / (len(old) + 1)
+    return out
 
 
 def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:

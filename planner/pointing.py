@@ -36,6 +36,7 @@ from planner.keep import (
     split_rest,
     with_kept,
 )
+from planner.known_legs import KnownLegs
 from planner.locks import honours, member_locks, motion_locks, plain_reasons, with_lock_reasons
 from planner.sequence import MIN_LEG_S, SequenceOptions, SequencePlan, plan_sequence
 from planner.shares import ALLOCATION_PART, SHARES, ProgrammeShares
@@ -89,6 +90,9 @@ class PointingOptions:
     #: the locks of the pointing's members (:mod:`models.locks`): the allocation keeps each on
     #: its arm (and branch), and so do the motion planner's changes (:mod:`planner.locks`)
     locked: tuple[TargetLock, ...] = ()
+    #: an earlier plan's verified legs (:mod:`planner.known_legs`): the motion planner reuses
+    #: them where this plan makes the same moves (a pointing the plan's consolidation changed)
+    known_legs: KnownLegs | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         cap = self.max_configurations
@@ -361,7 +365,7 @@ def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: Plane
                                   kept=kept_count(configs))
     try:
         return plan_sequence(inst, configs, seq_options, targets=targets, progress=progress,
-                             budget=budget), None
+                             budget=budget, known=options.known_legs), None
     except Exception as exc:  # noqa: BLE001 - reported as failed legs, never a 5xx
         log.exception("motion sequence planning failed")
         return SequencePlan(configs, ()), f"planner error: {type(exc).__name__}: {exc}"

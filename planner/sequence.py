@@ -42,6 +42,7 @@ from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
 from planner.commands import arm_trajectory
 from planner.driver import plan_motion, verified_plan
+from planner.known_legs import KnownLegs
 from planner.options import MIN_LEG_S
 from planner.reassign import (
     Placed,
@@ -214,8 +215,9 @@ class _Sequencer:
 
     def __init__(self, instrument: Instrument, configurations: Sequence[Configuration],
                  options: SequenceOptions, priority_of: dict[str, int], budget: Budget,
-                 progress: Callable[[float], None] | None = None) -> None:
+                 progress: Callable[[float], None] | None = None, known: KnownLegs | None = None) -> None:
         self.ins = instrument
+        self.known = known  # an earlier plan's verified legs, reused for the same moves
         self.progress = progress
         self.opt = options
         self.priority_of = priority_of
@@ -228,6 +230,7 @@ class _Sequencer:
         self.from_park: dict[bytes, MotionPlan] = {}  # the configuration's joint angles -> park -> it
         self.edits = 0
         self.plans = 0
+        self.reused = 0
         self.capped = False  # the target being placed fits only in a configuration the cap forbids
         self.buffer_mm = instrument.collision_buffer_mm
 
@@ -238,8 +241,13 @@ class _Sequencer:
         return max(MIN_LEG_S, min(self.opt.leg_time_limit_s, self.budget.left_s() / legs_left))
 
     def plan(self, start_q: np.ndarray, goal_q: np.ndarray, limit_s: float | None = None) -> MotionPlan:
-        """The leg from ``start_q`` to ``goal_q`` on ``limit_s`` (default: its share,
-        :meth:`budget_s`)."""
+        """The leg from ``start_q`` to ``goal_q``: a known leg making that move
+        (:class:`planner.known_legs.KnownLegs`), else planned on ``limit_s`` (default: its
+        share, :meth:`budget_s`)."""
+        known = None if self.known is None else self.known.leg(self.ins, start_q, goal_q)
+        if known is not None:
+            self.reused += 1
+            return known
         if self.budget.left_s() <= 0:  # the sequence's time limit has passed: no more planning
             arms = tuple(range(self.ins.n_arms))
             return MotionPlan("failed", math.nan, (), arms,
@@ -485,7 +493,7 @@ class _Sequencer:
                                                                   else self.ins.park_configuration))
             i += 1
         configs = tuple(replace(c, index=n) for n, c in enumerate(self.configs))
-        stats = {"legs": len(self.legs), "plans": self.plans, "edits": self.edits,
+        stats = {"legs": len(self.legs), "plans": self.plans, "reused_legs": self.reused, "edits": self.edits,
                  "compute_s": self.budget.elapsed_s()}
         return SequencePlan(configs, tuple(self.legs), tuple(self.changes), tuple(self.dropped), stats)
 
@@ -516,7 +524,7 @@ class _Sequencer:
 def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration],
                   options: SequenceOptions | None = None, *, targets: PlaneTargets | None = None,
                   progress: Callable[[float], None] | None = None,
-                  budget: Budget | None = None) -> SequencePlan:
+                  budget: Budget | None = None, known: KnownLegs | None = None) -> SequencePlan:
     """Plans park -> c1 -> ... -> park and repairs the plan where a leg cannot be planned.
 
     ``budget`` is the sequence's time, on the caller's clock (default: ``options.time_limit_s``
@@ -526,7 +534,9 @@ def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration
 
     ``targets`` (the pointing's targets, as given to the allocator) supply the priorities that
     decide which blocking target moves first (the lowest); without them all count the same.
-    ``progress(fraction)`` is called after each leg. Returns a :class:`SequencePlan`;
+    ``progress(fraction)`` is called after each leg. ``known``: an earlier plan's verified
+    legs, reused where this plan makes the same move instead of planning it again
+    (:mod:`planner.known_legs`). Returns a :class:`SequencePlan`;
     ``executable`` is False only when every change was tried.
     """
     options = options or SequenceOptions()
@@ -534,7 +544,7 @@ def plan_sequence(instrument: Instrument, configurations: Sequence[Configuration
     if not configurations:
         return SequencePlan((), (_stationary(instrument),), (), (), {"legs": 1})
     budget = Budget.start(options.time_limit_s) if budget is None else budget.child(math.inf)
-    return _Sequencer(instrument, configurations, options, priority_of, budget, progress).run()
+    return _Sequencer(instrument, configurations, options, priority_of, budget, progress, known).run()
 
 
 #: The verified park -> park leg of the instruments seen last (a pointing with no exposure

@@ -28,8 +28,10 @@ from models.types import (
     PlaneTargets,
     Unallocated,
 )
+from planner.commands import controller_commands
 from planner.keep import FIELD as KEEP_FIELD
 from planner.keep import KeptArm, KeptPointing
+from planner.known_legs import KnownLegs
 from planner.sequence import SequencePlan
 from planner.sky import SkyField, arm_sky
 from planner.telescope_time import TelescopeTime
@@ -247,6 +249,31 @@ def motion_out(m: MotionPlan) -> dict[str, Any]:
     return {"status": m.status, "makespan_s": _finite_or_none(m.makespan_s),
             "trajectories": [trajectory_out(t) for t in m.trajectories],
             "failed_arms": [int(a) for a in m.failed_arms], "stats": plain(m.stats)}
+
+
+def motion_in(d: Mapping[str, Any]) -> MotionPlan:
+    """A MotionPlanResponse dict (as :func:`motion_out` wrote it) back as the domain's
+    :class:`MotionPlan` (its commands recomputed from the way-points)."""
+    trajs = []
+    for tr in d["trajectories"]:
+        w = tr["waypoints"]
+        t = np.array([p["t_s"] for p in w], float)
+        th1, th2 = np.array([p["theta1_rad"] for p in w], float), np.array([p["theta2_rad"] for p in w], float)
+        trajs.append(ArmTrajectory(int(tr["arm"]), t, th1, th2, controller_commands(t, th1, th2)))
+    makespan = d["makespan_s"]
+    return MotionPlan(d["status"], math.nan if makespan is None else float(makespan), tuple(trajs),
+                      tuple(int(a) for a in d["failed_arms"]), dict(d.get("stats") or {}))
+
+
+def known_legs_in(inst: Instrument, p: Mapping[str, Any]) -> KnownLegs:
+    """The verified legs of a PlanPointing dict (:class:`planner.known_legs.KnownLegs`), by
+    the joint angles of the configurations they end at."""
+    configs = [np.array([[a["theta1_rad"], a["theta2_rad"]] for a in sorted(c["assignments"], key=lambda a: a["arm"])],
+                        float) for c in p["configurations"]]
+    if len(p["motions"]) != len(configs) + 1:  # legs not planned: nothing to reuse
+        return KnownLegs()
+    return KnownLegs.of_plan(np.asarray(inst.park_configuration, float), configs,
+                             [motion_in(m) for m in p["motions"]])
 
 
 def failed_motion_out(inst: Instrument, reason: str) -> dict[str, Any]:

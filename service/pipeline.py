@@ -31,6 +31,7 @@ from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import keep, plan_motion, programme, stages
 from planner.clearance import compile_kernels
+from planner.known_legs import KnownLegs
 from planner.options import MotionOptions
 from planner.programme import (
     DEFAULT_LIMIT_S,
@@ -407,14 +408,16 @@ def pointing_needs(seg: Segmentation, req: PlanRequest | None = None) -> list[fl
             for p, cap in zip(seg.pointings, caps, strict=True)]
 
 
-def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask) -> PointingTask:
-    """The task of pointing ``task.index`` of ``seg`` in ``task.round``, within ``task.share_s``."""
+def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask,
+                  known_legs: KnownLegs | None = None) -> PointingTask:
+    """The task of pointing ``task.index`` of ``seg`` in ``task.round``, within ``task.share_s``
+    (``known_legs``: an earlier plan's legs its motion planner reuses, :mod:`planner.known_legs`)."""
     p = seg.pointings[task.index]
     options = PointingOptions(req.method, req.solver,
                               pointing_seed(int(req.seed or 0), task.index, task.round),
                               req.park_move_limit_s, pointing_caps(req, seg)[task.index],
                               observing_rules(req), p.allocation, p.allocation_final, kept=kept_of(req, p.id))
-    options = dataclasses.replace(options, locked=plan_locks.member_locks(
+    options = dataclasses.replace(options, known_legs=known_legs, locked=plan_locks.member_locks(
         req, [req.targets[int(k)] for k in p.target_indices]))
     pa = adapters.requested_angle_deg(req.position_angle_deg) if p.position_angle_deg is None else p.position_angle_deg
     return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),

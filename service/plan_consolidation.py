@@ -5,7 +5,7 @@ rounds and before the answer is assembled."""
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -28,10 +28,12 @@ from planner.consolidation import (
     few_observed,
     left_s,
     pass_wall_s,
+    replan_costs,
     retry_tasks,
 )
+from planner.known_legs import KnownLegs
 from planner.programme import PointingOutcome, RoundTask
-from service import pipeline
+from service import adapters, pipeline
 from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
 from solvers.segmentation import Segmentation
@@ -92,12 +94,14 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
             exposures=len(r.allocation.configurations), radius_mm=float(np.max(radius, initial=0.0)))
     new_seg = dataclasses.replace(seg, pointings=tuple(pointings))
     spent_s += pass_wall_s(effort.t_s)
-    tasks = consolidation_tasks(cost, left_s(limit_s, history, spent_s), len(history) + 1,
+    need = replan_costs(cost, planned, changed)
+    tasks = consolidation_tasks(need, left_s(limit_s, history, spent_s), len(history) + 1,
                                 [r.index for r in changed])
     if not tasks:  # a guard: the pass chose pointings whose costs fit in what was left
         return seg, answers, {**stats, "reason": "no time left to plan the changed pointings"}, []
-    new, tries = _replanned(req, inst, new_seg, tasks, wall_left_s,
-                            lambda tries: retry_tasks(cost, limit_s, history, spent_s, tries))
+    known = {r.index: adapters.known_legs_in(inst, answers[r.index]) for r in changed}
+    new, tries = _replanned(req, inst, new_seg, tasks, known, wall_left_s,
+                            lambda tries: retry_tasks(need, limit_s, history, spent_s, tries))
     ok = accepted([_observed(answers[i]) for i in new], [_observed(a) for a in new.values()],
                   sum(len(answers[i]["configurations"]) for i in new),
                   sum(len(a["configurations"]) for a in new.values()), [a["executable"] for a in new.values()],
@@ -132,10 +136,11 @@ def _summary(passes: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _replanned(req: PlanRequest, inst: Instrument, seg: Segmentation, tasks: Sequence[RoundTask],
-               wall_left_s: Callable[[], float],
+               known: Mapping[int, KnownLegs], wall_left_s: Callable[[], float],
                again: Callable[[list[list[PointingOutcome]]], list[RoundTask]],
                ) -> tuple[dict[int, dict[str, Any]], list[list[PointingOutcome]]]:
-    """The changed pointings planned on ``tasks``, then again on the tasks ``again`` gives for
+    """The changed pointings planned on ``tasks`` (each reusing the legs of its plan before the
+    pass where it makes the same moves, ``known``), then again on the tasks ``again`` gives for
     the outcomes so far (:func:`planner.consolidation.retry_tasks`), each pointing's best plan
     kept (:func:`service.pipeline.keep_better`): {pointing index: PlanPointing dict}, and the
     outcomes of every plan, try by try."""
@@ -143,7 +148,7 @@ def _replanned(req: PlanRequest, inst: Instrument, seg: Segmentation, tasks: Seq
     tries: list[list[PointingOutcome]] = []
     while tasks:
         for t in tasks:
-            answer = pipeline.pointing_result(pipeline.pointing_task(req, seg, t), inst,
+            answer = pipeline.pointing_result(pipeline.pointing_task(req, seg, t, known.get(t.index)), inst,
                                               wall_limit_s=max(wall_left_s(), 0.0))
             new[t.index] = pipeline.keep_better(new.get(t.index), answer, t.index)
         tries.append([pipeline.outcomes_of(new[t.index], t.index)[-1] for t in tasks])

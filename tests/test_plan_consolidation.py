@@ -28,6 +28,7 @@ from planner.consolidation import (
     costs,
     left_s,
     regroup,
+    replan_costs,
     retry_tasks,
 )
 from planner.programme import SHARES, PointingOutcome, RoundTask, better, usable_s
@@ -231,7 +232,7 @@ def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypa
         return {"id": f"P{task.index}", "executable": ok, "stats": {"rounds": [pipeline.outcome_out(out)]}}
 
     monkeypatch.setattr(pipeline, "pointing_result", result)
-    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t: t)
+    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t, known=None: t)
     seen = []
 
     def again(tries):
@@ -240,7 +241,7 @@ def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypa
         return [RoundTask(i, tries[-1][0].round + 1, 4.0) for i in failed]
 
     new, tries = plan_consolidation._replanned(None, INST, None, [RoundTask(0, 3, 2.0), RoundTask(1, 3, 2.0)],
-                                               lambda: 100.0, again)
+                                               {}, lambda: 100.0, again)
     assert calls == [(0, 3), (1, 3), (1, 4)]
     assert seen == [[(0, 3, True), (1, 3, False)], [(1, 4, True)]]
     assert [[(o.index, o.round, o.executable) for o in t] for t in tries] == seen
@@ -249,19 +250,28 @@ def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypa
 
 
 def test_affordable_leaves_the_costliest_pointing_out_until_the_rest_fits() -> None:
-    """Both pointings change when time is plenty; with less than the costlier one's cost
-    left, it is left out of the pass (it neither gives nor takes) and what changes fits."""
+    """Both pointings change when time is plenty; with less left than their new legs cost, the
+    pass runs with the cheapest legs first, and when that does not fit either, the costlier
+    pointing is left out (it neither gives nor takes): what changes fits."""
+    costs_s = {0: 9.0, 1: 1.0}
     for seed in (1, 3, 4):
         f, pts = _overlapping(seed)
         planned = _planned(f, pts)
         args = (INST, f.ra_deg, f.dec_deg, f.priority, planned, LIMIT_S, None)
         free = regroup(*args, Budget.start(30.0))
-        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, math.inf) == free
+        assert affordable(*args, Budget.start(30.0), costs_s, math.inf) == free
         assert {r.index for r in free[2]} == {0, 1}, "premise: the pass changes both"
-        saved, _, changed = affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 5.0)
-        assert all(r.index == 1 for r in changed)
-        assert saved == regroup(*args, Budget.start(30.0), frozen=frozenset({0}))[0]
-        assert affordable(*args, Budget.start(30.0), {0: 9.0, 1: 1.0}, 0.1) == (0, 0, [])
+
+        def cost(changed, planned=planned):
+            return sum(max(v, 0.5) for v in replan_costs(costs_s, planned, changed).values())
+
+        thrifty = regroup(*args, Budget.start(30.0), per_leg_s={j: costs_s[j] / (len(p.configurations) + 1)
+                                                              for j, p in enumerate(planned)})
+        alone = regroup(*args, Budget.start(30.0), frozen=frozenset({0}))
+        assert cost(alone[2]) < min(cost(free[2]), cost(thrifty[2])), "premise: pointing 1 alone costs less"
+        saved, _, changed = affordable(*args, Budget.start(30.0), costs_s, cost(alone[2]))
+        assert all(r.index == 1 for r in changed) and saved == alone[0]
+        assert affordable(*args, Budget.start(30.0), costs_s, 0.1) == (0, 0, [])
 
 
 def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures() -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+import pytest
 
 from models.budget import Budget
 from models.collision import fcl_clearance_mm
@@ -163,3 +164,47 @@ def test_placements_is_spare_arm_for_on_every_configuration_at_once() -> None:
             assert (arm[e] >= 0) == (one is not None)
             if one is not None:
                 assert (int(arm[e]), *pose[e]) == one
+
+
+def _legs_of(a):
+    """The exposures of ``a`` still alive as configurations (joint angles and targets: what
+    planner.known_legs.new_legs compares; the target rides in theta1 of a dummy arm)."""
+    from models.types import ArmAssignment, Configuration
+
+    out = []
+    for e in np.flatnonzero(a.alive):
+        arms = tuple(ArmAssignment(k, "target", float(a.q[e, k, 0]), float(a.q[e, k, 1]), 0.0, 0.0)
+                     for k in range(a.q.shape[1]))
+        tag = ArmAssignment(a.q.shape[1], "park", float(hash(a.target[e].tobytes()) % 1000), 0.0, 0.0, 0.0)
+        out.append(Configuration(len(out), (*arms, tag), 0, 0, "feasible"))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_leg_costs_count_the_legs_a_taken_target_makes_new(seed) -> None:
+    """LegCosts.extra_s against a restatement: the new legs (planner.known_legs.new_legs) of the
+    pointing with the target taken, minus those without, at the pointing's cost per leg, over
+    random emptied and changed exposures."""
+    from planner.known_legs import new_legs
+    from solvers.programme.consolidate import Arms, LegCosts
+
+    rng = np.random.default_rng(seed)
+    n_exp, n_arms = int(rng.integers(1, 6)), 3
+    orig = Arms((0.0, 0.0), 0.0, rng.random((n_exp, n_arms, 2)), np.zeros((n_exp, n_arms), bool),
+                rng.integers(0, 50, (n_exp, n_arms)), np.ones(n_exp, bool))
+    legs = LegCosts.of({7: orig}, {7: 2.5})
+    cur = orig.copy()
+    for e in range(n_exp):
+        r = rng.random()
+        if r < 0.25 and cur.alive.sum() > 1:
+            cur.alive[e] = False
+        elif r < 0.5:
+            cur.q[e, 0, 0] += 0.1
+            cur.target[e, 0] = 99
+    for x in np.flatnonzero(cur.alive):
+        taken = cur.copy()
+        taken.q[x, 1, 1] += 0.2
+        taken.target[x, 1] = 98
+        want = new_legs(_legs_of(orig), _legs_of(taken)) - new_legs(_legs_of(orig), _legs_of(cur))
+        assert legs.extra_s(7, cur, int(x)) == pytest.approx(2.5 * want)
+    assert legs.extra_s(3, cur, int(np.flatnonzero(cur.alive)[0])) == 0.0  # a pointing it does not know

@@ -39,7 +39,7 @@ from models.types import AllocationResult, ArmAssignment, Configuration, Unalloc
 from solvers.programme.fill import Field, FillOptions, Pointing, within
 from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, placements
 
-__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "allocation_of", "arms_of", "consolidate",
+__all__ = ["PLACEMENT_PER_EXPOSURE_S", "PLACEMENT_S", "Arms", "LegCosts", "allocation_of", "arms_of", "consolidate",
            "empty_exposures", "thin_moves"]
 
 #: effort seconds charged per test of one target against one pointing's exposures: its reach
@@ -66,6 +66,49 @@ class Arms:
                     self.alive.copy())
 
 
+@dataclass(frozen=True)
+class LegCosts:
+    """What each pointing's motion legs cost to plan again (``per_leg_s``: seconds per leg, by
+    pointing key), against its exposures as the pass found them (``original``): a taker is then
+    chosen by the legs it makes new before how full it is (:meth:`extra_s`). A leg is new when
+    it starts or ends at an exposure the pass changed, or joins two exposures the plan did not
+    make one after the other (one between them was emptied); the plan reuses every other leg
+    (:mod:`planner.known_legs`)."""
+
+    original: Mapping[int, Arms]
+    per_leg_s: Mapping[int, float]
+
+    @classmethod
+    def of(cls, state: Mapping[int, Arms], per_leg_s: Mapping[int, float]) -> LegCosts:
+        return cls({k: a.copy() for k, a in state.items()}, dict(per_leg_s))
+
+    def extra_s(self, k: int, cur: Arms, x: int) -> float:
+        """What taking a target into exposure ``x`` of pointing ``k`` (as it stands, ``cur``)
+        adds: the legs into and out of it that are not new already, at the pointing's cost."""
+        orig = self.original.get(k)
+        if orig is None or self._changed(orig, cur, x):
+            return 0.0
+        alive = [int(e) for e in np.flatnonzero(cur.alive)]
+        i = alive.index(x)
+        prev = alive[i - 1] if i > 0 else None
+        nxt = alive[i + 1] if i + 1 < len(alive) else None
+        legs = sum(not self._new(orig, cur, a, b) for a, b in ((prev, x), (x, nxt)))
+        return legs * self.per_leg_s.get(k, 0.0)
+
+    @staticmethod
+    def _changed(orig: Arms, cur: Arms, e: int) -> bool:
+        return bool(np.any(orig.target[e] != cur.target[e]) or np.any(orig.q[e] != cur.q[e]))
+
+    def _new(self, orig: Arms, cur: Arms, a: int | None, b: int | None) -> bool:
+        """Whether the leg a -> b (None: park) is new (class docstring)."""
+        ends = [e for e in (a, b) if e is not None]
+        if any(self._changed(orig, cur, e) for e in ends):
+            return True
+        lo = -1 if a is None else a
+        hi = len(orig.alive) if b is None else b
+        return bool(np.any(orig.alive[lo + 1:hi]))  # an exposure between them was emptied
+
+
 def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
     """Step 6 (module docstring) on the allocated pointings ``pts``, in place: the pointings
     that give or take targets are replaced by ones with their new members and allocations.
@@ -78,11 +121,14 @@ def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget
 
 
 def empty_exposures(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
-                    arm_limits: tuple[int, ...] | None, budget: Budget) -> tuple[int, set[int]]:
+                    arm_limits: tuple[int, ...] | None, budget: Budget,
+                    legs: LegCosts | None = None) -> tuple[int, set[int]]:
     """The pass of the module docstring on the pointings' exposures ``state`` (any keys), in
     place; ``arm_limits``: per target of the programme, the bit mask of the arms it may use
-    (None: any). Returns the exposures given up (their ``alive`` turned False) and the keys of
-    the pointings that gave or took a target."""
+    (None: any); ``legs``: each target goes to the exposure whose legs cost least to plan
+    again, then the fullest (:class:`LegCosts`; None: the fullest). Returns the exposures
+    given up (their ``alive`` turned False) and the keys of the pointings that gave or took a
+    target."""
     focal: dict[tuple[int, int], tuple[float, float] | None] = {}
     order = sorted(((int(np.count_nonzero(a.target[e] >= 0)), j, e) for j, a in state.items()
                     for e in np.flatnonzero(a.alive)))
@@ -90,7 +136,7 @@ def empty_exposures(f: Field, state: dict[int, Arms], park_move_limit_s: float |
     for _, j, e in order:
         if budget.expired():
             break
-        trial = _emptied(f, state, j, int(e), park_move_limit_s, arm_limits, focal)
+        trial = _emptied(f, state, j, int(e), park_move_limit_s, arm_limits, focal, legs)
         if trial is not None:
             state.update(trial)
             changed |= set(trial)
@@ -146,13 +192,14 @@ def _arms_of(f: Field, p: Pointing) -> Arms:
 
 
 def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
-               arm_limits: tuple[int, ...] | None, budget: Budget, few: int = FEW_TARGETS) -> tuple[int, int, set[int]]:
+               arm_limits: tuple[int, ...] | None, budget: Budget, few: int = FEW_TARGETS,
+               legs: LegCosts | None = None) -> tuple[int, int, set[int]]:
     """The exposures observing at most ``few`` targets (but more than one: an exposure of one
     target is emptied or stays), in place: each of their targets that fits on an idle arm of an
     exposure observing at least ``few`` goes there (the fullest first, as
     :func:`empty_exposures` places), so that such an exposure keeps only targets no fuller
     exposure can take. Returns the exposures emptied that way, the targets moved and the keys
-    of the pointings that gave or took a target."""
+    of the pointings that gave or took a target (``legs``: as :func:`empty_exposures` chooses)."""
     focal: dict[tuple[int, int], tuple[float, float] | None] = {}
     order = sorted((n, j, int(e)) for j, a in state.items() for e in np.flatnonzero(a.alive)
                    if 1 < (n := int(np.count_nonzero(a.target[e] >= 0))) <= few)
@@ -163,7 +210,8 @@ def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None
         trial: dict[int, Arms] = {}
         for arm in np.flatnonzero(state[j].target[e] >= 0):
             t = int(state[j].target[e, arm])
-            best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal, skip=(j, e), min_targets=few)
+            best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal, skip=(j, e), min_targets=few,
+                          legs=legs)
             if best is not None:
                 _place(state, trial, best, t)
                 mine = trial.setdefault(j, state[j].copy())
@@ -179,14 +227,14 @@ def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None
 
 
 def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s: float | None,
-             arm_limits: tuple[int, ...] | None, focal: dict) -> dict[int, Arms] | None:
+             arm_limits: tuple[int, ...] | None, focal: dict, legs: LegCosts | None = None) -> dict[int, Arms] | None:
     """The pointings' exposures with exposure ``e`` of pointing ``j`` given up and each of its
     targets on an idle arm of another exposure; None when one of its targets fits nowhere."""
     trial = {j: state[j].copy()}
     trial[j].alive[e] = False
     for arm in np.flatnonzero(state[j].target[e] >= 0):
         t = int(state[j].target[e, arm])
-        best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal)
+        best = _taker(f, state, trial, t, park_move_limit_s, arm_limits, focal, legs=legs)
         if best is None:
             return None
         _place(state, trial, best, t)
@@ -195,11 +243,13 @@ def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s
 
 def _taker(f: Field, state: dict[int, Arms], trial: dict[int, Arms], t: int, park_move_limit_s: float | None,
            arm_limits: tuple[int, ...] | None, focal: dict, skip: tuple[int, int] | None = None,
-           min_targets: int = 0) -> tuple | None:
+           min_targets: int = 0, legs: LegCosts | None = None) -> tuple | None:
     """The exposure alive in ``trial`` (else ``state``) that takes target ``t`` on an idle arm,
-    the fullest first (then the last pointing and exposure): ((targets observed, -pointing,
-    -exposure), pointing, exposure, arm, pose), or None; ``skip``: a (pointing, exposure) left
-    out; ``min_targets``: only exposures observing at least that many."""
+    the one whose legs cost least to plan again first (``legs``, :class:`LegCosts`; None: all
+    the same), then the fullest (then the last pointing and exposure): ((-legs' cost, targets
+    observed, -pointing, -exposure), pointing, exposure, arm, pose), or None; ``skip``: a
+    (pointing, exposure) left out; ``min_targets``: only exposures observing at least that
+    many."""
     best = None
     for k, a in state.items():
         xy = _focal(f, a, t, k, focal)
@@ -214,7 +264,8 @@ def _taker(f: Field, state: dict[int, Arms], trial: dict[int, Arms], t: int, par
         arm_k, pose = placements(f.inst, cur.q[live], cur.idle[live], xy[0], xy[1], park_move_limit_s, allowed)
         for i in np.flatnonzero(arm_k >= 0):
             x = int(live[i])
-            key = (int(np.count_nonzero(cur.target[x] >= 0)), -k, -x)
+            extra_s = 0.0 if legs is None else legs.extra_s(k, cur, x)
+            key = (-extra_s, int(np.count_nonzero(cur.target[x] >= 0)), -k, -x)
             if best is None or key > best[0]:
                 best = (key, k, x, int(arm_k[i]), pose[i])
     return best
