@@ -10,9 +10,12 @@ configurations; when it empties none, it moves each target of an exposure observ
 an idle arm of a fuller exposure can take there (:func:`solvers.programme.consolidate.thin_moves`: such an
 exposure then keeps only targets no fuller exposure can take). The pointings it changes are
 planned again with those configurations as their allocation (:attr:`Regrouped.allocation`;
-the allocation is not searched again), each on a share of what the rounds left in proportion to what it spent in them (:func:`consolidation_tasks`);
-when what they spent does not fit in what is left, the costliest is left out of the pass and
-the pass runs again (:func:`affordable`). The new plans replace the old ones only when every
+the allocation is not searched again), reusing the legs of their plan where they make the
+same moves (:mod:`planner.known_legs`), each on a share of what the rounds left in proportion
+to what its new legs cost in them (:func:`replan_costs`, :func:`consolidation_tasks`); when
+that does not fit in what is left, the pass runs again giving targets to the exposures whose
+legs cost least to plan again, and then the costliest pointing is left out of the pass
+(:func:`affordable`). The new plans replace the old ones only when every
 one of them is executable, together they observe every target the old ones did and take fewer
 exposures, or as many with fewer targets left in exposures observing few (:func:`accepted`,
 :func:`few_observed`). A changed pointing whose new plan has a failed leg, or an
@@ -21,7 +24,8 @@ what the rounds and the pass's plans left (:func:`retry_tasks`), before the new 
 judged: a pass is not given up, nor its saving cut, for a leg while the limit has time for
 it. Otherwise the plan stays as it was. An accepted pass's new plans move arms, so the pass
 runs again on the plan it left, on what the rounds and the earlier passes left, while each
-is accepted (:func:`another_pass`, at most :data:`MAX_PASSES`).
+is accepted; a pass refused because some of its new plans failed runs again without those
+pointings (:func:`another_pass`, at most :data:`MAX_PASSES`).
 
 The pass reads the plan's outcomes and runs on the plan's effort clock, so the result is the
 same on one or many workers.
@@ -52,14 +56,18 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
-           "consolidation_tasks", "costs", "few_observed", "left_s", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+           "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
 #: the pass itself (its placement tests, every run of :func:`affordable`) runs on at most
 #: this many effort seconds
 PASS_EFFORT_S = 3.0
+#: a leg the pass makes new costs this many times an average leg of its pointing in the rounds:
+#: it goes into or out of an exposure that took a target on an arm its allocation left idle,
+#: or joins two exposures no leg joined, a move no search of the rounds made easy
+NEW_LEG_FACTOR = 2.0
 #: passes at most: a pass runs again on the plan an accepted pass left (its new plans move
 #: arms and free others, so another exposure's targets may fit where none did), while each
 #: is accepted (:func:`another_pass`)
@@ -94,11 +102,33 @@ class PlannedPointing:
 class Regrouped:
     """A pointing the pass changed: its members (programme indices, ascending) and their
     allocation (``target_index`` into ``members``, ``target_id`` the ``str`` of the programme
-    index: the form of :attr:`solvers.segmentation.field.Pointing.allocation`)."""
+    index: the form of :attr:`solvers.segmentation.field.Pointing.allocation`) and its
+    ``group``: the least index of the pointings it gave targets to or took targets from,
+    directly or through others (:func:`groups_of`); a group's new plans are kept or refused
+    together, apart from the other groups'."""
 
     index: int
     members: tuple[int, ...]
     allocation: AllocationResult
+    group: int = 0
+
+
+def groups_of(exchanges: Sequence[frozenset[int]]) -> dict[int, int]:
+    """The pointings of ``exchanges`` (each: the pointings that gave or took the targets of
+    one exposure) in connected groups: pointing -> the least pointing of its group."""
+    parent: dict[int, int] = {}
+
+    def root(j: int) -> int:
+        while parent.setdefault(j, j) != j:
+            j = parent[j]
+        return j
+
+    for ex in exchanges:
+        first, *rest = sorted(ex)
+        for j in rest:
+            a, b = sorted((root(first), root(j)))
+            parent[b] = a
+    return {j: root(j) for j in parent}
 
 
 def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
@@ -117,15 +147,16 @@ def regroup(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority:
     state = {j: arms_of(inst.n_arms, p.centre, p.pa_deg, p.configurations, _programme_index)
              for j, p in enumerate(pointings) if p.configurations and j not in frozen}
     legs = None if per_leg_s is None else LegCosts.of(state, per_leg_s)
-    saved, changed = empty_exposures(f, state, park_move_limit_s, arm_limits, budget, legs)
+    saved, exchanges = empty_exposures(f, state, park_move_limit_s, arm_limits, budget, legs)
     moved = 0
-    if not changed:  # moves that save nothing never put a saving's plans at risk
-        saved, moved, changed = thin_moves(f, state, park_move_limit_s, arm_limits, budget, legs=legs)
+    if not exchanges:  # moves that save nothing never put a saving's plans at risk
+        saved, moved, exchanges = thin_moves(f, state, park_move_limit_s, arm_limits, budget, legs=legs)
+    group = groups_of(exchanges)
     out = []
-    for j in sorted(changed):
+    for j in sorted(group):
         members, allocation = allocation_of(f, state[j], pointings[j].configurations, _programme_index,
                                             pointings[j].unobserved, "consolidation")
-        out.append(Regrouped(j, members, allocation))
+        out.append(Regrouped(j, members, allocation, group[j]))
     return saved, moved, out
 
 
@@ -136,30 +167,39 @@ def _programme_index(asg: ArmAssignment) -> int:
 def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priority: np.ndarray,
                pointings: Sequence[PlannedPointing], park_move_limit_s: float | None,
                arm_limits: tuple[int, ...] | None, budget: Budget, costs_s: Mapping[int, float], left_s: float,
-               table: ProgrammeShares = SHARES) -> tuple[int, int, list[Regrouped]]:
-    """:func:`regroup` with what planning the changed pointings again costs within ``left_s``:
+               table: ProgrammeShares = SHARES, frozen: frozenset[int] = frozenset(),
+               ) -> tuple[int, int, list[Regrouped]]:
+    """:func:`regroup` with what planning the changed pointings again costs within ``left_s``
+    (the pointings ``frozen`` left out from the start):
     each costs what it spent in the rounds on the legs it plans anew (:func:`replan_costs`;
-    at least ``min_pointing_s``). When they do not fit, the pass runs again with each target
-    given to the exposure whose legs cost least to plan again (``per_leg_s`` of
-    :func:`regroup`); while that does not fit either, the costliest changed pointing is left
-    out of the pass and both run again; (0, 0, []) when nothing that fits changes."""
+    at least ``min_pointing_s``). The pass runs with the fullest takers first and with each
+    target given to the exposure whose legs cost least to plan again (``per_leg_s`` of
+    :func:`regroup`); of the two that fit, the one that empties more exposures (then moves
+    more targets, then costs less) is kept. While neither fits, the costliest pointing the
+    cheaper one changes is left out of the pass and both run again; (0, 0, []) when nothing
+    that fits changes."""
     per_leg = {j: costs_s.get(j, 0.0) / (len(p.configurations) + 1) for j, p in enumerate(pointings)}
 
     def attempt(frozen: frozenset[int]) -> tuple[tuple[int, int, list[Regrouped]] | None, dict[int, float]]:
-        """The pass with ``frozen`` left out, when what it changes fits (else None), and the
-        costs of what its last run changed."""
-        need: dict[int, float] = {}
-        for thrifty in (None, per_leg):  # the fullest takers first; when that costs too much, the cheapest legs
+        """The pass with ``frozen`` left out, the fullest takers first and the cheapest legs
+        first: of those whose changes fit, the one that empties more exposures (then moves more
+        targets, then costs less; else None), and the costs of the cheaper one's changes."""
+        runs = []
+        for thrifty in (None, per_leg):
             saved, moved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s,
                                             arm_limits, budget, frozen=frozen, per_leg_s=thrifty)
-            if not changed:
-                continue
-            need = replan_costs(costs_s, pointings, changed)
-            if sum(max(need[r.index], table.min_pointing_s) for r in changed) <= left_s:
-                return (saved, moved, changed), need
-        return None, need
+            if changed:
+                need = replan_costs(costs_s, pointings, changed)
+                runs.append((saved, moved, changed, need, sum(max(v, table.min_pointing_s) for v in need.values())))
+        if not runs:
+            return None, {}
+        fits = [r for r in runs if r[4] <= left_s]
+        cheaper = min(runs, key=lambda r: r[4])
+        if not fits:
+            return None, cheaper[3]
+        best = max(fits, key=lambda r: (r[0], r[1], -r[4]))
+        return best[:3], best[3]
 
-    frozen: frozenset[int] = frozenset()
     while not budget.expired():
         fit, need = attempt(frozen)
         if fit is not None:
@@ -174,12 +214,13 @@ def replan_costs(costs_s: Mapping[int, float], pointings: Sequence[PlannedPointi
                  changed: Sequence[Regrouped]) -> dict[int, float]:
     """What planning each ``changed`` pointing again costs when the legs of its plan are
     reused where its new configurations make the same moves (:mod:`planner.known_legs`):
-    its cost in the rounds (``costs_s``, :func:`costs`) per leg, times the legs it plans anew
-    (:func:`planner.known_legs.new_legs`)."""
+    its cost in the rounds (``costs_s``, :func:`costs`) per leg, times :data:`NEW_LEG_FACTOR`
+    for each leg it plans anew (:func:`planner.known_legs.new_legs`); at most its cost in the
+    rounds."""
     out = {}
     for r in changed:
-        old = pointings[r.index].configurations
-        out[r.index] = costs_s[r.index] * new_legs(old, r.allocation.configurations) / (len(old) + 1)
+        old, cost = pointings[r.index].configurations, costs_s[r.index]
+        out[r.index] = min(cost, NEW_LEG_FACTOR * cost * new_legs(old, r.allocation.configurations) / (len(old) + 1))
     return out
 
 
@@ -244,11 +285,15 @@ def retry_tasks(costs_s: Mapping[int, float], limit_s: float | None, history: Se
     return consolidation_tasks(costs_s, left, len(history) + len(tries) + 1, failed, table)
 
 
-def another_pass(accepted_passes: Sequence[bool], max_passes: int = MAX_PASSES) -> bool:
+def another_pass(accepted_passes: Sequence[bool], max_passes: int = MAX_PASSES,
+                 left_out: Sequence[frozenset[int]] = ()) -> bool:
     """Whether the plan runs the pass again after passes whose plans were kept or not
-    (``accepted_passes``, in order): while every pass so far was accepted, at most
-    ``max_passes`` in all (the time each takes is counted as the first's is)."""
-    return len(accepted_passes) < max_passes and all(accepted_passes)
+    (``accepted_passes``, in order): while every pass so far was accepted, or refused with
+    pointings whose new plans failed that the later passes leave out (``left_out[i]``: those
+    pass i adds; none: the pass would only run again as it ran), at most ``max_passes`` in
+    all (the time each takes is counted as the first's is)."""
+    more = list(left_out) + [frozenset()] * (len(accepted_passes) - len(left_out))
+    return len(accepted_passes) < max_passes and all(a or bool(m) for a, m in zip(accepted_passes, more, strict=False))
 
 
 def few_observed(targets_per_exposure: Sequence[int], few: int = FEW_TARGETS) -> int:

@@ -205,6 +205,10 @@ ESCALATION_MIN_GAIN = 1.5
 ESCALATION_LEFT = 0.25
 
 
+#: why a leg goes through park (:class:`PlanChange` "via_park")
+VIA_PARK_REASON = "no direct motion found between the two configurations"
+
+
 def _key(config: Configuration) -> bytes:
     """A configuration's joint angles, as the key of its park -> configuration plan."""
     return np.ascontiguousarray(config.q, dtype=float).tobytes()
@@ -291,6 +295,8 @@ class _Sequencer:
         leg = self.from_park.get(_key(self.configs[0])) if i == 0 else None
         if leg is None:
             leg = self.plan_escalating(start_q, goal)
+            if leg.stats.get("reused") and leg.stats.get("strategy") == "via_park":  # a known leg through park
+                self.changes.append(PlanChange("via_park", i, i, (), (), VIA_PARK_REASON))
         if i == 0 and leg.status == "ok":
             self.from_park[_key(self.configs[0])] = leg
         if leg.status == "ok":
@@ -320,8 +326,7 @@ class _Sequencer:
         lb = float(b.stats.get("lower_bound_s", 0.0))
         leg = via_park_leg(self.ins, a, b, start_q, self.configs[i].q, lb)
         if leg is not None:
-            self.changes.append(PlanChange("via_park", i, i, (), (),
-                                           "no direct motion found between the two configurations"))
+            self.changes.append(PlanChange("via_park", i, i, (), (), VIA_PARK_REASON))
         return leg
 
     def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan | None:

@@ -19,6 +19,7 @@ from models.types import ArmAssignment, Configuration
 from planner.consolidation import (
     PASS_EFFORT_S,
     PlannedPointing,
+    Regrouped,
     accepted,
     affordable,
     another_pass,
@@ -48,16 +49,23 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
     :mod:`planner.consolidation`), with the plan's ``consolidation`` stats; unchanged when the
     plan is not consolidated (:func:`planner.consolidation.applies`), or when
     the pass empties no exposure within what the rounds left or its plans are not accepted.
-    The pass runs again on the plan an accepted pass left (:func:`planner.consolidation.another_pass`),
-    each on what the rounds and the earlier passes left.
+    A pass keeps the new plans of each group of pointings that exchanged targets when they are
+    better, apart from the other groups'. The pass runs again on the plan it left while it kept
+    some, or left out pointings whose new plans failed (the later passes leave them out,
+    :func:`planner.consolidation.another_pass`), each on what the rounds and the earlier passes
+    left.
     ``limit_s``: the rounds' limit; ``wall_left_s``: the wall-clock seconds the plan has left."""
     if not applies(pipeline.plan_mode(req), req.keep_configurations is not None):
         return seg, answers, {}
     passes: list[dict[str, Any]] = []
     history, spent_s = list(history), 0.0
-    while another_pass([p["accepted"] for p in passes]):
-        seg, answers, stats, tries = _pass(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s)
+    left_out: list[frozenset[int]] = []  # per pass, the pointings whose new plans failed: out of the later passes
+    while another_pass([p["accepted"] for p in passes], left_out=left_out):
+        frozen = frozenset().union(*left_out)
+        seg, answers, stats, tries, failed = _pass(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s,
+                                                   frozen)
         passes.append(stats)
+        left_out.append(failed - frozen)
         spent_s += pass_wall_s(stats["effort_s"])
         history += tries
     return seg, answers, {"consolidation": _summary(passes)}
@@ -65,10 +73,12 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
 
 def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[dict[str, Any]],
           history: Sequence[Sequence[PointingOutcome]], limit_s: float, wall_left_s: Callable[[], float],
-          spent_s: float) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any], list[list[PointingOutcome]]]:
-    """One pass on the plan ``answers``, after the rounds' and earlier passes' outcomes
-    (``history``) and ``spent_s`` wall-clock seconds of earlier passes' own work: ``seg`` and
-    ``answers`` as the pass leaves them, its stats and the outcomes of its plans."""
+          spent_s: float, frozen: frozenset[int] = frozenset(),
+          ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any], list[list[PointingOutcome]], frozenset[int]]:
+    """One pass on the plan ``answers`` (the pointings ``frozen`` left out), after the rounds'
+    and earlier passes' outcomes (``history``) and ``spent_s`` wall-clock seconds of earlier
+    passes' own work: ``seg`` and ``answers`` as the pass leaves them, its stats, the outcomes
+    of its plans and the pointings whose new plans failed (:func:`_failed`)."""
     index = {t.id: i for i, t in enumerate(req.targets)}
     planned = [_planned(p, index) for p in answers]
     limits = arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms)
@@ -78,11 +88,13 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
                                            np.array([t.dec_deg for t in req.targets]),
                                            np.array([int(t.priority) for t in req.targets]), planned,
                                            req.park_move_limit_s, limits, Budget.start(PASS_EFFORT_S), cost,
-                                           left_s(limit_s, history, spent_s + pass_wall_s()))
+                                           left_s(limit_s, history, spent_s + pass_wall_s()), frozen=frozen)
     stats: dict[str, Any] = {"exposures_emptied": saved, "targets_moved_from_few": moved, "effort_s": effort.t_s,
                              "pointings": [answers[r.index]["id"] for r in changed], "accepted": False}
+    if frozen:
+        stats["left_out"] = [answers[i]["id"] for i in sorted(frozen)]
     if not changed:
-        return seg, answers, stats, []
+        return seg, answers, stats, [], frozenset()
     pointings = list(seg.pointings)
     for r in changed:
         p = pointings[r.index]
@@ -98,23 +110,56 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
     tasks = consolidation_tasks(need, left_s(limit_s, history, spent_s), len(history) + 1,
                                 [r.index for r in changed])
     if not tasks:  # a guard: the pass chose pointings whose costs fit in what was left
-        return seg, answers, {**stats, "reason": "no time left to plan the changed pointings"}, []
+        return seg, answers, {**stats, "reason": "no time left to plan the changed pointings"}, [], frozenset()
     known = {r.index: adapters.known_legs_in(inst, answers[r.index]) for r in changed}
     new, tries = _replanned(req, inst, new_seg, tasks, known, wall_left_s,
                             lambda tries: retry_tasks(need, limit_s, history, spent_s, tries))
-    ok = accepted([_observed(answers[i]) for i in new], [_observed(a) for a in new.values()],
-                  sum(len(answers[i]["configurations"]) for i in new),
-                  sum(len(a["configurations"]) for a in new.values()), [a["executable"] for a in new.values()],
-                  few_observed([n for i in new for n in _per_exposure(answers[i])]),
-                  few_observed([n for a in new.values() for n in _per_exposure(a)]))
-    if not ok:
-        return seg, answers, {**stats, "reason": "the changed pointings' plans were not better"}, tries
-    out = list(answers)
-    for i, a in new.items():
-        rounds = answers[i]["stats"].get("rounds", []) + a["stats"].get("rounds", [])
-        out[i] = {**a, "stats": {**a["stats"], "rounds": rounds}}
+    kept = _kept_groups(changed, answers, new)
+    failed = _failed([r for r in changed if r.group not in kept], new)
+    if not kept:
+        return seg, answers, {**stats, "reason": "the changed pointings' plans were not better",
+                              "failed": [answers[i]["id"] for i in sorted(failed)]}, tries, failed
+    out, pointings = list(answers), list(seg.pointings)
+    for r in changed:
+        if r.group in kept:
+            a = new[r.index]
+            rounds = answers[r.index]["stats"].get("rounds", []) + a["stats"].get("rounds", [])
+            out[r.index] = {**a, "stats": {**a["stats"], "rounds": rounds}}
+            pointings[r.index] = new_seg.pointings[r.index]
     saved_exposures = sum(len(answers[i]["configurations"]) - len(out[i]["configurations"]) for i in new)
-    return new_seg, out, {**stats, "accepted": True, "exposures_saved": saved_exposures}, tries
+    stats = {**stats, "accepted": True, "exposures_saved": saved_exposures}
+    refused = sorted(r.index for r in changed if r.group not in kept)
+    if refused:  # the groups whose plans were not better keep their old plans
+        stats.update(refused=[answers[i]["id"] for i in refused], failed=[answers[i]["id"] for i in sorted(failed)])
+    return dataclasses.replace(seg, pointings=tuple(pointings)), out, stats, tries, failed
+
+
+def _kept_groups(changed: Sequence[Regrouped], answers: Sequence[dict[str, Any]],
+                 new: Mapping[int, dict[str, Any]]) -> set[int]:
+    """The groups (:attr:`planner.consolidation.Regrouped.group`) whose new plans replace
+    their old ones (:func:`planner.consolidation.accepted` on the group's pointings)."""
+    kept = set()
+    for g in sorted({r.group for r in changed}):
+        idx = [r.index for r in changed if r.group == g]
+        if accepted([_observed(answers[i]) for i in idx], [_observed(new[i]) for i in idx],
+                    sum(len(answers[i]["configurations"]) for i in idx),
+                    sum(len(new[i]["configurations"]) for i in idx), [new[i]["executable"] for i in idx],
+                    few_observed([n for i in idx for n in _per_exposure(answers[i])]),
+                    few_observed([n for i in idx for n in _per_exposure(new[i])])):
+            kept.add(g)
+    return kept
+
+
+def _failed(changed: Sequence[Regrouped], new: Mapping[int, dict[str, Any]]) -> frozenset[int]:
+    """The changed pointings whose new plan is not executable or does not observe every
+    target the pass gave it (the motion planner dropped one)."""
+    out = set()
+    for r in changed:
+        a = new.get(r.index)
+        given = sum(x.target_index is not None for c in r.allocation.configurations for x in c.assignments)
+        if a is None or not a["executable"] or len(_observed(a)) < given:
+            out.add(r.index)
+    return frozenset(out)
 
 
 def _summary(passes: Sequence[dict[str, Any]]) -> dict[str, Any]:

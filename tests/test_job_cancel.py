@@ -25,12 +25,13 @@ def _cpu_s(pid: int) -> float:
 
 
 def _dense_plan(n: int = 600) -> dict:
-    """A crowded single-pointing field: dozens of configurations and motion legs (minutes)."""
+    """A crowded single-pointing field: dozens of configurations and motion legs (minutes),
+    segmented by complete linkage (the job is past its segmentation within a second or two)."""
     rng = np.random.default_rng(7)
     ra, dec = 250.42 + rng.normal(0, 0.006, n), 36.46 + rng.normal(0, 0.006, n)
     return {"targets": [{"id": f"t{i}", "ra_deg": float(ra[i]), "dec_deg": float(dec[i]),
                          "priority": int(1 + i % 5)} for i in range(n)],
-            "seed": 1, "time_limit_s": 600}
+            "seed": 1, "time_limit_s": 600, "segmentation_mode": "complete-linkage"}
 
 
 def test_cancel_a_queued_job_it_never_runs(tmp_path: Path) -> None:

@@ -151,3 +151,28 @@ def test_a_plan_answers_legs_read_back_are_the_same_verified_legs(planned) -> No
     again = plan_sequence(INST, configs, OPTIONS, known=known_legs_in(INST, answer))
     assert again.stats["plans"] == 0 and again.stats["reused_legs"] == len(seq.legs)
     _check_legs(again)
+
+
+def test_a_known_leg_through_park_is_reported_as_one(planned) -> None:
+    """A reused leg that goes through park (two verified halves) is recorded as a via-park
+    change, so the validator allows its stop at park (planner.validate.via_park_legs)."""
+    from planner.sequence import via_park_leg
+    from planner.validate import allowed_stops
+
+    configs, seq = planned
+    c1, c2 = configs[:2]
+    a, b = seq.legs[0], plan_sequence(INST, (c2,), OPTIONS).legs[0]
+    via = via_park_leg(INST, a, b, c1.q, c2.q, 0.0)
+    assert via is not None and via.stats["strategy"] == "via_park"
+    known = KnownLegs.of_plan(PARK, [c1.q, c2.q], [a, via, _failed()])
+    again = plan_sequence(INST, (c1, c2), OPTIONS, known=known)
+    assert again.executable and again.legs[1].stats["reused"] and again.legs[1].stats["strategy"] == "via_park"
+    assert [(c.kind, c.leg) for c in again.changes] == [("via_park", 1)]
+    stops = max(_stops(tr) for tr in again.legs[1].trajectories)
+    assert allowed_stops(False) < stops <= allowed_stops(True), "premise: the leg stops at park"
+
+
+def _stops(tr) -> int:
+    from planner.commands import stop_count
+
+    return stop_count(tr.t_s, tr.theta1_rad, tr.theta2_rad)

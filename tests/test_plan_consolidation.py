@@ -342,6 +342,12 @@ def test_the_pass_runs_again_while_it_is_accepted() -> None:
     assert another_pass([]) and another_pass([True]) and another_pass([True] * (MAX_PASSES - 1))
     assert not another_pass([True, False]) and not another_pass([False])
     assert not another_pass([True] * MAX_PASSES)
+    # a refused pass whose failed pointings the next one leaves out runs again; one with none does not
+    no = frozenset()
+    assert another_pass([True, False], left_out=[no, frozenset({3})])
+    assert not another_pass([False, False], left_out=[frozenset({3}), no])
+    assert another_pass([False, False], left_out=[frozenset({3}), frozenset({1})])
+    assert not another_pass([False] * MAX_PASSES, left_out=[frozenset({k}) for k in range(MAX_PASSES)])
 
 
 def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
@@ -353,15 +359,16 @@ def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
     rounds = [[PointingOutcome(0, 1, 10.0, 8.0, True, 0, 10)]]
     seen = []
 
-    def one(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s):
+    def one(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s, frozen):
         k = len(seen)
         seen.append((seg, len(history), spent_s))
+        assert frozen == frozenset()
         tries = [[PointingOutcome(0, len(history) + 1, 2.0, 1.0, True, 0, 10)]]
         stats = {"exposures_emptied": k + 1, "targets_moved_from_few": k, "effort_s": 0.5 * (k + 1),
                  "pointings": [f"P{k}"], "accepted": k < 2}
         if k < 2:
-            return f"seg{k + 1}", answers, {**stats, "exposures_saved": k + 1}, tries
-        return seg, answers, {**stats, "reason": "the changed pointings' plans were not better"}, tries
+            return f"seg{k + 1}", answers, {**stats, "exposures_saved": k + 1}, tries, frozenset()
+        return seg, answers, {**stats, "reason": "the changed pointings' plans were not better"}, tries, frozenset()
 
     monkeypatch.setattr(plan_consolidation, "_pass", one)
     monkeypatch.setattr(pipeline, "plan_mode", lambda req: "fewest-exposures")
@@ -375,6 +382,30 @@ def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
     assert c["pointings"] == ["P0", "P1"] and "reason" not in c
     assert c["effort_s"] == pytest.approx(3.0) and len(c["passes"]) == 3
     assert c["passes"][2]["reason"] and not c["passes"][2]["accepted"]
+
+
+def test_a_refused_pass_runs_again_without_the_pointings_whose_plans_failed(monkeypatch) -> None:
+    """service.plan_consolidation's passes: a pass refused for the failed plans of pointings 2
+    and 5 is followed by one that leaves them out; one refused with no failed pointing ends
+    the passes."""
+    seen = []
+
+    def one(req, inst, seg, answers, history, limit_s, wall_left_s, spent_s, frozen):
+        seen.append(frozen)
+        stats = {"exposures_emptied": 1, "targets_moved_from_few": 0, "effort_s": 0.1, "pointings": ["P1"],
+                 "accepted": len(seen) == 2}
+        if len(seen) == 1:
+            return seg, answers, {**stats, "reason": "not better"}, [], frozenset({2, 5})
+        if len(seen) == 2:
+            return "seg1", answers, {**stats, "exposures_saved": 1}, [], frozenset()
+        return seg, answers, {**stats, "reason": "not better"}, [], frozenset()
+
+    monkeypatch.setattr(plan_consolidation, "_pass", one)
+    monkeypatch.setattr(pipeline, "plan_mode", lambda req: "fewest-exposures")
+    req = PlanRequest.model_validate(_request())
+    seg, _, stats = plan_consolidation.consolidated(req, INST, "seg0", [], [], 100.0, lambda: 50.0)
+    assert seen == [frozenset(), frozenset({2, 5}), frozenset({2, 5})]
+    assert seg == "seg1" and stats["consolidation"]["exposures_saved"] == 1
 
 
 def _two_pointings(seed: int):

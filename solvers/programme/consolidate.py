@@ -114,34 +114,34 @@ def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget
     that give or take targets are replaced by ones with their new members and allocations.
     Returns the exposures given up."""
     state = {j: _arms_of(f, p) for j, p in enumerate(pts) if p.allocation is not None and p.exposures}
-    saved, changed = empty_exposures(f, state, opts.park_move_limit_s, opts.arm_limits, budget)
-    for j in changed:
+    saved, groups = empty_exposures(f, state, opts.park_move_limit_s, opts.arm_limits, budget)
+    for j in set().union(*groups):
         pts[j] = _rebuilt(f, pts[j], state[j])
     return saved
 
 
 def empty_exposures(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
                     arm_limits: tuple[int, ...] | None, budget: Budget,
-                    legs: LegCosts | None = None) -> tuple[int, set[int]]:
+                    legs: LegCosts | None = None) -> tuple[int, list[frozenset[int]]]:
     """The pass of the module docstring on the pointings' exposures ``state`` (any keys), in
     place; ``arm_limits``: per target of the programme, the bit mask of the arms it may use
     (None: any); ``legs``: each target goes to the exposure whose legs cost least to plan
     again, then the fullest (:class:`LegCosts`; None: the fullest). Returns the exposures
-    given up (their ``alive`` turned False) and the keys of the pointings that gave or took a
-    target."""
+    given up (their ``alive`` turned False) and, for each, the keys of the pointings that gave
+    or took its targets."""
     focal: dict[tuple[int, int], tuple[float, float] | None] = {}
     order = sorted(((int(np.count_nonzero(a.target[e] >= 0)), j, e) for j, a in state.items()
                     for e in np.flatnonzero(a.alive)))
-    saved, changed = 0, set()
+    saved, groups = 0, []
     for _, j, e in order:
         if budget.expired():
             break
         trial = _emptied(f, state, j, int(e), park_move_limit_s, arm_limits, focal, legs)
         if trial is not None:
             state.update(trial)
-            changed |= set(trial)
+            groups.append(frozenset(trial))
             saved += 1
-    return saved, changed
+    return saved, groups
 
 
 def arms_of(n_arms: int, centre: tuple[float, float], pa_deg: float, configs: Sequence[Configuration],
@@ -193,17 +193,18 @@ def _arms_of(f: Field, p: Pointing) -> Arms:
 
 def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None,
                arm_limits: tuple[int, ...] | None, budget: Budget, few: int = FEW_TARGETS,
-               legs: LegCosts | None = None) -> tuple[int, int, set[int]]:
+               legs: LegCosts | None = None) -> tuple[int, int, list[frozenset[int]]]:
     """The exposures observing at most ``few`` targets (but more than one: an exposure of one
     target is emptied or stays), in place: each of their targets that fits on an idle arm of an
     exposure observing at least ``few`` goes there (the fullest first, as
     :func:`empty_exposures` places), so that such an exposure keeps only targets no fuller
-    exposure can take. Returns the exposures emptied that way, the targets moved and the keys
-    of the pointings that gave or took a target (``legs``: as :func:`empty_exposures` chooses)."""
+    exposure can take. Returns the exposures emptied that way, the targets moved and, for each
+    exposure that gave a target, the keys of the pointings that gave or took its targets
+    (``legs``: as :func:`empty_exposures` chooses)."""
     focal: dict[tuple[int, int], tuple[float, float] | None] = {}
     order = sorted((n, j, int(e)) for j, a in state.items() for e in np.flatnonzero(a.alive)
                    if 1 < (n := int(np.count_nonzero(a.target[e] >= 0))) <= few)
-    emptied, moved, changed = 0, 0, set()
+    emptied, moved, groups = 0, 0, []
     for _, j, e in order:
         if budget.expired():
             break
@@ -219,11 +220,11 @@ def thin_moves(f: Field, state: dict[int, Arms], park_move_limit_s: float | None
                 moved += 1
         if trial:
             state.update(trial)
-            changed |= set(trial)
+            groups.append(frozenset(trial))
             if not (state[j].target[e] >= 0).any():
                 state[j].alive[e] = False
                 emptied += 1
-    return emptied, moved, changed
+    return emptied, moved, groups
 
 
 def _emptied(f: Field, state: dict[int, Arms], j: int, e: int, park_move_limit_s: float | None,
