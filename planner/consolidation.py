@@ -125,6 +125,7 @@ def groups_of(exchanges: Sequence[frozenset[int]]) -> dict[int, int]:
 
     for ex in exchanges:
         first, *rest = sorted(ex)
+        root(first)  # a pointing whose exposure gave its targets to its own other exposures
         for j in rest:
             a, b = sorted((root(first), root(j)))
             parent[b] = a

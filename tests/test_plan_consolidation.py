@@ -501,3 +501,24 @@ def test_a_plan_moves_targets_out_of_exposures_of_two() -> None:
     assert all({o["target_id"] for o in f["only_here"]} == set(f["target_ids"]) for f in few)
     assert _observed(plan) == sorted(t["id"] for t in prog["targets"])
     assert plan["executable"] and validate_plan(INST, plan).valid
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_groups_are_the_connected_pointings_of_the_exchanges(seed) -> None:
+    """planner.consolidation.groups_of against a restatement: two pointings share a group
+    exactly when a chain of exchanges links them; each group is named by its least pointing."""
+    from planner.consolidation import groups_of
+
+    rng = np.random.default_rng(seed)
+    exchanges = [frozenset(int(j) for j in rng.choice(12, rng.integers(1, 4), replace=False))
+                 for _ in range(rng.integers(0, 6))]
+    group = groups_of(exchanges)
+    linked = {j: {j} for ex in exchanges for j in ex}
+    for _ in range(12):  # the transitive closure, by repeated merging
+        for ex in exchanges:
+            union = set().union(*(linked[j] for j in ex))
+            for j in union:
+                linked[j] = union
+    assert set(group) == set(linked)
+    for j, members in linked.items():
+        assert group[j] == min(members)
