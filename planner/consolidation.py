@@ -56,7 +56,7 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "PASS_EFFORT_S", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
            "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
@@ -64,6 +64,11 @@ MODE = "fewest-exposures"
 #: the pass itself (its placement tests, every run of :func:`affordable`) runs on at most
 #: this many effort seconds
 PASS_EFFORT_S = 3.0
+#: the pass's wall-clock guard is this many times the wall-clock seconds its effort stands for
+#: (:func:`pass_wall_s`): a safety net for a machine slower than the effort clock's reference,
+#: which ends the pass (its plan then stays as it was); what the pass spends is counted on the
+#: effort clock, so the plan is the same on any machine the guard does not stop
+PASS_WALL_GUARD = 2.0
 #: a leg the pass makes new costs this many times an average leg of its pointing in the rounds:
 #: it goes into or out of an exposure that took a target on an arm its allocation left idle,
 #: or joins two exposures no leg joined, a move no search of the rounds made easy
@@ -173,33 +178,26 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
     """:func:`regroup` with what planning the changed pointings again costs within ``left_s``
     (the pointings ``frozen`` left out from the start):
     each costs what it spent in the rounds on the legs it plans anew (:func:`replan_costs`;
-    at least ``min_pointing_s``). The pass runs with the fullest takers first and with each
-    target given to the exposure whose legs cost least to plan again (``per_leg_s`` of
-    :func:`regroup`); of the two that fit, the one that empties more exposures (then moves
-    more targets, then costs less) is kept. While neither fits, the costliest pointing the
-    cheaper one changes is left out of the pass and both run again; (0, 0, []) when nothing
-    that fits changes."""
+    at least ``min_pointing_s``). When they do not fit, the pass runs again with each target
+    given to the exposure whose legs cost least to plan again (``per_leg_s`` of
+    :func:`regroup`); while that does not fit either, the costliest pointing it changes is left
+    out of the pass and both run again; (0, 0, []) when nothing that fits changes."""
     per_leg = {j: costs_s.get(j, 0.0) / (len(p.configurations) + 1) for j, p in enumerate(pointings)}
 
     def attempt(frozen: frozenset[int]) -> tuple[tuple[int, int, list[Regrouped]] | None, dict[int, float]]:
-        """The pass with ``frozen`` left out, the fullest takers first and the cheapest legs
-        first: of those whose changes fit, the one that empties more exposures (then moves more
-        targets, then costs less; else None), and the costs of the cheaper one's changes."""
-        runs = []
+        """The pass with ``frozen`` left out, the fullest takers first, then (when what that
+        changes does not fit) the cheapest legs first: the first whose changes fit (else
+        None), and the costs of the last one's changes."""
+        need: dict[int, float] = {}
         for thrifty in (None, per_leg):
             saved, moved, changed = regroup(inst, ra_deg, dec_deg, priority, pointings, park_move_limit_s,
                                             arm_limits, budget, frozen=frozen, per_leg_s=thrifty)
-            if changed:
-                need = replan_costs(costs_s, pointings, changed)
-                runs.append((saved, moved, changed, need, sum(max(v, table.min_pointing_s) for v in need.values())))
-        if not runs:
-            return None, {}
-        fits = [r for r in runs if r[4] <= left_s]
-        cheaper = min(runs, key=lambda r: r[4])
-        if not fits:
-            return None, cheaper[3]
-        best = max(fits, key=lambda r: (r[0], r[1], -r[4]))
-        return best[:3], best[3]
+            if not changed:
+                continue
+            need = replan_costs(costs_s, pointings, changed)
+            if sum(max(v, table.min_pointing_s) for v in need.values()) <= left_s:
+                return (saved, moved, changed), need
+        return None, need
 
     while not budget.expired():
         fit, need = attempt(frozen)

@@ -18,6 +18,7 @@ from models.sky import tangent_radius_mm
 from models.types import ArmAssignment, Configuration
 from planner.consolidation import (
     PASS_EFFORT_S,
+    PASS_WALL_GUARD,
     PlannedPointing,
     Regrouped,
     accepted,
@@ -83,7 +84,7 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
     planned = [_planned(p, index) for p in answers]
     limits = arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms)
     cost = costs(history)
-    with clock.effort(wall_limit_s=max(min(wall_left_s(), pass_wall_s()), 0.0)) as effort:
+    with clock.effort(wall_limit_s=max(min(wall_left_s(), PASS_WALL_GUARD * pass_wall_s()), 0.0)) as effort:
         saved, moved, changed = affordable(inst, np.array([t.ra_deg for t in req.targets]),
                                            np.array([t.dec_deg for t in req.targets]),
                                            np.array([int(t.priority) for t in req.targets]), planned,

@@ -522,3 +522,26 @@ def test_groups_are_the_connected_pointings_of_the_exchanges(seed) -> None:
     assert set(group) == set(linked)
     for j, members in linked.items():
         assert group[j] == min(members)
+
+
+def test_each_group_of_pointings_is_kept_or_refused_on_its_own() -> None:
+    """service.plan_consolidation._kept_groups: group 0 (pointings 0 and 2) saves an exposure
+    with every plan executable and is kept; group 1 (pointing 1) has a failed leg and is
+    refused, and its pointing is the one the later passes leave out."""
+    from models.types import AllocationResult
+    from planner.consolidation import Regrouped
+
+    def answer(exposures: list[list[str]], executable: bool = True) -> dict:
+        return {"executable": executable,
+                "configurations": [{"assignments": [{"target_id": t} for t in ids]} for ids in exposures]}
+
+    old = [answer([["a", "b"], ["c"]]), answer([["d"], ["e"]]), answer([["f", "g"]])]
+    new = {0: answer([["a", "b"]]), 1: answer([["d", "e"]], executable=False), 2: answer([["f", "g", "c"]])}
+    alloc = AllocationResult((), (), {})
+    changed = [Regrouped(0, (), alloc, 0), Regrouped(1, (), alloc, 1), Regrouped(2, (), alloc, 0)]
+    assert plan_consolidation._kept_groups(changed, old, new) == {0}
+    assert plan_consolidation._failed([r for r in changed if r.group == 1], new) == frozenset({1})
+    new[1] = answer([["d", "e"]])
+    assert plan_consolidation._kept_groups(changed, old, new) == {0, 1}
+    new[2] = answer([["f", "g"]])  # c lost: group 0 refused
+    assert plan_consolidation._kept_groups(changed, old, new) == {1}
