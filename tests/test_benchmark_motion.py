@@ -44,7 +44,7 @@ class PlanSequenceRecorder:
         self.calls: list[tuple[tuple, object]] = []
 
     def __call__(self, instrument, configurations, options=None, *, targets=None, progress=None,
-                 budget=None):
+                 budget=None, known=None):
         self.calls.append((tuple(configurations), options))
         ok = MotionPlan("ok", 1.0, (), (), {})
         return SequencePlan(tuple(configurations), (ok,) * (len(configurations) + 1))
@@ -238,7 +238,7 @@ class ChangingSequence(PlanSequenceRecorder):
     configuration per field; every other field not executable."""
 
     def __call__(self, instrument, configurations, options=None, *, targets=None, progress=None,
-                 budget=None):
+                 budget=None, known=None):
         self.calls.append((tuple(configurations), options))
         ok = MotionPlan("ok", 1.0, (), (), {})
         failed = MotionPlan("failed", float("nan"), (), (3,), {})

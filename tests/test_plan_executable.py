@@ -57,7 +57,7 @@ def fake_plan_sequence(fail: bool):
     calls: list[SequenceOptions] = []
 
     def plan_sequence(inst: Any, configurations: Any, options: SequenceOptions, *,
-                      targets: PlaneTargets, progress: Any, budget: Budget) -> SequencePlan:
+                      targets: PlaneTargets, progress: Any, budget: Budget, known: Any = None) -> SequencePlan:
         assert isinstance(options, SequenceOptions) and options.leg_time_limit_s > 0
         progress(1.0)
         assert isinstance(targets, PlaneTargets) and len(targets.ids) == len(TARGETS)

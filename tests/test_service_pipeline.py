@@ -135,8 +135,8 @@ class SlowStages:
         return AllocationResult((_configuration(0, targets), _configuration(1, targets)), ())
 
     def plan_sequence(self, inst: Any, configurations: Any, options: SequenceOptions, *,
-                      targets: Any = None, progress: Any = None, budget: Budget | None = None
-                      ) -> SequencePlan:
+                      targets: Any = None, progress: Any = None, budget: Budget | None = None,
+                      known: Any = None) -> SequencePlan:
         left_s = 0.0 if budget is None else max(budget.left_s(), 0.0)  # None: no configurations
         self.sequence_limits.append((options.leg_time_limit_s, left_s))
         _use(left_s)
