@@ -59,9 +59,6 @@ class KnownLegs:
                 out.setdefault(goal_key(np.asarray(goal, float)), []).append((start, leg))
         return cls({k: tuple(v) for k, v in out.items()})
 
-    def __len__(self) -> int:
-        return sum(len(v) for v in self.by_goal.values())
-
     def leg(self, instrument: Instrument, start_q: np.ndarray, goal_q: np.ndarray) -> MotionPlan | None:
         """A known leg from ``start_q`` to ``goal_q``, shifted onto ``start_q`` and verified
         again; None when none makes that move (or the verifier rejects it)."""

@@ -42,7 +42,7 @@ from models.instrument import Instrument
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets, Unallocated
 from planner.commands import arm_trajectory
 from planner.driver import plan_motion, verified_plan
-from planner.known_legs import KnownLegs
+from planner.known_legs import KnownLegs, goal_key
 from planner.options import MIN_LEG_S
 from planner.reassign import (
     Placed,
@@ -211,7 +211,7 @@ VIA_PARK_REASON = "no direct motion found between the two configurations"
 
 def _key(config: Configuration) -> bytes:
     """A configuration's joint angles, as the key of its park -> configuration plan."""
-    return np.ascontiguousarray(config.q, dtype=float).tobytes()
+    return goal_key(config.q)
 
 
 class _Sequencer:
