@@ -68,6 +68,8 @@ ARMS = 12
 SMALL_EXPOSURE_TARGETS = 2
 #: The goal of issue 38: every programme within this factor of its proven bound.
 GAP_GOAL = 1.25
+#: The goal of issue 38: total exposures at most this factor of complete linkage's.
+RATIO_GOAL = 0.65
 SMOKE = {"programmes": [("two-clump", 3), ("scattered", 7)], "n_range": (10, 15),
          "time_limit_s": 10.0}
 
@@ -255,6 +257,20 @@ def _median(xs: list[float]) -> float | None:
     return statistics.median(xs) if xs else None
 
 
+def bound_ratio(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
+    """The proven bounds of ``mode``'s plans over the programmes ``rows`` (each planned with
+    complete linkage too): their total over complete linkage's exposures, the least ratio
+    to complete linkage any plan of these programmes can reach, and the gap to the bounds
+    that :data:`RATIO_GOAL` leaves (None when a plan has no bound)."""
+    bounds = [r["modes"][mode]["exposures_lower_bound"] for r in rows]
+    base = sum(r["modes"][BASELINE]["exposures"] for r in rows)
+    if not rows or None in bounds or not base:
+        return {"bounds_total": None, "bound_ratio_to_complete_linkage_total": None,
+                "ratio_goal_allows_gap": None}
+    return {"bounds_total": sum(bounds), "bound_ratio_to_complete_linkage_total": ratio(sum(bounds), base),
+            "ratio_goal_allows_gap": ratio(RATIO_GOAL * base, sum(bounds))}
+
+
 def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
     """The summary of ``mode`` over the programmes (rows) where it ran."""
     ran = [r for r in rows if "error" not in r["modes"].get(mode, {"error": "not run"})]
@@ -273,6 +289,7 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
             sum(r["modes"][mode]["exposures"] for r in both),
             sum(r["modes"][BASELINE]["exposures"] for r in both)) if both else None,
         "ratio_to_complete_linkage": [r["modes"][mode]["ratio_to_complete_linkage"] for r in ran],
+        **bound_ratio(both, mode),
         "with_bound": len(gaps),
         "gap_median": _median(gaps), "gap_max": max(gaps) if gaps else None,
         "within_gap_goal": sum(g <= GAP_GOAL for g in gaps),

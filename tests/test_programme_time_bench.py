@@ -33,7 +33,8 @@ SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "wall_s_total", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
                 "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total",
-                "small_exposures_explained_total", "valid",
+                "small_exposures_explained_total", "valid", "bounds_total",
+                "bound_ratio_to_complete_linkage_total", "ratio_goal_allows_gap",
                 "violations_total"}
 
 
@@ -141,6 +142,21 @@ def test_the_summary_adds_up(smoke) -> None:
         assert s["with_bound"] == len(gaps)
         assert s["gap_median"] == (statistics.median(gaps) if gaps else None)
     assert out["summary"][pt.BASELINE]["ratio_to_complete_linkage_total"] == 1.0
+
+
+def test_the_bound_ratio_is_the_plans_bounds_over_complete_linkage_and_no_plan_beats_it(smoke) -> None:
+    out, plans = smoke
+    names = [r["name"] for r in out["programmes"]]
+    base = sum(len(p["configurations"]) for n in names for p in plans[(n, pt.BASELINE)]["pointings"])
+    fe = out["summary"]["fewest-exposures"]
+    bounds = [pt.bound_of(plans[(n, "fewest-exposures")]["stats"]["exposures_lower_bound"]) for n in names]
+    assert all(isinstance(b, int) and b > 0 for b in bounds)
+    assert fe["bounds_total"] == sum(bounds)
+    assert fe["bound_ratio_to_complete_linkage_total"] == pytest.approx(sum(bounds) / base, abs=1e-4)
+    assert fe["ratio_goal_allows_gap"] == pytest.approx(pt.RATIO_GOAL * base / sum(bounds), abs=1e-4)
+    for s in out["summary"].values():  # a proven bound: no plan of any mode takes fewer
+        assert s["ratio_to_complete_linkage_total"] >= fe["bound_ratio_to_complete_linkage_total"]
+    assert out["summary"][pt.BASELINE]["bound_ratio_to_complete_linkage_total"] is None  # no bound
 
 
 def test_a_mode_the_schema_rejects_is_named_with_its_message() -> None:
