@@ -181,7 +181,10 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
     at least ``min_pointing_s``). When they do not fit, the pass runs again with each target
     given to the exposure whose legs cost least to plan again (``per_leg_s`` of
     :func:`regroup`); while that does not fit either, the costliest pointing it changes is left
-    out of the pass and both run again; (0, 0, []) when nothing that fits changes."""
+    out of the pass and both run again; (0, 0, []) when nothing that fits changes, at once
+    when ``left_s`` holds no pointing's ``min_pointing_s`` (no change could fit)."""
+    if left_s < table.min_pointing_s:
+        return 0, 0, []
     per_leg = {j: costs_s.get(j, 0.0) / (len(p.configurations) + 1) for j, p in enumerate(pointings)}
 
     def attempt(frozen: frozenset[int]) -> tuple[tuple[int, int, list[Regrouped]] | None, dict[int, float]]:

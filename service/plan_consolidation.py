@@ -34,7 +34,7 @@ from planner.consolidation import (
     retry_tasks,
 )
 from planner.known_legs import KnownLegs
-from planner.programme import PointingOutcome, RoundTask
+from planner.programme import SHARES, PointingOutcome, RoundTask
 from service import adapters, pipeline
 from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
@@ -84,17 +84,20 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
     planned = [_planned(p, index) for p in answers]
     limits = arm_limits([t.id for t in req.targets], target_locks(req.locked), inst.n_arms)
     cost = costs(history)
+    left = left_s(limit_s, history, spent_s + pass_wall_s())
     with clock.effort(wall_limit_s=max(min(wall_left_s(), PASS_WALL_GUARD * pass_wall_s()), 0.0)) as effort:
         saved, moved, changed = affordable(inst, np.array([t.ra_deg for t in req.targets]),
                                            np.array([t.dec_deg for t in req.targets]),
                                            np.array([int(t.priority) for t in req.targets]), planned,
                                            req.park_move_limit_s, limits, Budget.start(PASS_EFFORT_S), cost,
-                                           left_s(limit_s, history, spent_s + pass_wall_s()), frozen=frozen)
+                                           left, frozen=frozen)
     stats: dict[str, Any] = {"exposures_emptied": saved, "targets_moved_from_few": moved, "effort_s": effort.t_s,
                              "pointings": [answers[r.index]["id"] for r in changed], "accepted": False}
     if frozen:
         stats["left_out"] = [answers[i]["id"] for i in sorted(frozen)]
     if not changed:
+        if left < SHARES.min_pointing_s:
+            stats["reason"] = "no time left to plan a changed pointing"
         return seg, answers, stats, [], frozenset()
     pointings = list(seg.pointings)
     for r in changed:

@@ -15,7 +15,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+import planner.consolidation as consolidation
 from benchmarks import programme_time as PT
+from models import clock
 from models.budget import Budget
 from models.instrument import default_instrument
 from models.sky import sky_to_focal_mm
@@ -274,6 +276,25 @@ def test_affordable_leaves_the_costliest_pointing_out_until_the_rest_fits() -> N
         assert affordable(*args, Budget.start(30.0), costs_s, 0.1) == (0, 0, [])
 
 
+def test_affordable_spends_nothing_when_no_pointing_could_be_planned_again(monkeypatch) -> None:
+    """With less left than one pointing's least plan, no change fits: the pass returns at once
+    (no regroup runs, no placement is charged); with that much left it searches."""
+    f, pts = _overlapping(1)
+    planned = _planned(f, pts)
+    args = (INST, f.ra_deg, f.dec_deg, f.priority, planned, LIMIT_S, None)
+    runs = []
+    real = consolidation.regroup
+    monkeypatch.setattr(consolidation, "regroup", lambda *a, **k: runs.append(1) or real(*a, **k))
+    least = SHARES.min_pointing_s
+    with clock.effort(wall_limit_s=60.0) as effort:
+        assert consolidation.affordable(*args, Budget.start(30.0), {0: 0.1, 1: 0.1}, 0.99 * least) == (0, 0, [])
+    assert runs == []
+    with clock.effort(wall_limit_s=60.0) as searched:
+        saved, _, changed = consolidation.affordable(*args, Budget.start(30.0), {0: 0.1, 1: 0.1}, 2 * least)
+    assert runs and changed and saved == regroup(*args, Budget.start(30.0))[0]
+    assert effort.t_s < 0.01 * searched.t_s  # a clock read, against the pass's placements
+
+
 def test_accepted_needs_every_plan_executable_every_target_and_fewer_exposures() -> None:
     old, new = [{"a", "b"}, {"c"}], [{"a"}, {"b", "c"}]
     assert accepted(old, new, 3, 2, [True, True])
@@ -382,6 +403,26 @@ def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
     assert c["pointings"] == ["P0", "P1"] and "reason" not in c
     assert c["effort_s"] == pytest.approx(3.0) and len(c["passes"]) == 3
     assert c["passes"][2]["reason"] and not c["passes"][2]["accepted"]
+
+
+
+def test_a_pass_with_no_time_left_changes_nothing_and_says_why(plans) -> None:
+    """A pass after rounds that spent the whole limit changes no pointing and says that time,
+    not the plan, stopped it; the same pass with the limit's time left searches the plan."""
+    _, rounds_only = plans
+    req = PlanRequest.model_validate(_request())
+    answers = rounds_only["pointings"]
+    spent = [[PointingOutcome(0, 1, 200.0, 0.8 * 200.0, True, 0, 10)]]
+    _, out, stats, tries, failed = plan_consolidation._pass(req, INST, None, answers, spent, 120.0,
+                                                            lambda: 50.0, 0.0)
+    assert out is answers and tries == [] and failed == frozenset()
+    assert stats["pointings"] == [] and not stats["accepted"]
+    assert stats["reason"] == "no time left to plan a changed pointing"
+    left = []
+    with pytest.MonkeyPatch.context() as mp:  # with the limit's time left, the pass searches
+        mp.setattr(plan_consolidation, "affordable", lambda *a, **k: left.append(a[-1]) or (0, 0, []))
+        _, _, searched, _, _ = plan_consolidation._pass(req, INST, None, answers, [], 120.0, lambda: 50.0, 0.0)
+    assert left and left[0] > 100.0 and "reason" not in searched
 
 
 def test_a_refused_pass_runs_again_without_the_pointings_whose_plans_failed(monkeypatch) -> None:
