@@ -213,7 +213,8 @@ def time_summary(t: dict[str, Any]) -> str:
 
 def exposures_summary(stats: Mapping[str, Any]) -> str:
     """One line: the plan's exposures against the proven lower bound, how many observe at
-    most 2 targets (and of those, how many only for targets no other exposure can take), what
+    most 2 targets (and of those, how many only for targets no other exposure can take, how
+    many with a target another exposure could take and why the consolidation stopped), what
     the programme optimiser's search kept (:func:`_optimiser_parts`) and how many exposures
     the plan's consolidation saved (:mod:`planner.consolidation`)."""
     n = int(stats["configurations"])
@@ -222,10 +223,16 @@ def exposures_summary(stats: Mapping[str, Any]) -> str:
     few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
     if few:
         explained = int(stats.get("few_target_exposures_explained", only))
+        movable = few - explained
         parts.append(f"{plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
                      "targets no other exposure can take" + (
                          f", {explained - only} more for targets only exposures of 1 target can take"
-                         if explained > only else "") + " (only_here in plan.json)")
+                         if explained > only else "") + (
+                         f", {movable} with a target another exposure could take" if movable > 0 else "")
+                     + " (only_here" + (", could_move_to" if movable > 0 else "") + " in plan.json)")
+        why = (stats.get("consolidation") or {}).get("reason")
+        if movable > 0 and why:
+            parts.append(f"the consolidation stopped: {why}")
     saved = int((stats.get("consolidation") or {}).get("exposures_saved", 0))
     if saved:
         parts.append(f"{plural(saved, 'exposure')} saved by moving targets onto idle arms of other exposures")

@@ -68,7 +68,7 @@ from service.schemas import (
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
-from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, NOWHERE_ELSE, Exposure, only_here
+from solvers.programme.spare import FEW_TARGETS, IDLE_KINDS, NOWHERE_ELSE, Exposure, explained
 from solvers.segmentation import Pointing, Segmentation, segment_field
 
 Progress = Callable[[float], None]
@@ -670,7 +670,8 @@ def few_target_exposures(out: Sequence[dict[str, Any]], targets: Sequence[SkyTar
                          park_move_limit_s: float | None) -> list[dict[str, Any]]:
     """The FewTargetExposureOut dicts of a plan: each exposure observing at most
     :data:`~solvers.programme.spare.FEW_TARGETS` targets, with those of them no other exposure
-    can take, and why (:func:`solvers.programme.spare.only_here`)."""
+    can take, and why, and for each of the others an exposure that could take it as the plan
+    stands (:func:`solvers.programme.spare.explained`)."""
     index = {t.id: i for i, t in enumerate(targets)}
     ra = np.array([t.ra_deg for t in targets], float)
     dec = np.array([t.dec_deg for t in targets], float)
@@ -684,10 +685,12 @@ def few_target_exposures(out: Sequence[dict[str, Any]], targets: Sequence[SkyTar
             exposures.append(Exposure(float(p["ra_deg"]), float(p["dec_deg"]), float(p["position_angle_deg"]),
                                       q, idle, observed))
             where.append((p["id"], int(c["index"])))
-    reasons = only_here(inst, ra, dec, exposures, park_move_limit_s)
+    reasons, movable = explained(inst, ra, dec, exposures, park_move_limit_s)
     return [{"pointing_id": where[j][0], "configuration": where[j][1],
              "target_ids": [targets[t].id for t in e.targets],
-             "only_here": [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.get(j, {}).items())]}
+             "only_here": [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.get(j, {}).items())],
+             "could_move_to": [{"target_id": targets[t].id, "pointing_id": where[m][0], "configuration": where[m][1]}
+                               for t, m in sorted(movable.get(j, {}).items())]}
             for j, e in enumerate(exposures) if 0 < len(e.targets) <= FEW_TARGETS]
 
 

@@ -730,6 +730,12 @@ class TimeLimitAdvice(Response):
     message: str = Field(description="The advice in one sentence, also in `notices`.")
 
 
+class MovableOut(Response):
+    target_id: str
+    pointing_id: str = Field(description="The pointing of an exposure that could take the target.")
+    configuration: int = Field(description="That exposure's `index` among its pointing's configurations.")
+
+
 class FewTargetExposureOut(Response):
     pointing_id: str
     configuration: int = Field(description="The exposure's `index` among its pointing's configurations.")
@@ -738,7 +744,15 @@ class FewTargetExposureOut(Response):
         description="Those of them no other exposure of the plan can take, and why, and those "
                     "only exposures observing 1 target can take ('takers_observe_fewer'); a "
                     "target of the exposure missing here could be observed by an exposure "
-                    "observing at least 2.")
+                    "observing at least 2 (`could_move_to` names one).")
+    could_move_to: list[MovableOut] = Field(
+        default_factory=list,
+        description="Each of its targets missing from `only_here`, with an exposure that could "
+                    "observe it as the plan stands, on an idle arm within the park move limit "
+                    "and clear of that exposure's other arms: one observing at least 2 targets "
+                    "(for an exposure of 1 target, the fullest that can). The plan's "
+                    "consolidation moves such targets while the time limit holds the motion "
+                    "legs it must plan again (`stats.consolidation`, its `reason` when it stopped).")
 
 
 class PlanResponse(Response):

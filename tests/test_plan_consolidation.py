@@ -344,6 +344,21 @@ def test_the_cli_summary_says_what_the_consolidation_saved(plans) -> None:
     assert "saved" not in exposures_summary(rounds_only["stats"])
 
 
+def test_the_cli_summary_counts_the_targets_another_exposure_could_take_and_why_they_stay() -> None:
+    from service.cli import exposures_summary
+
+    stats = {"configurations": 10, "few_target_exposures": 4, "few_target_exposures_only_here": 1,
+             "few_target_exposures_explained": 2,
+             "consolidation": {"accepted": False, "reason": "no time left to plan a changed pointing"}}
+    line = exposures_summary(stats)
+    assert "4 exposures observing at most 2 targets, 1 of them only for targets no other exposure can take" in line
+    assert "1 more for targets only exposures of 1 target can take" in line
+    assert "2 with a target another exposure could take (only_here, could_move_to in plan.json)" in line
+    assert line.endswith("; the consolidation stopped: no time left to plan a changed pointing")
+    every = exposures_summary({**stats, "few_target_exposures_explained": 4})
+    assert "could" not in every and "stopped" not in every and "(only_here in plan.json)" in every
+
+
 def test_only_programme_optimiser_plans_without_kept_configurations_are_consolidated() -> None:
     from planner.consolidation import applies
 
@@ -404,6 +419,40 @@ def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
     assert c["effort_s"] == pytest.approx(3.0) and len(c["passes"]) == 3
     assert c["passes"][2]["reason"] and not c["passes"][2]["accepted"]
 
+
+
+
+def test_a_plan_names_an_exposure_that_could_take_each_target_it_does_not_explain(plans) -> None:
+    """Every target of an exposure observing few is either explained (`only_here`) or named
+    with an exposure that could take it (`could_move_to`); FCL and the park move checked on
+    that exposure's idle arms (tests.test_spare_arms' brute force) agree that it could, and it
+    observes at least 2 targets unless the exposure it would leave observes 1."""
+    from tests.test_spare_arms import LIMIT_S as BRUTE_LIMIT_S
+    from tests.test_spare_arms import _brute_force
+
+    assert PlanRequest.model_validate(_request()).park_move_limit_s == BRUTE_LIMIT_S
+    sky = {t["id"]: (t["ra_deg"], t["dec_deg"]) for t in _request()["targets"]}
+    named = 0
+    for plan in plans:
+        configs = {(p["id"], c["index"]): (p, c) for p in plan["pointings"] for c in p["configurations"]}
+        for f in plan["few_target_exposures"]:
+            listed = [o["target_id"] for o in f["only_here"]] + [m["target_id"] for m in f["could_move_to"]]
+            assert sorted(listed) == sorted(f["target_ids"])
+            for m in f["could_move_to"]:
+                p, c = configs[(m["pointing_id"], m["configuration"])]
+                assert (p["id"], c["index"]) != (f["pointing_id"], f["configuration"])
+                arms = sorted(c["assignments"], key=lambda a: a["arm"])
+                observed = sum(a["target_id"] is not None for a in arms)
+                assert observed >= 2 or len(f["target_ids"]) == 1
+                q = np.array([[a["theta1_rad"], a["theta2_rad"]] for a in arms])
+                idle = np.array([a["kind"] in ("park", "blank", "sky") for a in arms])
+                ra, dec = sky[m["target_id"]]
+                x, y = sky_to_focal_mm(np.array([ra]), np.array([dec]), p["ra_deg"], p["dec_deg"],
+                                       INST.plate_scale_arcsec_per_mm, p["position_angle_deg"])
+                fits, edge = _brute_force(q, idle, float(x[0]), float(y[0]))
+                assert fits or edge, m
+                named += 1
+    assert named, "premise: the plans leave a target another exposure could take"
 
 
 def test_a_pass_with_no_time_left_changes_nothing_and_says_why(plans) -> None:

@@ -27,6 +27,7 @@ from solvers.programme.spare import (
     OUTSIDE_OTHER_FIELDS,
     TAKERS_OBSERVE_FEWER,
     Exposure,
+    explained,
     only_here,
     spare_arm_for,
     takers,
@@ -119,9 +120,11 @@ def test_only_here_gives_the_reasons_it_can_prove() -> None:
          Exposure(11.0, 20.0, 0.0, park, all_idle, (2,))]
     got = only_here(INST, ra, dec, e, LIMIT_S)
     assert got == {2: {2: OUTSIDE_OTHER_FIELDS}}  # targets 0 and 1 fit in each other's exposure
+    assert explained(INST, ra, dec, e, LIMIT_S) == (got, {0: {0: 1}, 1: {1: 0}})  # and where
     e[1] = Exposure(10.0, 20.0, 0.0, park, none_idle, (1,))
     got = only_here(INST, ra, dec, e, LIMIT_S)
     assert got == {0: {0: NO_SPARE_ARM}, 2: {2: OUTSIDE_OTHER_FIELDS}}
+    assert explained(INST, ra, dec, e, LIMIT_S) == (got, {1: {1: 0}})
 
 
 def test_only_here_says_when_only_exposures_of_fewer_targets_can_take_one() -> None:
@@ -139,9 +142,11 @@ def test_only_here_says_when_only_exposures_of_fewer_targets_can_take_one() -> N
     got = only_here(INST, ra, dec, e, LIMIT_S)
     assert got == {0: {0: TAKERS_OBSERVE_FEWER, 1: TAKERS_OBSERVE_FEWER}, 1: {2: NO_SPARE_ARM},
                    2: {3: OUTSIDE_OTHER_FIELDS}}
+    assert explained(INST, ra, dec, e, LIMIT_S)[1] == {}  # every target is listed
     e[1] = Exposure(10.0, 20.0, 0.0, park, all_idle, (2, 4))  # observes two
     got = only_here(INST, ra, dec, e, LIMIT_S)
     assert 0 not in got and got[1] == {2: NO_SPARE_ARM, 4: NO_SPARE_ARM}
+    assert explained(INST, ra, dec, e, LIMIT_S)[1] == {0: {0: 1, 1: 1}}  # exposure 1 could take them
     assert NOWHERE_ELSE == {OUTSIDE_OTHER_FIELDS, NO_SPARE_ARM}
 
 

@@ -382,7 +382,10 @@ function showSummary(result, request, fate) {
   if (s.few_target_exposures) rows.push(["configurations observing at most 2 targets",
     `${s.few_target_exposures} (${s.few_target_exposures_only_here} only for targets no other configuration can take` +
     ((s.few_target_exposures_explained || 0) > s.few_target_exposures_only_here
-      ? `, ${s.few_target_exposures_explained - s.few_target_exposures_only_here} more for targets only configurations of 1 target can take` : "") + ")"]);
+      ? `, ${s.few_target_exposures_explained - s.few_target_exposures_only_here} more for targets only configurations of 1 target can take` : "") +
+    (s.few_target_exposures > (s.few_target_exposures_explained ?? s.few_target_exposures)
+      ? `, ${s.few_target_exposures - s.few_target_exposures_explained} with a target another configuration could take` +
+        (s.consolidation?.reason ? ` (the consolidation stopped: ${s.consolidation.reason})` : "") : "") + ")"]);
   rows.push(...programmeRows(s));
   for (const [k, label] of [["targets_moved", "targets moved to another configuration"],
     ["legs_via_park", "legs through park"], ["configurations_added", "configurations added"],

@@ -25,7 +25,7 @@ from models.instrument import Instrument
 from models.sky import sky_to_focal_mm, tangent_radius_mm
 
 __all__ = ["FEW_TARGETS", "IDLE_KINDS", "NOWHERE_ELSE", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "TAKERS_OBSERVE_FEWER",
-           "Exposure", "only_here", "placements",
+           "Exposure", "explained", "only_here", "placements",
            "spare_arm_for", "takers"]
 
 #: An exposure observing at most this many targets is one the plan explains
@@ -133,17 +133,28 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
     this exposure could take it back; the consolidation's moves,
     :func:`solvers.programme.consolidate.thin_moves`, go only to exposures observing at least
     ``few``). A target with none of these is left out: an exposure observing at least ``few``
-    could take it. Returns {exposure index: {target index: reason}}."""
+    could take it (:func:`explained` names one). Returns {exposure index: {target index: reason}}."""
+    return explained(inst, ra_deg, dec_deg, exposures, park_move_limit_s, few)[0]
+
+
+def explained(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposures: list[Exposure],
+              park_move_limit_s: float | None, few: int = FEW_TARGETS,
+              ) -> tuple[dict[int, dict[int, str]], dict[int, dict[int, int]]]:
+    """:func:`only_here`'s reasons, and for every other target of an exposure observing at
+    most ``few`` the exposure that could take it as the plan stands (one observing at least
+    ``few``; of an exposure observing one target, the fullest that can): ({exposure index:
+    {target index: reason}}, {exposure index: {target index: taker's exposure index}})."""
     ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
     scale = float(inst.plate_scale_arcsec_per_mm)
     groups = _pointings(exposures)
     out: dict[int, dict[int, str]] = {}
+    movable: dict[int, dict[int, int]] = {}
     for j, e in enumerate(exposures):
         if not 0 < len(e.targets) <= few:
             continue
-        reasons = {}
+        reasons, takes = {}, {}
         for t in e.targets:
-            held, most = False, -1  # most: the most targets an exposure that can take it observes
+            held, most, taker = False, -1, -1  # most: the most targets an exposure that can take it observes
             for g in groups:
                 others = g.members != j
                 if not others.any() or tangent_radius_mm(ra[t], dec[t], g.ra_deg, g.dec_deg, scale) > inst.fov_radius_mm:
@@ -151,7 +162,9 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
                 held = True
                 x, y = sky_to_focal_mm(ra[[t]], dec[[t]], g.ra_deg, g.dec_deg, scale, g.position_angle_deg)
                 ok = takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s)
-                most = max([most, *(len(exposures[m].targets) for m in g.members[others][ok])])
+                for m in g.members[others][ok]:
+                    if len(exposures[m].targets) > most:
+                        most, taker = len(exposures[m].targets), int(m)
                 if most >= few:
                     break
             if not held:
@@ -160,9 +173,13 @@ def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
                 reasons[t] = NO_SPARE_ARM
             elif len(e.targets) > 1 and most < few:
                 reasons[t] = TAKERS_OBSERVE_FEWER
+            else:
+                takes[t] = taker
         if reasons:
             out[j] = reasons
-    return out
+        if takes:
+            movable[j] = takes
+    return out, movable
 
 
 @dataclass(frozen=True)
