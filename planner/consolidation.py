@@ -242,11 +242,14 @@ def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares =
 def left_s(limit_s: float | None, history: Sequence[Sequence[PointingOutcome]], spent_s: float = 0.0,
            table: ProgrammeShares = SHARES) -> float:
     """What the rounds (and ``spent_s`` more) left of the plan's usable limit, counted as
-    :func:`planner.programme.next_round` counts it."""
+    :func:`planner.programme.next_round` counts it but with each outcome's effort at
+    ``consolidation_effort_share`` (:class:`planner.shares.ProgrammeShares`): the plan's last
+    step spends the margin the rounds kept."""
     usable = usable_s(limit_s, table)
     if math.isinf(usable):
         return math.inf
-    return usable - spent_s - sum(o.spent_s(table) for outcomes in history for o in outcomes)
+    return usable - spent_s - sum(o.spent_s(table, table.consolidation_effort_share)
+                                  for outcomes in history for o in outcomes)
 
 
 def consolidation_tasks(costs_s: Mapping[int, float], left: float, round_: int, changed: Sequence[int],

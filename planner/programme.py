@@ -297,12 +297,13 @@ class PointingOutcome:
     exposures: int = 0
     exposures_added: int = 0
 
-    def spent_s(self, table: ProgrammeShares = SHARES) -> float:
+    def spent_s(self, table: ProgrammeShares = SHARES, effort_share: float | None = None) -> float:
         """The wall-clock share this outcome used up, counted deterministically (its effort
-        over ``effort_share``, at most its share)."""
+        over ``effort_share``, by default the table's, at most its share)."""
+        per = table.effort_share if effort_share is None else effort_share
         if math.isinf(self.share_s):
-            return self.effort_s / table.effort_share
-        return self.share_s if self.overran else min(self.effort_s / table.effort_share, self.share_s)
+            return self.effort_s / per
+        return self.share_s if self.overran else min(self.effort_s / per, self.share_s)
 
 
 def rank(o: PointingOutcome) -> tuple[bool, bool, int, int, int]:

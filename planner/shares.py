@@ -21,6 +21,13 @@ class ProgrammeShares:
     #: the margin a machine may be slower than the effort clock's calibration before the
     #: wall-clock guard, not the work, ends the searches (the plan then depends on the load).
     effort_share: float = 0.8
+    #: The consolidation after the rounds (:mod:`planner.consolidation`), the plan's last
+    #: step, counts what the rounds and its own plans spent as their effort over this (1: at
+    #: face value), not over ``effort_share``: it spends the margin the rounds kept for a
+    #: slower machine. Its plans keep their own margin (their searches get ``effort_share`` of
+    #: their shares) and the plan's wall-clock guard holds the limit: a plan the guard cuts
+    #: fails, and its group keeps the rounds' plans.
+    consolidation_effort_share: float = 1.0
     #: Of a pointing's effort, what its allocation may use; the motion legs and the
     #: allocation <-> motion loop get the rest (and whatever the allocation left).
     allocation_share: float = 0.5

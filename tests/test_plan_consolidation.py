@@ -165,12 +165,16 @@ def _outcome(i: int, effort_s: float, share_s: float, allocation_s: float = 0.0,
 def test_costs_and_what_is_left_count_as_the_rounds_do() -> None:
     """A pointing costs what its motion legs spent (its allocation is not searched again), the
     most of its rounds; a round the wall guard stopped, its share; what is left counts every
-    round's whole effort."""
+    round's whole effort, at face value (the rounds' margin for a slower machine is the
+    consolidation's to spend), where the rounds count it over their effort share."""
     history = [[_outcome(0, 8.0, 40.0, 2.0), _outcome(1, 4.0, 40.0, 3.0), _outcome(2, 5.0, 6.0, 1.0, True)],
                [_outcome(0, 16.0, 30.0, 12.0)]]
-    e = SHARES.effort_share
+    e, c = SHARES.effort_share, SHARES.consolidation_effort_share
+    assert c == 1.0 and e < c
     assert costs(history) == {0: pytest.approx(6.0 / e), 1: pytest.approx(1.0 / e), 2: 6.0}
-    assert left_s(120.0, history, 1.0) == pytest.approx(usable_s(120.0) - 28.0 / e - 6.0 - 1.0)
+    assert left_s(120.0, history, 1.0) == pytest.approx(usable_s(120.0) - 28.0 - 6.0 - 1.0)
+    rounds_count = sum(o.spent_s() for outcomes in history for o in outcomes)
+    assert rounds_count == pytest.approx(28.0 / e + 6.0)  # the rounds' own count keeps the margin
 
 
 def test_consolidation_tasks_give_each_pointing_at_least_what_it_spent() -> None:
@@ -193,12 +197,11 @@ def test_a_changed_pointing_with_a_failed_leg_is_planned_again_on_what_is_left()
     pass and its plans left (counted here from the outcomes, as next_round counts a round),
     split by cost, the next round number; none once every one is executable, when too little
     is left, or after ``rounds`` plans."""
-    e = SHARES.effort_share
     history = [[_outcome(0, 8.0, 40.0, 2.0), _outcome(1, 4.0, 40.0, 3.0), _outcome(2, 4.0, 20.0, 1.0)]]
     cost = costs(history)
     first = [_tried(0, 2, 10.0, 6.0, True), _tried(1, 2, 3.0, 2.4, False), _tried(2, 2, 5.0, 4.0, False)]
     tasks = retry_tasks(cost, 120.0, history, 0.5, [first])
-    left = usable_s(120.0) - 16.0 / e - 0.5 - 12.4 / e
+    left = usable_s(120.0) - 16.0 - 0.5 - 12.4  # every outcome's effort at face value
     assert [t.index for t in tasks] == [1, 2] and {t.round for t in tasks} == {3}
     assert sum(t.share_s for t in tasks) == pytest.approx(left)
     assert tasks[1].share_s / tasks[0].share_s == pytest.approx(cost[2] / cost[1])
