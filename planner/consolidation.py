@@ -56,8 +56,8 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
-           "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+           "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "no_time", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
@@ -73,6 +73,8 @@ PASS_WALL_GUARD = 2.0
 #: it goes into or out of an exposure that took a target on an arm its allocation left idle,
 #: or joins two exposures no leg joined, a move no search of the rounds made easy
 NEW_LEG_FACTOR = 2.0
+#: a pass's reason when :func:`no_time` stops it before it searches
+NO_TIME_REASON = "no time left to plan a changed pointing"
 #: passes at most: a pass runs again on the plan an accepted pass left (its new plans move
 #: arms and free others, so another exposure's targets may fit where none did), while each
 #: is accepted (:func:`another_pass`)
@@ -183,7 +185,7 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
     :func:`regroup`); while that does not fit either, the costliest pointing it changes is left
     out of the pass and both run again; (0, 0, []) when nothing that fits changes, at once
     when ``left_s`` holds no pointing's ``min_pointing_s`` (no change could fit)."""
-    if left_s < table.min_pointing_s:
+    if no_time(left_s, table):
         return 0, 0, []
     per_leg = {j: costs_s.get(j, 0.0) / (len(p.configurations) + 1) for j, p in enumerate(pointings)}
 
@@ -210,6 +212,12 @@ def affordable(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, priori
             return 0, 0, []
         frozen = frozen | {max(need, key=lambda j: (need[j], j))}
     return 0, 0, []
+
+
+def no_time(left_s: float, table: ProgrammeShares = SHARES) -> bool:
+    """Whether ``left_s`` holds no pointing's least plan (``min_pointing_s``): no change of a
+    pass could be planned again (:data:`NO_TIME_REASON`)."""
+    return left_s < table.min_pointing_s
 
 
 def replan_costs(costs_s: Mapping[int, float], pointings: Sequence[PlannedPointing],

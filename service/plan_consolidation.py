@@ -17,6 +17,7 @@ from models.locks import arm_limits
 from models.sky import tangent_radius_mm
 from models.types import ArmAssignment, Configuration
 from planner.consolidation import (
+    NO_TIME_REASON,
     PASS_EFFORT_S,
     PASS_WALL_GUARD,
     PlannedPointing,
@@ -29,12 +30,13 @@ from planner.consolidation import (
     costs,
     few_observed,
     left_s,
+    no_time,
     pass_wall_s,
     replan_costs,
     retry_tasks,
 )
 from planner.known_legs import KnownLegs
-from planner.programme import SHARES, PointingOutcome, RoundTask
+from planner.programme import PointingOutcome, RoundTask
 from service import adapters, pipeline
 from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
@@ -96,8 +98,8 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
     if frozen:
         stats["left_out"] = [answers[i]["id"] for i in sorted(frozen)]
     if not changed:
-        if left < SHARES.min_pointing_s:
-            stats["reason"] = "no time left to plan a changed pointing"
+        if no_time(left):
+            stats["reason"] = NO_TIME_REASON
         return seg, answers, stats, [], frozenset()
     pointings = list(seg.pointings)
     for r in changed:
