@@ -56,7 +56,7 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PLAN_FAILED_REASON", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
            "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "no_time", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
@@ -75,6 +75,11 @@ PASS_WALL_GUARD = 2.0
 NEW_LEG_FACTOR = 2.0
 #: a pass's reason when :func:`no_time` stops it before it searches
 NO_TIME_REASON = "no time left to plan a changed pointing"
+#: why a target of an exposure observing few stays although another exposure could take it:
+#: its pointing or the taker's was planned again by a pass with targets moved, that plan
+#: failed (a leg, or a target the motion planner dropped), and the later passes leave the
+#: pointing out (:func:`another_pass`)
+PLAN_FAILED_REASON = "consolidation_plan_failed"
 #: passes at most: a pass runs again on the plan an accepted pass left (its new plans move
 #: arms and free others, so another exposure's targets may fit where none did), while each
 #: is accepted (:func:`another_pass`)

@@ -223,11 +223,15 @@ def exposures_summary(stats: Mapping[str, Any]) -> str:
     few, only = int(stats.get("few_target_exposures", 0)), int(stats.get("few_target_exposures_only_here", 0))
     if few:
         explained = int(stats.get("few_target_exposures_explained", only))
+        failed = int(stats.get("few_target_exposures_plan_failed", 0))
+        fewer = explained - only - failed
         movable = few - explained
         parts.append(f"{plural(few, 'exposure')} observing at most 2 targets, {only} of them only for "
                      "targets no other exposure can take" + (
-                         f", {explained - only} more for targets only exposures of 1 target can take"
-                         if explained > only else "") + (
+                         f", {fewer} more for targets only exposures of 1 target can take"
+                         if fewer > 0 else "") + (
+                         f", {failed} more whose targets' moves the consolidation planned and failed"
+                         " (kept_because)" if failed > 0 else "") + (
                          f", {movable} with a target another exposure could take" if movable > 0 else "")
                      + " (only_here" + (", could_move_to" if movable > 0 else "") + " in plan.json)")
         why = (stats.get("consolidation") or {}).get("reason")

@@ -14,7 +14,7 @@ import dataclasses
 import logging
 import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, date, datetime
 from functools import lru_cache
@@ -31,6 +31,7 @@ from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import keep, plan_motion, programme, stages
 from planner.clearance import compile_kernels
+from planner.consolidation import PLAN_FAILED_REASON
 from planner.known_legs import KnownLegs
 from planner.options import MotionOptions
 from planner.programme import (
@@ -619,7 +620,7 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
     stats = {**stats, **excluded}
-    few = few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)
+    few = few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s, left_out_of(stats))
     out = plan_out(seg, pointings, req.targets, {**stats, **epoch}, few)
     progress(1.0)
     return adapters.with_content_hash(out)
@@ -666,12 +667,22 @@ def _completeness(out: Sequence[dict[str, Any]],
             if total else 1.0}
 
 
+def left_out_of(stats: Mapping[str, Any]) -> frozenset[str]:
+    """The pointings a plan's consolidation left out because their new plans failed: those
+    its passes name in ``failed`` (the plan's ``stats``, with its ``consolidation``)."""
+    passes = (stats.get("consolidation") or {}).get("passes", [])
+    return frozenset(i for p in passes for i in p.get("failed", []))
+
+
 def few_target_exposures(out: Sequence[dict[str, Any]], targets: Sequence[SkyTarget], inst: Instrument,
-                         park_move_limit_s: float | None) -> list[dict[str, Any]]:
+                         park_move_limit_s: float | None, left_out: Collection[str] = ()) -> list[dict[str, Any]]:
     """The FewTargetExposureOut dicts of a plan: each exposure observing at most
     :data:`~solvers.programme.spare.FEW_TARGETS` targets, with those of them no other exposure
     can take, and why, and for each of the others an exposure that could take it as the plan
-    stands (:func:`solvers.programme.spare.explained`)."""
+    stands (:func:`solvers.programme.spare.explained`), with ``kept_because``
+    :data:`planner.consolidation.PLAN_FAILED_REASON` when the exposure's pointing or the
+    taker's is one of ``left_out`` (pointing ids the plan's consolidation left out because its
+    new plan failed, :func:`left_out_of`), else None."""
     index = {t.id: i for i, t in enumerate(targets)}
     ra = np.array([t.ra_deg for t in targets], float)
     dec = np.array([t.dec_deg for t in targets], float)
@@ -686,10 +697,12 @@ def few_target_exposures(out: Sequence[dict[str, Any]], targets: Sequence[SkyTar
                                       q, idle, observed))
             where.append((p["id"], int(c["index"])))
     reasons, movable = explained(inst, ra, dec, exposures, park_move_limit_s)
+    blocked = set(left_out)
     return [{"pointing_id": where[j][0], "configuration": where[j][1],
              "target_ids": [targets[t].id for t in e.targets],
              "only_here": [{"target_id": targets[t].id, "reason": r} for t, r in sorted(reasons.get(j, {}).items())],
-             "could_move_to": [{"target_id": targets[t].id, "pointing_id": where[m][0], "configuration": where[m][1]}
+             "could_move_to": [{"target_id": targets[t].id, "pointing_id": where[m][0], "configuration": where[m][1],
+                                "kept_because": PLAN_FAILED_REASON if {where[j][0], where[m][0]} & blocked else None}
                                for t, m in sorted(movable.get(j, {}).items())]}
             for j, e in enumerate(exposures) if 0 < len(e.targets) <= FEW_TARGETS]
 
@@ -738,7 +751,13 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
                 {o["target_id"] for o in f["only_here"] if o["reason"] in NOWHERE_ELSE} >= set(f["target_ids"])
                 for f in few),
             "few_target_exposures_explained": sum(
-                {o["target_id"] for o in f["only_here"]} >= set(f["target_ids"]) for f in few),
+                {o["target_id"] for o in f["only_here"]}
+                | {m["target_id"] for m in f["could_move_to"] if m.get("kept_because")} >= set(f["target_ids"])
+                for f in few),
+            "few_target_exposures_plan_failed": sum(
+                {o["target_id"] for o in f["only_here"]}
+                | {m["target_id"] for m in f["could_move_to"] if m.get("kept_because")} >= set(f["target_ids"])
+                and any(m.get("kept_because") for m in f["could_move_to"]) for f in few),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},

@@ -130,7 +130,8 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
                                                  pipeline.rounds_limit_s(req, limit, seg),
                                                  lambda: limit - (time.monotonic() - t0))
     stage(stages.ASSEMBLING)
-    few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s)
+    few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s,
+                                        pipeline.left_out_of(consolidation))
     return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
         "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": time.monotonic() - t0, "engine": runner.name,

@@ -734,6 +734,12 @@ class MovableOut(Response):
     target_id: str
     pointing_id: str = Field(description="The pointing of an exposure that could take the target.")
     configuration: int = Field(description="That exposure's `index` among its pointing's configurations.")
+    kept_because: Literal["consolidation_plan_failed"] | None = Field(
+        None, description="Why the plan keeps the target where it is: 'consolidation_plan_failed': "
+        "the plan's consolidation planned this exposure's pointing or the taker's again with "
+        "targets moved, that plan failed (a motion leg, or a target the motion planner dropped; "
+        "`stats.consolidation.passes[].failed`), and the later passes leave the pointing out. "
+        "Null: nothing in the plan stopped the move.")
 
 
 class FewTargetExposureOut(Response):
@@ -752,7 +758,8 @@ class FewTargetExposureOut(Response):
                     "and clear of that exposure's other arms: one observing at least 2 targets "
                     "(for an exposure of 1 target, the fullest that can). The plan's "
                     "consolidation moves such targets while the time limit holds the motion "
-                    "legs it must plan again (`stats.consolidation`, its `reason` when it stopped).")
+                    "legs it must plan again (`stats.consolidation`, its `reason` when it stopped); "
+                    "`kept_because` says when the consolidation tried and its plan failed.")
 
 
 class PlanResponse(Response):
@@ -793,7 +800,8 @@ class PlanResponse(Response):
         default_factory=list, description="Every exposure observing at most 2 targets, with those "
         "of its targets no other exposure can take (`stats.few_target_exposures` counts them, "
         "`stats.few_target_exposures_only_here` those whose every target no other exposure can "
-        "take, `stats.few_target_exposures_explained` those whose every target is listed).")
+        "take, `stats.few_target_exposures_explained` those whose every target is listed in `only_here` or "
+        "has a `could_move_to` with its `kept_because`).")
 
 
 REQUEST_TYPES: dict[str, type[Request]] = {

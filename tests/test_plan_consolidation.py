@@ -638,3 +638,52 @@ def test_each_group_of_pointings_is_kept_or_refused_on_its_own() -> None:
     assert plan_consolidation._kept_groups(changed, old, new) == {0, 1}
     new[2] = answer([["f", "g"]])  # c lost: group 0 refused
     assert plan_consolidation._kept_groups(changed, old, new) == {1}
+
+
+#: a 30-target halo programme whose complete-linkage plan (no consolidation) keeps exposures of
+#: at most two targets that an exposure of another pointing could take
+KEPT = ("cluster-halo", 3)
+
+
+def test_a_target_whose_move_the_consolidation_tried_and_failed_says_so(monkeypatch) -> None:
+    """service.pipeline.few_target_exposures: a target another exposure could take carries
+    kept_because 'consolidation_plan_failed' exactly when its exposure's pointing or the
+    taker's is one the consolidation left out (its new plan failed), and the plan counts such
+    exposures as explained (stats.few_target_exposures_plan_failed); the plan stays valid."""
+    prog = PT.generated([KEPT], n_range=(30, 30))[0]
+    req = PlanRequest.model_validate({"seed": KEPT[1], "segmentation_mode": "complete-linkage",
+                                      "time_limit_s": 30, "targets": prog["targets"]})
+    plan = pipeline.plan(req, INST)
+    movable = [(f["pointing_id"], m["pointing_id"]) for f in plan["few_target_exposures"] for m in f["could_move_to"]]
+    assert movable and all(m["kept_because"] is None for f in plan["few_target_exposures"] for m in f["could_move_to"])
+    ids = sorted({p["id"] for p in plan["pointings"]})
+    for left_out in [frozenset(), *(frozenset({i}) for i in ids), frozenset(ids)]:
+        few = pipeline.few_target_exposures(plan["pointings"], req.targets, INST, req.park_move_limit_s, left_out)
+        got = [(f["pointing_id"], m["pointing_id"], m["kept_because"]) for f in few for m in f["could_move_to"]]
+        assert [(a, b) for a, b, _ in got] == movable
+        assert all((why is not None) == bool({a, b} & left_out) for a, b, why in got), left_out
+        assert all(why in (None, consolidation.PLAN_FAILED_REASON) for _, _, why in got)
+    stats = {"consolidation": {"passes": [{"failed": ["P0002"]}, {"failed": []}, {}]}}
+    assert pipeline.left_out_of(stats) == frozenset({"P0002"}) and pipeline.left_out_of({}) == frozenset()
+    taker = movable[0][1]
+    monkeypatch.setattr(pipeline, "left_out_of", lambda stats: frozenset({taker}))
+    again = pipeline.plan(req, INST)
+    s = again["stats"]
+    hit = [f for f in again["few_target_exposures"] if any(m["kept_because"] for m in f["could_move_to"])]
+    assert hit and s["few_target_exposures_plan_failed"] == len(hit)
+    whole = [f for f in again["few_target_exposures"]
+             if {o["target_id"] for o in f["only_here"]} | {m["target_id"] for m in f["could_move_to"]
+                                                            if m["kept_because"]} >= set(f["target_ids"])]
+    assert s["few_target_exposures_explained"] == len(whole) > plan["stats"]["few_target_exposures_explained"]
+    assert validate_plan(INST, again).valid
+
+
+def test_the_cli_summary_counts_the_exposures_whose_moves_the_consolidation_tried() -> None:
+    from service.cli import exposures_summary
+
+    stats = {"configurations": 10, "few_target_exposures": 5, "few_target_exposures_only_here": 1,
+             "few_target_exposures_explained": 4, "few_target_exposures_plan_failed": 2}
+    line = exposures_summary(stats)
+    assert "1 more for targets only exposures of 1 target can take" in line
+    assert "2 more whose targets' moves the consolidation planned and failed (kept_because)" in line
+    assert "1 with a target another exposure could take" in line
