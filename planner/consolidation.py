@@ -56,8 +56,8 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PLAN_FAILED_REASON", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
-           "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "no_time", "pass_wall_s", "regroup", "replan_costs", "retry_tasks"]
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PLAN_FAILED_REASON", "REPLAN_WALL_MARGIN", "REPLAN_WALL_MARGIN_MIN_S", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+           "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "no_time", "pass_wall_s", "regroup", "replan_wall_s", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
 MODE = "fewest-exposures"
@@ -84,12 +84,27 @@ PLAN_FAILED_REASON = "consolidation_plan_failed"
 #: arms and free others, so another exposure's targets may fit where none did), while each
 #: is accepted (:func:`another_pass`)
 MAX_PASSES = 4
+#: of the wall-clock time the plan has left, what a changed pointing's plan keeps back for the
+#: work after its wall-clock guard (its answer built and verified): the consolidation's
+#: shares spend the rounds' margin (``consolidation_effort_share``), so on a machine slower
+#: than the effort clock's reference its last plan ends at its guard, not at its share
+#: (cluster-halo-12007, 300 stars: a second plan of an 18-exposure pointing took 0.3-0.55 s
+#: past its guard), at least ``REPLAN_WALL_MARGIN_MIN_S``
+REPLAN_WALL_MARGIN = 0.05
+REPLAN_WALL_MARGIN_MIN_S = 1.0
 
 
 def pass_wall_s(effort_s: float = PASS_EFFORT_S, table: ProgrammeShares = SHARES) -> float:
     """The wall-clock seconds ``effort_s`` of the pass stand for, counted as the rounds count
     a pointing's effort (over ``effort_share``)."""
     return effort_s / table.effort_share
+
+
+def replan_wall_s(wall_left_s: float) -> float:
+    """The wall-clock guard of a changed pointing's plan when the plan has ``wall_left_s``
+    wall-clock seconds left: that less :data:`REPLAN_WALL_MARGIN` of it, and less at least
+    :data:`REPLAN_WALL_MARGIN_MIN_S` (none when that leaves nothing)."""
+    return max(wall_left_s - max(REPLAN_WALL_MARGIN * wall_left_s, REPLAN_WALL_MARGIN_MIN_S), 0.0)
 
 
 def applies(mode: str, keeps_configurations: bool) -> bool:

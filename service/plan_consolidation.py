@@ -33,6 +33,7 @@ from planner.consolidation import (
     no_time,
     pass_wall_s,
     replan_costs,
+    replan_wall_s,
     retry_tasks,
 )
 from planner.known_legs import KnownLegs
@@ -200,7 +201,7 @@ def _replanned(req: PlanRequest, inst: Instrument, seg: Segmentation, tasks: Seq
     while tasks:
         for t in tasks:
             answer = pipeline.pointing_result(pipeline.pointing_task(req, seg, t, known.get(t.index)), inst,
-                                              wall_limit_s=max(wall_left_s(), 0.0))
+                                              wall_limit_s=replan_wall_s(wall_left_s()))
             new[t.index] = pipeline.keep_better(new.get(t.index), answer, t.index)
         tries.append([pipeline.outcomes_of(new[t.index], t.index)[-1] for t in tasks])
         tasks = again(tries)

@@ -687,3 +687,31 @@ def test_the_cli_summary_counts_the_exposures_whose_moves_the_consolidation_trie
     assert "1 more for targets only exposures of 1 target can take" in line
     assert "2 more whose targets' moves the consolidation planned and failed (kept_because)" in line
     assert "1 with a target another exposure could take" in line
+
+
+def test_a_changed_pointings_plan_keeps_back_the_margin_for_its_answer(monkeypatch) -> None:
+    """service.plan_consolidation._replanned plans each changed pointing with a wall-clock
+    guard of what the plan has left less REPLAN_WALL_MARGIN of it (planner.consolidation.
+    replan_wall_s), so the work after the guard (the answer built and verified) fits in the
+    plan's limit."""
+    seen: list[float | None] = []
+
+    class Stop(Exception):
+        pass
+
+    def result(task, inst, progress=None, *, wall_limit_s=None):
+        seen.append(wall_limit_s)
+        raise Stop
+
+    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t, known=None: t)
+    monkeypatch.setattr(pipeline, "pointing_result", result)
+    lefts = (60.0, 12.0, 0.8, -1.0)
+    for left in lefts:
+        with pytest.raises(Stop):
+            plan_consolidation._replanned(None, INST, None, [RoundTask(0, 2, 5.0)], {}, lambda v=left: v,
+                                          lambda tries: [])
+    m, least = consolidation.REPLAN_WALL_MARGIN, consolidation.REPLAN_WALL_MARGIN_MIN_S
+    assert 0.0 < m < 0.2 and 0.0 < least <= 2.0 and 12.0 * m < least < 60.0 * m
+    want = [60.0 * (1 - m), 12.0 - least, 0.0, 0.0]
+    assert seen == [pytest.approx(w) for w in want]
+    assert all(s <= max(v, 0.0) - min(least, max(v, 0.0)) + 1e-9 for s, v in zip(seen, lefts, strict=True))
