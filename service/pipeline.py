@@ -750,14 +750,9 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "few_target_exposures_only_here": sum(
                 {o["target_id"] for o in f["only_here"] if o["reason"] in NOWHERE_ELSE} >= set(f["target_ids"])
                 for f in few),
-            "few_target_exposures_explained": sum(
-                {o["target_id"] for o in f["only_here"]}
-                | {m["target_id"] for m in f["could_move_to"] if m.get("kept_because")} >= set(f["target_ids"])
-                for f in few),
+            "few_target_exposures_explained": sum(map(_explained, few)),
             "few_target_exposures_plan_failed": sum(
-                {o["target_id"] for o in f["only_here"]}
-                | {m["target_id"] for m in f["could_move_to"] if m.get("kept_because")} >= set(f["target_ids"])
-                and any(m.get("kept_because") for m in f["could_move_to"]) for f in few),
+                _explained(f) and any(m.get("kept_because") for m in f["could_move_to"]) for f in few),
             "motion_plans": len(motions),
             "motion_plans_failed": sum(1 for m in motions if m["status"] != "ok"),
             **{k: sum(p["stats"]["motion"][k] for p in out) for k in adapters.CHANGE_COUNTS},
@@ -768,6 +763,14 @@ def plan_out(seg: Segmentation, out: Sequence[dict[str, Any]], targets: Sequence
             "segmentation": seg.stats,
         }),
     }
+
+
+def _explained(few: Mapping[str, Any]) -> bool:
+    """Whether every target of a FewTargetExposureOut dict is listed in its ``only_here`` or
+    has a ``could_move_to`` entry with a ``kept_because``."""
+    listed = {o["target_id"] for o in few["only_here"]}
+    listed |= {m["target_id"] for m in few["could_move_to"] if m.get("kept_because")}
+    return listed >= set(few["target_ids"])
 
 
 def exposure_bound(seg: Segmentation, exposures: int) -> dict[str, Any]:

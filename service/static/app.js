@@ -379,10 +379,11 @@ function showSummary(result, request, fate) {
   if (s.telescope_time) rows.splice(3, 0, ["telescope time (h:mm)", telescopeTimeText(s.telescope_time)]);
   if (s.exposures_lower_bound) rows.splice(3, 0, ["proven lower bound on configurations",
     `${s.exposures_lower_bound} (this plan: ${(s.configurations / s.exposures_lower_bound).toFixed(2)}×)`]);
+  const takersFewer = (s.few_target_exposures_explained || 0) - s.few_target_exposures_only_here
+    - (s.few_target_exposures_plan_failed || 0);
   if (s.few_target_exposures) rows.push(["configurations observing at most 2 targets",
     `${s.few_target_exposures} (${s.few_target_exposures_only_here} only for targets no other configuration can take` +
-    ((s.few_target_exposures_explained || 0) - s.few_target_exposures_only_here - (s.few_target_exposures_plan_failed || 0) > 0
-      ? `, ${s.few_target_exposures_explained - s.few_target_exposures_only_here - (s.few_target_exposures_plan_failed || 0)} more for targets only configurations of 1 target can take` : "") +
+    (takersFewer > 0 ? `, ${takersFewer} more for targets only configurations of 1 target can take` : "") +
     ((s.few_target_exposures_plan_failed || 0) > 0
       ? `, ${s.few_target_exposures_plan_failed} more whose targets' moves the consolidation planned and failed` : "") +
     (s.few_target_exposures > (s.few_target_exposures_explained ?? s.few_target_exposures)
