@@ -53,7 +53,7 @@ __all__ = [
     "ALLOCATION_PART", "DEFAULT_LIMIT_S", "DEFAULT_SEGMENTATION_MODE", "FIRST_ROUND_DONE", "SEGMENTED", "SHARES",
     "TARGETS_PER_EXPOSURE", "PointingOptions", "PointingOutcome", "PointingPlan", "allocation_options",
     "pointing_telescope_time",
-    "ProgrammeShares", "RoundTask", "best_outcomes", "better", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
+    "ProgrammeShares", "RoundTask", "best_outcomes", "better", "planned", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
     "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
@@ -306,11 +306,18 @@ class PointingOutcome:
         return self.share_s if self.overran else min(self.effort_s / per, self.share_s)
 
 
+def planned(o: PointingOutcome) -> bool:
+    """Whether the outcome is a plan of the pointing: attempted, and not cut by the wall
+    clock with a leg left unplanned (that plan ran out of the limit's time: its pointing is
+    not planned for lack of time, as one not attempted is)."""
+    return o.attempted and not (o.overran and not o.executable)
+
+
 def rank(o: PointingOutcome) -> tuple[bool, bool, int, int, int]:
-    """How good a pointing's plan is: attempted first (a plan not attempted for lack of time
-    observes nothing, though no leg of it failed), then executable, then fewer failed legs,
-    then more targets observed, then fewer exposures."""
-    return (o.attempted, o.executable, -o.failed_legs, o.observed, -o.exposures)
+    """How good a pointing's plan is: planned first (:func:`planned`; a pointing not planned
+    for lack of time observes nothing, though no leg of it failed), then executable, then
+    fewer failed legs, then more targets observed, then fewer exposures."""
+    return (planned(o), o.executable, -o.failed_legs, o.observed, -o.exposures)
 
 
 def better(new: PointingOutcome, old: PointingOutcome) -> bool:

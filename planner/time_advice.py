@@ -23,6 +23,7 @@ from planner.programme import (
     best_outcomes,
     expected_share_s,
     optimiser_s,
+    planned,
     usable_s,
 )
 
@@ -75,8 +76,9 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     limit, stopped them).
 
     The estimate of each pointing: what its executable plan spent (effort over
-    ``effort_share``); for one with a failed leg, ``failed_growth`` times the largest share it
-    failed on (at least its expected share); for one not attempted, its expected share
+    ``effort_share``); for one with a failed leg, or not planned because the wall clock cut
+    its plan (:func:`planner.programme.planned`), ``failed_growth`` times the largest share it
+    had (at least its expected share); for one not attempted, its expected share
     (:func:`planner.programme.expected_share_s`). A limit at least that of the estimate but too
     short all the same is estimated at ``failed_growth`` times itself."""
     if limit_s is None or math.isinf(limit_s):
@@ -88,7 +90,8 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
     if not waiting and (not failed or usable - spent >= table.min_pointing_s):
         return None
-    largest = {i: max(o.share_s for r in history for o in r if o.index == i) for i in failed}
+    cut = {o.index for r in history for o in r if o.attempted and not planned(o)}
+    largest = {i: max(o.share_s for r in history for o in r if o.index == i) for i in {*failed, *cut}}
     estimate = 0.0
     for i, o in best.items():
         if i in largest:

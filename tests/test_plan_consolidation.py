@@ -653,6 +653,14 @@ def test_a_target_whose_move_the_consolidation_tried_and_failed_says_so(monkeypa
     prog = PT.generated([KEPT], n_range=(30, 30))[0]
     req = PlanRequest.model_validate({"seed": KEPT[1], "segmentation_mode": "complete-linkage",
                                       "time_limit_s": 30, "targets": prog["targets"]})
+    planned = []  # the pointings' plans, planned once: the second plan reads them again
+
+    def once(*args, real=pipeline.plan_pointings, **kwargs):
+        if not planned:
+            planned.append(real(*args, **kwargs))
+        return planned[0]
+
+    monkeypatch.setattr(pipeline, "plan_pointings", once)
     plan = pipeline.plan(req, INST)
     movable = [(f["pointing_id"], m["pointing_id"]) for f in plan["few_target_exposures"] for m in f["could_move_to"]]
     assert movable and all(m["kept_because"] is None for f in plan["few_target_exposures"] for m in f["could_move_to"])

@@ -78,11 +78,12 @@ def solve(slow: bool):
 
 
 def test_the_model_keeps_its_solution_on_a_slower_machine() -> None:
-    fast, fast_s, _ = solve(slow=False)
+    fast, _, _ = solve(slow=False)
     slow, slow_s, slept_s = solve(slow=True)
     assert slow == fast  # the run stopped at the same point of its search, with the same solution ...
-    assert slept_s >= BUDGET_S  # ... on a machine made slower by its whole budget
-    assert slow_s >= fast_s + BUDGET_S - 0.1
+    # ... on a machine made slower by its whole budget: the slow run's wall time holds its
+    # sleeps, more than the budget, so a run limited by wall seconds would have stopped earlier
+    assert slow_s >= slept_s >= BUDGET_S
 
 
 def _segmentation(optimiser_s: float):

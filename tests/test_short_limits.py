@@ -118,6 +118,27 @@ def test_a_plan_not_attempted_never_replaces_one_that_was() -> None:
     assert not pp.better(cut, planned) and pp.better(planned, cut)
 
 
+def test_a_plan_the_wall_clock_cut_with_a_failed_leg_leaves_its_pointing_not_planned() -> None:
+    """A later round's plan that the wall guard cut (overran) with a leg unplanned is no plan:
+    the pointing stays not planned for lack of time (executable, nothing observed), and the
+    advice names it with an estimate of at least ``failed_growth`` times the share it had."""
+    needs = [24.0, 24.0]
+    first = [PointingOutcome(0, 1, 7.0, 0.5, True, 0, 12),
+             PointingOutcome(1, 1, 0.0, 0.0, True, 0, 0, attempted=False)]
+    cut = PointingOutcome(1, 2, 6.0, 6.0 * SHARES.effort_share, False, 2, 9, overran=True)
+    assert not pp.planned(cut) and pp.planned(first[0]) and not pp.planned(first[1])
+    assert not pp.better(cut, first[1]) and pp.better(first[1], cut)
+    assert pp.best_outcomes([first, [cut]])[1] is first[1]
+    advice = ta.time_advice(10.0, needs, [first, [cut]], optimiser=False)
+    assert advice is not None and advice.not_attempted == (1,) and advice.failed == ()
+    want = first[0].spent_s() + max(SHARES.failed_growth * 6.0, expected_share_s(24.0))
+    assert advice.needed_limit_s == ta.needed_limit_s(want, optimiser=False) > 10.0
+    # cut with every leg planned, or a failed leg within its share: a plan, kept over none
+    for o in (PointingOutcome(1, 2, 6.0, 6.0 * SHARES.effort_share, True, 0, 9, overran=True),
+              PointingOutcome(1, 2, 6.0, 6.0 * SHARES.effort_share, False, 2, 9)):
+        assert pp.planned(o) and pp.better(o, first[1])
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.floats(0.0, 3000.0), st.booleans())
 def test_the_needed_limit_is_the_least_whole_second_that_holds_the_pointings(pointings_s, optimiser) -> None:
