@@ -212,7 +212,8 @@ def test_lp_bound_proves_an_off_centre_cluster_optimal() -> None:
     assert proven and m == 1  # the premise: pairwise exclusive
     r = sequence_configurations(INS, t, solve_ilp_cpsat,
                                 SequencingOptions(sequence=CAP,
-                                                  packing=PackingOptions(lp_bound_time_limit_s=300.0)), **LIM)
+                                                  packing=PackingOptions(lp_bound_time_limit_s=300.0,
+                                                                         attempt_time_limit_s=0.25)), **LIM)
     s = r.stats
     assert s["field_completeness"] == 1.0
     assert s["lower_bound_configurations_crowding"] < 7 and s["lower_bound_configurations"] < 7
@@ -241,8 +242,8 @@ def test_repacking_never_repeats_a_tabu_search(monkeypatch) -> None:
     r = sequence_configurations(INS, t, solve_ilp_cpsat,
                                 SequencingOptions(sequence=SequenceOptions(config_time_limit_s=5.0),
                                                   packing=PackingOptions(lp_bound_time_limit_s=0.0,
-                                                                         attempt_time_limit_s=0.5)),
-                                time_limit_s=40.0)
+                                                                         attempt_time_limit_s=0.25)),
+                                time_limit_s=20.0)
     assert r.stats["field_completeness"] == 1.0
     same = [(a, b) for i, a in enumerate(calls) for b in calls[i + 1:] if a[:3] == b[:3]]
     assert same  # the premise: the repacking retried a pool, count and hint
