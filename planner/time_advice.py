@@ -58,9 +58,8 @@ def needed_limit_s(pointings_s: float, optimiser: bool, table: ProgrammeShares =
 @dataclass(frozen=True)
 class TimeAdvice:
     """A plan whose limit left some pointing unplanned: the limit it had, the limit the
-    programme is estimated to need, and the pointings (indices) not planned for lack of time
-    (not attempted, or cut by the wall clock with a leg unplanned:
-    :func:`planner.programme.planned`) and those left with a failed leg when the limit ran out."""
+    programme is estimated to need, and the pointings (indices) not attempted for lack of
+    time and those left with a failed leg when the limit ran out."""
 
     time_limit_s: float
     needed_limit_s: float
@@ -85,8 +84,8 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     if limit_s is None or math.isinf(limit_s):
         return None
     best = best_outcomes(history)
-    waiting = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and not planned(o)))
-    failed = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and planned(o) and not o.executable))
+    waiting = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and not o.attempted))
+    failed = tuple(sorted(i for i, o in best.items() if needs[i] > 0 and o.attempted and not o.executable))
     usable = pointings_part_s(limit_s, optimiser, table, n_targets)
     spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
     if not waiting and (not failed or usable - spent >= table.min_pointing_s):
@@ -97,7 +96,7 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     for i, o in best.items():
         if i in largest:
             estimate += max(table.failed_growth * largest[i], expected_share_s(needs[i], table))
-        elif planned(o):
+        elif o.attempted:
             estimate += o.spent_s(table)
         else:
             estimate += expected_share_s(needs[i], table)

@@ -44,7 +44,6 @@ from planner.programme import (
     estimated_exposures,
     exposure_caps,
     plan_progress,
-    planned,
     pointing_need,
     pointing_seed,
     rank,
@@ -496,24 +495,6 @@ def keep_better(old: dict[str, Any] | None, new: dict[str, Any], index: int) -> 
                               "rounds": [outcome_out(o) for o in earlier + latest]}}
 
 
-def not_planned_when_cut(req: PlanRequest, seg: Segmentation, inst: Instrument,
-                         pointings: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The rounds' answers, each pointing whose best plan the wall clock cut with a leg
-    unplanned (:func:`planner.programme.planned`: a machine slower than the shares assume
-    spent the limit first) answered as not planned for lack of time: not attempted (no
-    configuration, its targets ``no_time``), every round still recorded in ``stats.rounds``.
-    A plan then never returns a pointing it could not execute for want of time it did not
-    have; :func:`limit_advice` names the limit it needs."""
-    out = list(pointings)
-    for i, answer in enumerate(pointings):
-        rounds = outcomes_of(answer, i)
-        best = max(rounds, key=rank) if rounds else None
-        if best is not None and best.attempted and not planned(best):
-            empty = pointing_result(pointing_task(req, seg, RoundTask(i, best.round, 0.0)), inst)
-            out[i] = keep_better(empty, answer, i)
-    return out
-
-
 def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
                    budget_s: float | None = None, on_stage: Stage = _no_stage,
                    ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
@@ -552,7 +533,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
     history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit, seg), compute)
-    pointings = not_planned_when_cut(req, seg, inst, [answers[i] for i in range(len(seg.pointings))])
+    pointings = [answers[i] for i in range(len(seg.pointings))]
     advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
     from service.plan_consolidation import consolidated  # it plans pointings with this module
 

@@ -124,7 +124,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute)
     except _Stopped:
         return None
-    pointings = pipeline.not_planned_when_cut(req, seg, inst, [answers[i] for i in range(n)])
+    pointings = [answers[i] for i in range(n)]
     advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
     seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history,
                                                  pipeline.rounds_limit_s(req, limit, seg),
