@@ -23,7 +23,6 @@ from planner.programme import (
     best_outcomes,
     expected_share_s,
     optimiser_s,
-    planned,
     usable_s,
 )
 
@@ -90,8 +89,9 @@ def time_advice(limit_s: float | None, needs: Sequence[float],
     spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
     if not waiting and (not failed or usable - spent >= table.min_pointing_s):
         return None
-    cut = {o.index for r in history for o in r if o.attempted and not planned(o)}
-    largest = {i: max(o.share_s for r in history for o in r if o.index == i) for i in {*failed, *cut}}
+    tried = {o.index for r in history for o in r if o.attempted}
+    cut = [i for i in waiting if i in tried]  # not planned: the wall clock cut every plan of it
+    largest = {i: max(o.share_s for r in history for o in r if o.index == i) for i in (*failed, *cut)}
     estimate = 0.0
     for i, o in best.items():
         if i in largest:
