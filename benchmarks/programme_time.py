@@ -301,6 +301,8 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
         "telescope_time_total_s": sum(tts) if res and None not in tts else None,
         "wall_s_median": _median([x["wall_s"] for x in res]),
         "wall_s_total": round(sum(x["wall_s"] for x in res), 3),
+        # plans that answered after their time limit (wall clock, the answer built)
+        "over_limit": sum(x["limit_s"] is not None and x["wall_s"] > x["limit_s"] for x in res),
         "optimiser_fraction_median": _median(
             [x["optimiser_fraction"] for x in res if x["optimiser_fraction"] is not None]),
         "optimiser_fraction_max": max((x["optimiser_fraction"] for x in res

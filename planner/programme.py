@@ -55,7 +55,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "best_outcomes", "better", "planned", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s",
+    "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -101,6 +101,16 @@ def reserve_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:
     if limit_s is None or math.isinf(limit_s):
         return 0.0
     return min(table.reserve_fraction * limit_s, table.reserve_max_s)
+
+
+def wall_reserve_s(limit_s: float | None, n_targets: int, table: ProgrammeShares = SHARES) -> float:
+    """What the wall clock of a plan of ``n_targets`` limited to ``limit_s`` keeps back after
+    its last pointing: :func:`reserve_s` and ``answer_s_per_target`` a target, at most
+    ``reserve_fraction`` of the limit."""
+    if limit_s is None or math.isinf(limit_s):
+        return 0.0
+    return max(min(table.reserve_fraction * limit_s, table.reserve_max_s + table.answer_s_per_target * n_targets),
+               reserve_s(limit_s, table))
 
 
 def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:

@@ -47,8 +47,8 @@ from planner.programme import (
     pointing_need,
     pointing_seed,
     rank,
-    reserve_s,
     run_rounds,
+    wall_reserve_s,
 )
 from planner.sky import SkyField, SkyRequest
 from planner.telescope_time import ObservingRules
@@ -509,7 +509,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     hears each stage as it begins (:mod:`planner.stages`). The stats hold the plan's
     ``time_limit_advice`` (:func:`limit_advice`) when its limit left a pointing unplanned."""
     limit = plan_limit_s(req, budget_s)
-    budget = Budget.start(limit - reserve_s(limit))  # the wall clock: outside any effort block
+    budget = Budget.start(limit - wall_reserve_s(limit, len(req.targets)))  # the wall clock: outside any effort block
     stage = Stages(on_stage)
     stage(stages.segmentation_stage(plan_mode(req)))
     seg = segment_plan(req, inst, limit)

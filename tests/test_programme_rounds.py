@@ -221,3 +221,20 @@ def test_a_pointing_whose_legs_were_not_planned_is_not_executable() -> None:
     assert SequencePlan((), ()).executable  # no legs: nothing failed ...
     assert not unplanned.executable  # ... but the pointing's legs were never planned
     assert pp.PointingPlan(targets, None, SequencePlan((), ())).executable
+
+
+def test_the_wall_clock_keeps_back_the_answer_of_a_larger_plan() -> None:
+    """The plan's wall clock keeps back the reserve and a per-target part for the answer's
+    account of its small exposures, never more than ``reserve_fraction`` of the limit (unless
+    the reserve itself is more), and grows with the targets."""
+    for limit_s in (5.0, 30.0, 120.0, 600.0):
+        last = 0.0
+        for n in (1, 50, 247, 1000, 5000):
+            kept = pp.wall_reserve_s(limit_s, n)
+            assert kept >= pp.reserve_s(limit_s) and kept >= last
+            assert kept <= max(SHARES.reserve_fraction * limit_s, pp.reserve_s(limit_s)) + 1e-12
+            want = SHARES.reserve_max_s + SHARES.answer_s_per_target * n
+            assert kept == pytest.approx(max(min(SHARES.reserve_fraction * limit_s, want), pp.reserve_s(limit_s)))
+            last = kept
+    assert pp.wall_reserve_s(120.0, 247) == pytest.approx(0.5 + 0.004 * 247)
+    assert pp.wall_reserve_s(None, 300) == pp.wall_reserve_s(math.inf, 300) == 0.0

@@ -30,7 +30,7 @@ ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_b
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "ratio_to_complete_linkage_total", "ratio_to_complete_linkage", "with_bound",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
-                "wall_s_total", "priority_completeness_min", "field_completeness_min",
+                "wall_s_total", "over_limit", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
                 "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total",
                 "small_exposures_explained_total", "valid", "bounds_total",
@@ -136,6 +136,7 @@ def test_the_summary_adds_up(smoke) -> None:
             [exposures(n, mode) / exposures(n, pt.BASELINE) for n in names], abs=1e-4)
         assert s["executable"] == sum(plans[(n, mode)]["executable"] for n in names)
         assert s["wall_s_median"] == pytest.approx(statistics.median(r["wall_s"] for r in rows))
+        assert s["over_limit"] == sum(r["wall_s"] > r["limit_s"] for r in rows)
         assert s["small_exposures_total"] == sum(r["small_exposures"] for r in rows)
         assert s["small_exposures_explained_total"] == sum(r["small_exposures_explained"] for r in rows)
         gaps = [r["gap"] for r in rows if r["gap"] is not None]

@@ -196,3 +196,33 @@ def test_the_plan_and_the_cli_count_the_exposures_observing_few_targets(tmp_path
     assert s["few_target_exposures_explained"] == len(explained) >= len(nowhere)
     assert (f"proven lower bound {s['exposures_lower_bound']}" in printed
             and f"{len(few)} exposure" in printed and f"{len(nowhere)} of them only for" in printed)
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_the_clearance_prefilter_keeps_the_capsule_answer(seed: int) -> None:
+    """Which configurations an idle arm's pose clears (the capsule test computed only for the
+    body pairs whose midpoint bound is below the buffer) is the full capsule test's
+    (:func:`models.collision.arm_pair_clearance_mm` on every other arm), with the bodies
+    given or not."""
+    from models.collision import arm_pair_clearance_mm
+    from solvers.programme.spare import _options, bodies_of
+
+    rng = np.random.default_rng(400 + seed)
+    qs, idles = _configurations(seed)
+    q, idle = np.stack(qs), np.stack(idles)
+    checked, refused = 0, 0
+    for _ in range(16):
+        x, y = rng.normal(0.0, 45.0, 2)
+        given = list(_options(INST, q, idle, x, y, None, None, bodies_of(INST, q)))
+        plain = list(_options(INST, q, idle, x, y, None, None))
+        assert len(given) == len(plain)
+        for (k, pose, ok), (k2, pose2, ok2) in zip(plain, given, strict=True):
+            others = np.array([j for j in range(INST.n_arms) if j != k])
+            full = np.array([np.all(arm_pair_clearance_mm(INST, np.full(len(others), k), np.broadcast_to(pose, (len(others), 2)),
+                                                          others, q[e, others]) >= INST.collision_buffer_mm)
+                             for e in range(len(q))])
+            assert np.array_equal(ok, idle[:, k] & full)
+            assert k2 == k and np.array_equal(ok2, ok) and np.array_equal(pose2, pose)
+            checked += int(idle[:, k].sum())
+            refused += int((idle[:, k] & ~full).sum())
+    assert checked > 0 and 0 < refused < checked  # both answers occur

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.collision import arm_pair_clearance_mm
+from models.collision import body_segments_mm, segment_distance_mm
 from models.incompatibility import build_assignments
 from models.instrument import Instrument
 from models.sky import sky_to_focal_mm, tangent_radius_mm
 
 __all__ = ["FEW_TARGETS", "IDLE_KINDS", "NOWHERE_ELSE", "NO_SPARE_ARM", "OUTSIDE_OTHER_FIELDS", "TAKERS_OBSERVE_FEWER",
-           "Exposure", "explained", "only_here", "placements",
+           "Bodies", "Exposure", "bodies_of", "explained", "only_here", "placements",
            "spare_arm_for", "takers"]
 
 #: An exposure observing at most this many targets is one the plan explains
@@ -90,36 +90,82 @@ def placements(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y
 
 
 def takers(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y_mm: float,
-           park_move_limit_s: float | None) -> np.ndarray:
+           park_move_limit_s: float | None, bodies: Bodies | None = None) -> np.ndarray:
     """(E,) which of E configurations of one pointing (``q`` (E, n_arms, 2), ``idle``
-    (E, n_arms)) can take the FOV point on an idle arm (:func:`spare_arm_for`, all at once)."""
+    (E, n_arms)) can take the FOV point on an idle arm (:func:`spare_arm_for`, all at once);
+    ``bodies``: those of ``q`` when the caller has them (:func:`bodies_of`)."""
     out = np.zeros(len(q), bool)
-    for _, _, ok in _options(inst, q, idle, x_mm, y_mm, park_move_limit_s, None):
+    for _, _, ok in _options(inst, q, idle, x_mm, y_mm, park_move_limit_s, None, bodies):
         out |= ok
     return out
 
 
 def _options(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y_mm: float,
-             park_move_limit_s: float | None, allowed_arms: int | None):
+             park_move_limit_s: float | None, allowed_arms: int | None, bodies: Bodies | None = None):
     """Per (arm, IK branch) reaching the point within the park move limit: the arm, its pose
-    and (E,) whether each configuration has that arm idle and clear of its other arms there."""
+    and (E,) whether each configuration has that arm idle and clear of its other arms there.
+    ``bodies``: those of ``q`` when the caller has them (:func:`bodies_of`)."""
     reach = build_assignments(inst, np.array([x_mm]), np.array([y_mm]), park_move_limit_s=park_move_limit_s,
                               include_park=False).assignments
-    n = q.shape[1]
-    for i in np.flatnonzero(reach.target == 0):
-        k = int(reach.arm[i])
-        if allowed_arms is not None and not (allowed_arms >> k) & 1:
-            continue
-        ok = idle[:, k].copy()
-        if not ok.any():
-            continue
-        pose = np.array([reach.theta1_rad[i], reach.theta2_rad[i]])
-        others = np.array([j for j in range(n) if j != k])
-        qo = q[ok][:, others]  # (E', n - 1, 2)
-        clear = arm_pair_clearance_mm(inst, np.full(qo.shape[:2], k), np.broadcast_to(pose, qo.shape),
-                                      np.broadcast_to(others, qo.shape[:2]), qo)
-        ok[ok] = np.all(clear >= inst.collision_buffer_mm, axis=1)
-        yield k, pose, ok
+    options = np.flatnonzero(reach.target == 0)
+    if allowed_arms is not None:
+        options = options[[bool((allowed_arms >> int(reach.arm[i])) & 1) for i in options]]
+    options = options[idle[:, reach.arm[options]].any(axis=0)] if len(q) else options[:0]
+    if options.size == 0:
+        return
+    poses = np.column_stack([reach.theta1_rad[options], reach.theta2_rad[options]])
+    arms = reach.arm[options].astype(np.int64)
+    own = Bodies.of_segments(*body_segments_mm(inst, arms, poses[:, 0], poses[:, 1]))
+    clear = _clear(inst, arms, own, bodies_of(inst, q) if bodies is None else bodies)
+    for o, k in enumerate(arms):
+        yield int(k), poses[o], idle[:, k] & clear[o]
+
+
+@dataclass(frozen=True)
+class Bodies:
+    """The capsules of every arm of E configurations (:func:`models.collision.body_segments_mm`):
+    ``start``, ``end`` (E, n_arms, n_bodies, 2) and ``half_width`` (E, n_arms, n_bodies), with
+    each segment's ``mid`` point and its ``reach`` (half its length plus the half width: no
+    point of the capsule is farther from ``mid``)."""
+
+    start: np.ndarray
+    end: np.ndarray
+    half_width: np.ndarray
+    mid: np.ndarray
+    reach: np.ndarray
+
+    @staticmethod
+    def of_segments(start: np.ndarray, end: np.ndarray, half_width: np.ndarray) -> Bodies:
+        d = end - start
+        return Bodies(start, end, half_width, 0.5 * (start + end), 0.5 * np.hypot(d[..., 0], d[..., 1]) + half_width)
+
+    def rows(self, rows) -> Bodies:
+        return Bodies(self.start[rows], self.end[rows], self.half_width[rows], self.mid[rows], self.reach[rows])
+
+
+def bodies_of(inst: Instrument, q: np.ndarray) -> Bodies:
+    """The capsules of every arm of the configurations ``q`` (E, n_arms, 2)."""
+    arms = np.broadcast_to(np.arange(q.shape[1]), q.shape[:2])
+    return Bodies.of_segments(*body_segments_mm(inst, arms, q[..., 0], q[..., 1]))
+
+
+def _clear(inst: Instrument, arms: np.ndarray, own: Bodies, b: Bodies) -> np.ndarray:
+    """(O, E): whether arm ``arms[o]``, its capsules ``own`` (O, n_bodies, ...), clears every
+    other arm of each of E configurations ``b`` by the collision buffer: the capsule clearance
+    of :func:`models.collision.arm_pair_clearance_mm`, computed for the body pairs whose lower
+    bound (the distance of the segments' midpoints less both capsules' reach, by the triangle
+    inequality) is below the buffer; the others clear it."""
+    buffer = float(inst.collision_buffer_mm)
+    gap = b.mid[None, :, :, None, :, :] - own.mid[:, None, None, :, None, :]  # (O, E, arms, bodies, bodies, 2)
+    lower = (np.hypot(gap[..., 0], gap[..., 1]) - own.reach[:, None, None, :, None]
+             - b.reach[None, :, :, None, :])
+    lower[np.arange(len(arms)), :, arms] = np.inf  # each arm and itself
+    o, e, m, ia, ib = np.nonzero(lower < buffer)
+    d = (segment_distance_mm(own.start[o, ia], own.end[o, ia], b.start[e, m, ib], b.end[e, m, ib])
+         - own.half_width[o, ia] - b.half_width[e, m, ib])
+    ok = np.ones((len(arms), len(b.start)), bool)
+    ok[o[d < buffer], e[d < buffer]] = False
+    return ok
 
 
 def only_here(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposures: list[Exposure],
@@ -146,7 +192,7 @@ def explained(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
     {target index: reason}}, {exposure index: {target index: taker's exposure index}})."""
     ra, dec = np.asarray(ra_deg, float), np.asarray(dec_deg, float)
     scale = float(inst.plate_scale_arcsec_per_mm)
-    groups = _pointings(exposures)
+    groups = _pointings(inst, exposures)
     out: dict[int, dict[int, str]] = {}
     movable: dict[int, dict[int, int]] = {}
     for j, e in enumerate(exposures):
@@ -161,7 +207,8 @@ def explained(inst: Instrument, ra_deg: np.ndarray, dec_deg: np.ndarray, exposur
                     continue
                 held = True
                 x, y = sky_to_focal_mm(ra[[t]], dec[[t]], g.ra_deg, g.dec_deg, scale, g.position_angle_deg)
-                ok = takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s)
+                ok = takers(inst, g.q[others], g.idle[others], float(x[0]), float(y[0]), park_move_limit_s,
+                            g.bodies.rows(others))
                 for m in g.members[others][ok]:
                     if len(exposures[m].targets) > most:
                         most, taker = len(exposures[m].targets), int(m)
@@ -193,12 +240,16 @@ class _Pointing:
     members: np.ndarray
     q: np.ndarray
     idle: np.ndarray
+    bodies: Bodies
 
 
-def _pointings(exposures: list[Exposure]) -> list[_Pointing]:
+def _pointings(inst: Instrument, exposures: list[Exposure]) -> list[_Pointing]:
     """The exposures grouped by pointing (centre and angle), in order of first appearance."""
     index: dict[tuple[float, float, float], list[int]] = {}
     for j, e in enumerate(exposures):
         index.setdefault((e.ra_deg, e.dec_deg, e.position_angle_deg), []).append(j)
-    return [_Pointing(*key, np.array(js), np.stack([exposures[k].q for k in js]),
-                      np.stack([exposures[k].idle for k in js])) for key, js in index.items()]
+    out = []
+    for key, js in index.items():
+        q = np.stack([exposures[k].q for k in js])
+        out.append(_Pointing(*key, np.array(js), q, np.stack([exposures[k].idle for k in js]), bodies_of(inst, q)))
+    return out
