@@ -172,3 +172,34 @@ def test_the_allocator_never_beats_the_crowded_bound() -> None:
     observed = sum(1 for c in result.configurations for a in c.assignments if a.target_index is not None)
     assert observed == 40
     assert len(result.configurations) >= bound.exposures > lower_bound(xy, R_MM, 12).exposures
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_dominant_rows_are_the_cells_that_outnumber_a_sets_exposures_over_the_arms(seed: int) -> None:
+    """With ``arms``, :func:`crowding_rows` keeps exactly the rows (candidate j, cell c) whose
+    members m of c in S_j exceed ceil(|S_j| / arms), m >= 2; without, every row with m >= 2.
+    Checked against a count over every (set, cell) pair."""
+    from solvers.programme.crowding import crowding_rows
+
+    rng = np.random.default_rng(seed)
+    n, arms = 40, 3
+    xy = rng.normal(0.0, 20.0, (n, 2))
+    cells = crowding_cells(xy, 25.0)
+    sets = [np.sort(rng.choice(n, size=rng.integers(1, 16), replace=False)) for _ in range(12)]
+    col_set = np.concatenate([np.full(len(s), j) for j, s in enumerate(sets)])
+    member = np.concatenate(sets)
+    kept = []
+    for limit in (None, arms):
+        start, entries, row_set, cap = crowding_rows(col_set, member, cells, limit)
+        kept.append(len(row_set))
+        got = {(int(row_set[g]), frozenset(int(member[e]) for e in entries[start[g]:start[g + 1]]))
+               for g in range(len(row_set))}
+        want = set()
+        for j, s in enumerate(sets):
+            for c in np.unique(cells.cell[s]):
+                m = s[cells.cell[s] == c]
+                if len(m) >= 2 and (limit is None or len(m) > -(-len(s) // limit)):
+                    want.add((j, frozenset(int(t) for t in m)))
+        assert got == want and len(got) == len(row_set) and np.all(cap == 1.0)
+        assert all(np.all(col_set[entries[start[g]:start[g + 1]]] == row_set[g]) for g in range(len(row_set)))
+    assert 0 < kept[1] < kept[0]  # both kinds of row occur

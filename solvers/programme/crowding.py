@@ -101,10 +101,13 @@ def crowding_cells(xy_mm: np.ndarray, d_min_mm: float) -> CrowdingCells:
     return CrowdingCells(cell, count)
 
 
-def crowding_rows(col_set: np.ndarray, member: np.ndarray, cells: CrowdingCells):
+def crowding_rows(col_set: np.ndarray, member: np.ndarray, cells: CrowdingCells, arms: int | None = None):
     """Rows of the programme model for crowding: per candidate and cell with at least two of
     its members, those entries take at most one per exposure. ``col_set``/``member``: the
-    candidate and target of each entry. Returns (start, entries, set, cap) as
+    candidate and target of each entry. With ``arms``, only the *dominant* rows: those of a
+    cell holding more of the candidate's members than the candidate's members need exposures
+    over the arms (m > ceil(|S_j| / arms)), which alone can raise the pointing's exposures
+    above what its targets over the arms ask. Returns (start, entries, set, cap) as
     :class:`solvers.programme.model.ReachRows` holds them."""
     if not cells.crowded or len(member) == 0:
         return np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
@@ -115,17 +118,20 @@ def crowding_rows(col_set: np.ndarray, member: np.ndarray, cells: CrowdingCells)
     starts = np.flatnonzero(new)
     sizes = np.diff(np.r_[starts, len(order)])
     keep = sizes >= 2
+    if arms is not None:
+        set_size = np.bincount(col_set, minlength=int(col_set.max(initial=-1)) + 1)
+        keep &= sizes > -(-set_size[ks[starts]] // arms)
     groups = [order[s:s + m] for s, m in zip(starts[keep], sizes[keep], strict=True)]
     entries = np.concatenate(groups) if groups else np.zeros(0, np.int64)
     start = np.r_[0, np.cumsum(sizes[keep])].astype(np.int64)
     return start, entries.astype(np.int64), ks[starts[keep]].astype(np.int64), np.ones(int(keep.sum()))
 
 
-def with_crowding(rows: ReachRows | None, cand, cells: CrowdingCells) -> ReachRows | None:
+def with_crowding(rows: ReachRows | None, cand, cells: CrowdingCells, arms: int | None = None) -> ReachRows | None:
     """``rows`` (:class:`solvers.programme.model.ReachRows`, or None) with the crowding rows of
-    the candidates ``cand`` appended (:func:`crowding_rows`)."""
+    the candidates ``cand`` appended (:func:`crowding_rows`; with ``arms`` the dominant ones)."""
     col_set = np.repeat(np.arange(len(cand)), cand.sizes)
-    start, entries, sets, caps = crowding_rows(col_set, cand.index, cells)
+    start, entries, sets, caps = crowding_rows(col_set, cand.index, cells, arms)
     if len(sets) == 0:
         return rows
     if rows is None or len(rows.set) == 0:

@@ -271,17 +271,18 @@ def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, bud
 def _model(space: _Space, todo: np.ndarray, options: OptimiserOptions, variant: ModelVariant,
            budget: Budget) -> tuple[CoverSolution, Candidates]:
     """The programme model on the targets ``todo`` (bool mask), over its shortlist, with the
-    rows of arm reach, and the crowding rows when ``variant`` says so: the feedback
-    allocations see crowding as it is, and the rows steer the model to pointings that take
-    more exposures on some programmes, fewer on others (docs/programme.md)."""
+    rows of arm reach, the dominant crowding rows (a cell holding more of a candidate's
+    members than they need exposures over the arms: :func:`.crowding.crowding_rows`) and
+    every crowding row when ``variant`` says so: the feedback allocations see crowding as it
+    is, and the other rows steer the model to pointings that take more exposures on some
+    programmes, fewer on others (docs/programme.md)."""
     n, arms = len(todo), space.f.inst.n_arms
     sub, entries = space.cand.restrict(todo)
     keep = shortlist(sub, n, space.masks[entries], arms, options.max_candidates)
     sub, within_sub = sub.subset(keep)
     entries = entries[within_sub]
     allowed, rows = reach_rows(sub, space.masks[entries], arms)
-    if variant.crowding:
-        rows = with_crowding(rows, sub, space.cells)
+    rows = with_crowding(rows, sub, space.cells, None if variant.crowding else arms)
     cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
                         pointing_cost=variant.pointing_cost)
     if cover.status == "timeout":  # the greedy start is a solution; a guard only
