@@ -109,8 +109,7 @@ def wall_reserve_s(limit_s: float | None, n_targets: int, table: ProgrammeShares
     ``reserve_fraction`` of the limit."""
     if limit_s is None or math.isinf(limit_s):
         return 0.0
-    return max(min(table.reserve_fraction * limit_s, table.reserve_max_s + table.answer_s_per_target * n_targets),
-               reserve_s(limit_s, table))
+    return min(table.reserve_fraction * limit_s, table.reserve_max_s + table.answer_s_per_target * n_targets)
 
 
 def usable_s(limit_s: float | None, table: ProgrammeShares = SHARES) -> float:

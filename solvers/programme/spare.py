@@ -109,7 +109,7 @@ def _options(inst: Instrument, q: np.ndarray, idle: np.ndarray, x_mm: float, y_m
                               include_park=False).assignments
     options = np.flatnonzero(reach.target == 0)
     if allowed_arms is not None:
-        options = options[[bool((allowed_arms >> int(reach.arm[i])) & 1) for i in options]]
+        options = options[((allowed_arms >> reach.arm[options].astype(np.int64)) & 1).astype(bool)]
     options = options[idle[:, reach.arm[options]].any(axis=0)] if len(q) else options[:0]
     if options.size == 0:
         return
@@ -163,8 +163,9 @@ def _clear(inst: Instrument, arms: np.ndarray, own: Bodies, b: Bodies) -> np.nda
     o, e, m, ia, ib = np.nonzero(lower < buffer)
     d = (segment_distance_mm(own.start[o, ia], own.end[o, ia], b.start[e, m, ib], b.end[e, m, ib])
          - own.half_width[o, ia] - b.half_width[e, m, ib])
+    hit = d < buffer
     ok = np.ones((len(arms), len(b.start)), bool)
-    ok[o[d < buffer], e[d < buffer]] = False
+    ok[o[hit], e[hit]] = False
     return ok
 
 
