@@ -71,7 +71,7 @@ GAP_GOAL = 1.25
 #: The goal of issue 38: total exposures at most this factor of complete linkage's.
 RATIO_GOAL = 0.65
 SMOKE = {"programmes": [("two-clump", 3), ("scattered", 7)], "n_range": (10, 15),
-         "time_limit_s": 10.0}
+         "time_limit_s": 6.0}
 
 
 # ------------------------------------------------------------------ programmes

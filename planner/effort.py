@@ -37,6 +37,10 @@ PLANNER_WORK_S: dict[str, tuple[float, float]] = {
     "zoa_edges": (0.0, 1.09e-06),  # planner.geometry: ZoA test of straight edges; unit: edges
     "csp_nodes": (1.84e-05, 0.0),  # planner.delays: unit: search nodes
     "verify": (0.0, 3.92e-06),  # planner.verify: unit: pair samples computed
+    # planner.sky: the spare arms of a pointing's configurations placed on sky; unit: idle
+    # arms (a least-squares fit of place_sky's seconds on eight pointings of 1-59
+    # configurations: its candidate rests per call, the collision checks per arm)
+    "sky_arms": (0.085, 6.6e-04),
 }
 
 clock.register_work_costs(PLANNER_WORK_S)

@@ -18,7 +18,10 @@ pointings; the policy is here, once:
    outcomes: the same on any number of workers. A round's plan replaces an earlier one only
    when it is better (:func:`better`). Rounds go on while a failed pointing can be given more
    than it had; so no pointing reports a failed leg while the plan's limit has time that
-   could be given to it.
+   could be given to it. A later round plans a pointing again from its best plan so far
+   (:func:`keeps_plan`): its configurations are observed as they are and its verified legs
+   reused, so that the round's share goes to the legs that failed, not to a new allocation
+   and every leg again on less time than the first round had.
 3. **After the rounds** (mode "fewest-exposures"), :mod:`planner.consolidation` empties
    exposures into idle arms of the plan's other exposures and plans the pointings it changed
    again on what the rounds left, keeping their plans only when better.
@@ -55,7 +58,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "best_outcomes", "better", "planned", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
+    "keeps_plan", "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -343,6 +346,18 @@ def best_outcomes(history: Sequence[Sequence[PointingOutcome]]) -> dict[int, Poi
             if o.index not in best or better(o, best[o.index]):
                 best[o.index] = o
     return best
+
+
+def keeps_plan(best: PointingOutcome | None, round_: int) -> bool:
+    """Whether round ``round_`` plans a pointing again from its best plan so far, ``best``
+    (its configurations as its allocation, observed as they are, and its verified legs
+    reused, :mod:`planner.known_legs`), rather than with a new allocation: in every round
+    after the first, when that plan was attempted, observes targets and has a failed leg.
+    The failed legs then get the round's whole share; a new allocation would spend half of it
+    (``allocation_share``) and plan every leg again, on a share smaller than the first
+    round's (two-clump-4006, docs/programme.md: a 118-target pointing whose last leg failed
+    on 8.9 s kept it failed on a second round of 28.9 s that searched its allocation again)."""
+    return round_ > 1 and best is not None and best.attempted and not best.executable and best.observed > 0
 
 
 def next_round(needs: Sequence[float], limit_s: float | None,

@@ -34,7 +34,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from models.collision import arm_pair_clearance_mm
+from models import clock
+from models.collision import body_segments_mm, clearance_mm
 from models.incompatibility import within_park_move_limit
 from models.instrument import Instrument
 from models.kinematics import direct_move_time_s, inverse_fov, tip_fov
@@ -55,7 +56,9 @@ GRID_STEP_MM = 2.5
 NEAR_DEG = 1.0
 #: margin kept inside the FOV edge by a sky tip (mm)
 FOV_MARGIN_MM = 0.5
-#: candidates checked for collisions at once (in order of move time)
+#: candidates checked for collisions at once (in order of move time): the first chunk is
+#: small (the nearest rest usually fits), the later ones ``CHUNK`` each
+FIRST_CHUNK = 8
 CHUNK = 64
 #: clearance margin over the buffer (mm): a sky rest never sits exactly at the buffer
 CLEAR_MM = 0.01
@@ -221,17 +224,25 @@ def _arm_candidates(inst: Instrument, arm: int, points: np.ndarray, given: np.nd
 
 
 def _fitting(inst: Instrument, arm: int, cand: np.ndarray, q: np.ndarray, buffer_mm: float) -> int | None:
-    """The first candidate (in the given order) of ``arm`` keeping the buffer to every other arm."""
-    for start in range(0, len(cand), CHUNK):
-        c = cand[start:start + CHUNK]
-        ok = np.ones(len(c), bool)
-        for j in range(len(q)):
-            if j != arm:
-                ok &= arm_pair_clearance_mm(inst, arm, c, j, q[j]) >= buffer_mm + CLEAR_MM
+    """The first candidate (in the given order) of ``arm`` keeping the buffer to every other arm
+    (the bodies of the other arms computed once, a chunk of candidates against all of them at
+    once)."""
+    others = np.array([j for j in range(len(q)) if j != arm], int)
+    theirs = tuple(x[None] for x in body_segments_mm(inst, others, q[others, 0], q[others, 1]))
+    for start, stop in _chunks(len(cand)):
+        c = cand[start:stop]
+        mine = tuple(x[:, None] for x in body_segments_mm(inst, arm, c[:, 0], c[:, 1]))
+        ok = np.all(clearance_mm(mine, theirs) >= buffer_mm + CLEAR_MM, axis=1)
         hit = np.flatnonzero(ok)
         if len(hit):
             return start + int(hit[0])
     return None
+
+
+def _chunks(n: int) -> list[tuple[int, int]]:
+    """The candidates' chunks: ``FIRST_CHUNK``, then ``CHUNK`` at a time, up to ``n``."""
+    edges = [0, *range(min(FIRST_CHUNK, n), n, CHUNK), n]
+    return [(a, b) for a, b in zip(edges, edges[1:], strict=False) if b > a]
 
 
 def place_sky(inst: Instrument, configs: Sequence[Configuration], sky: SkyField,
@@ -243,6 +254,7 @@ def place_sky(inst: Instrument, configs: Sequence[Configuration], sky: SkyField,
     fits; else left where the allocator rested it. Targets and disabled arms never move.
     Each configuration's ``stats["sky_arms"]`` counts its arms on sky."""
     buffer_mm = inst.collision_buffer_mm if buffer_mm is None else float(buffer_mm)
+    clock.work("sky_arms", sum(a.kind in ("park", "blank") for c in configs for a in c.assignments))
     points = np.vstack([sky.sky_xy_mm.reshape(-1, 2), _blank_grid(inst, sky)])
     given = np.r_[np.ones(len(sky.sky_xy_mm), bool), np.zeros(len(points) - len(sky.sky_xy_mm), bool)]
     cands = {k: _arm_candidates(inst, k, points, given, park_move_limit_s) for k in inst.enabled_arms}

@@ -521,11 +521,13 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
         progress(plan_progress(round_, done, total))
         stage(stages.plan_stage(round_, done, total))
 
+    from service.round_tasks import round_task  # it builds on this module's tasks
+
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
         for done, task in enumerate(tasks):
             i = task.index
             answer = pointing_result(
-                pointing_task(req, seg, task), inst,
+                round_task(req, seg, task, inst, answers.get(i)), inst,
                 lambda f, d=done, r=task.round: report(r, d + f, len(tasks)),
                 wall_limit_s=max(budget.left_s(), 0.0))
             answers[i] = keep_better(answers.get(i), answer, i)

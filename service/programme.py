@@ -29,6 +29,7 @@ from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rou
 from service import adapters, pipeline, plan_locks
 from service.jobs import JobStore
 from service.plan_consolidation import consolidated
+from service.round_tasks import round_task
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
 
@@ -101,7 +102,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return not (cancelled is not None and cancelled.is_set()) and store.owns(job_id, owner)
 
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
-        todo = [pipeline.pointing_task(req, seg, t) for t in tasks if recorded(t) is None]
+        todo = [round_task(req, seg, t, inst, answers.get(t.index)) for t in tasks if recorded(t) is None]
         computed[0] += len(todo)
         first = tasks[0].round == 1  # the first round counts every pointing, resumed ones too
         count = _RoundProgress(progress, stage, tasks[0].round, n if first else len(tasks),

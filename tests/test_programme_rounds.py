@@ -198,7 +198,7 @@ def test_a_synchronous_plan_reports_later_rounds_below_one(monkeypatch) -> None:
         progress(0.5)
         ok = task.index != 0 or task.round > 1
         o = PointingOutcome(task.index, task.round, task.share_s, 0.1, ok, 0 if ok else 1, 2)
-        return {"stats": {"rounds": [pipeline.outcome_out(o)]}}
+        return {"configurations": [], "motions": [], "unallocated": [], "stats": {"rounds": [pipeline.outcome_out(o)]}}
 
     monkeypatch.setattr(pipeline, "pointing_result", fake_result)
     heard: list[float] = []

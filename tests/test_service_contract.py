@@ -28,8 +28,8 @@ JSON = {"content-type": "application/json"}
 def _settings(db: Path, token: str | None) -> Settings:
     # tiny limits: every stage runs for real, each call kept short; the job queue bound (a
     # deployment quota, tested in test_service_reliability.py) out of the fuzzer's reach
-    return Settings(job_db=db, workers=1, max_targets=8, default_time_limit_s=0.3, max_queued_jobs=100_000,
-                    max_time_limit_s=0.5, plan_budget_s=0.4, job_budget_s=0.4,
+    return Settings(job_db=db, workers=1, max_targets=8, default_time_limit_s=0.15, max_queued_jobs=100_000,
+                    max_time_limit_s=0.25, plan_budget_s=0.2, job_budget_s=0.2,
                     api_token=token, cors_origins=ORIGIN, max_body_bytes=100_000)
 
 

@@ -184,6 +184,43 @@ def test_blank_sky_avoids_every_programme_target_not_only_members() -> None:
     assert n_sky == placed.stats["sky_arms"] >= 6
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_the_first_fitting_rest_is_the_per_pair_scans(seed: int) -> None:
+    """planner.sky._fitting (every other arm at once) picks the candidate a scan of the arms
+    one pair at a time picks, on random configurations with candidates near other arms."""
+    from models.collision import arm_pair_clearance_mm
+    from models.kinematics import inverse_fov
+    from planner.sky import CLEAR_MM, _fitting
+
+    rng = np.random.default_rng(seed)
+    q = np.array(INST.park_configuration, float)
+    for k in range(12):  # each arm on a random reachable point
+        for _ in range(20):
+            ik = inverse_fov(INST, k, *rng.uniform(-110, 110, (2, 1)))
+            if ik.valid.any():
+                r, c = np.argwhere(ik.valid)[0]
+                trial = q.copy()
+                trial[k] = (ik.theta1_rad[r, c], ik.theta2_rad[r, c])
+                if not fcl_configuration_collisions(INST, trial):
+                    q = trial
+                    break
+    for arm in range(12):
+        pts = rng.uniform(-120, 120, (300, 2))
+        ik = inverse_fov(INST, arm, pts[:, 0], pts[:, 1])
+        rows, cols = np.nonzero(ik.valid)
+        cand = np.column_stack([ik.theta1_rad[rows, cols], ik.theta2_rad[rows, cols]])
+        ok = np.ones(len(cand), bool)
+        for j in range(12):
+            if j != arm:
+                ok &= arm_pair_clearance_mm(INST, arm, cand, j, q[j]) >= INST.collision_buffer_mm + CLEAR_MM
+        want = int(np.flatnonzero(ok)[0]) if ok.any() else None
+        assert _fitting(INST, arm, cand, q, INST.collision_buffer_mm) == want
+        if want is not None:  # and FCL agrees the rest clears every arm
+            placed = q.copy()
+            placed[arm] = cand[want]
+            assert not [p for p in fcl_configuration_collisions(INST, placed) if arm in p]
+
+
 # ------------------------------------------------------------------------ bad input
 
 
