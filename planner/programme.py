@@ -58,7 +58,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "best_outcomes", "better", "planned", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "keeps_plan", "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
+    "keeps_plan", "margin_round", "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -355,8 +355,7 @@ def keeps_plan(best: PointingOutcome | None, round_: int) -> bool:
     after the first, when that plan was attempted, observes targets and has a failed leg.
     The failed legs then get the round's whole share; a new allocation would spend half of it
     (``allocation_share``) and plan every leg again, on a share smaller than the first
-    round's (two-clump-4006, docs/programme.md: a 118-target pointing whose last leg failed
-    on 8.9 s kept it failed on a second round of 28.9 s that searched its allocation again)."""
+    round's (docs/programme.md, *Rounds*: two-clump-4006)."""
     return round_ > 1 and best is not None and best.attempted and not best.executable and best.observed > 0
 
 
@@ -406,19 +405,45 @@ def _by_need(left_s: float, indices: Sequence[int], needs: Sequence[float],
     return {}
 
 
+def margin_round(needs: Sequence[float], limit_s: float | None,
+                 history: Sequence[Sequence[PointingOutcome]],
+                 table: ProgrammeShares = SHARES) -> list[RoundTask]:
+    """The round after the rounds of a plan that spends their margin (the consolidation's
+    plans, :func:`planner.consolidation.applies`): the pointings whose best plan still has a
+    failed leg, each with a share (by need, :func:`_by_need`) of what the rounds left with
+    their effort counted at face value (``consolidation_effort_share``: the margin they kept
+    for a slower machine). A failed leg gets that margin before any pointing is changed to
+    save an exposure. Empty when every pointing is executable or less than
+    ``min_pointing_s`` is left."""
+    usable = usable_s(limit_s, table)
+    if math.isinf(usable) or not history:
+        return []
+    best = best_outcomes(history)
+    failed = [i for i, o in best.items() if o.attempted and not o.executable]
+    left = usable - sum(o.spent_s(table, table.consolidation_effort_share) for outcomes in history for o in outcomes)
+    if not failed or left < table.min_pointing_s:
+        return []
+    r = len(history) + 1
+    return [RoundTask(i, r, share) for i, share in sorted(_by_need(left, failed, needs, table).items())]
+
+
 def run_rounds(needs: Sequence[float], limit_s: float | None,
                compute: Callable[[Sequence[RoundTask]], Sequence[PointingOutcome]],
-               table: ProgrammeShares = SHARES) -> list[list[PointingOutcome]]:
+               table: ProgrammeShares = SHARES, *, spend_margin: bool = False) -> list[list[PointingOutcome]]:
     """The one plan loop of a programme: the first round on :func:`first_round_shares`, then
-    :func:`next_round` until none is due. ``compute`` plans a round's tasks (in this process,
-    on a job's runner, on Dask: any order) and keeps each pointing's best plan
-    (:func:`better`); it returns their outcomes. Returns the outcomes of every round."""
+    :func:`next_round` until none is due, then (``spend_margin``) :func:`margin_round`.
+    ``compute`` plans a round's tasks (in this process, on a job's runner, on Dask: any order)
+    and keeps each pointing's best plan (:func:`better`); it returns their outcomes. Returns
+    the outcomes of every round."""
     shares = first_round_shares(limit_s, needs, table)
     tasks = [RoundTask(i, 1, s) for i, s in enumerate(shares)]
     history: list[list[PointingOutcome]] = []
     while tasks:
         history.append(list(compute(tasks)))
         tasks = next_round(needs, limit_s, history, table)
+    tasks = margin_round(needs, limit_s, history, table) if spend_margin else []
+    if tasks:
+        history.append(list(compute(tasks)))
     return history
 
 

@@ -29,7 +29,7 @@ from models.instrument import Instrument, default_instrument, load_instrument
 from models.locks import arm_limits
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
-from planner import keep, plan_motion, programme, stages
+from planner import consolidation, keep, plan_motion, programme, stages
 from planner.clearance import compile_kernels
 from planner.consolidation import PLAN_FAILED_REASON
 from planner.known_legs import KnownLegs
@@ -534,7 +534,8 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
             report(task.round, done + 1, len(tasks))
         return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
 
-    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit, seg), compute)
+    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit, seg), compute,
+                         spend_margin=spends_margin(req))
     pointings = [answers[i] for i in range(len(seg.pointings))]
     advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
     from service.plan_consolidation import consolidated  # it plans pointings with this module
@@ -545,6 +546,13 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     return seg, pointings, {
         **consolidation, "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
         "elapsed_s": budget.elapsed_s(), **({} if advice is None else {"time_limit_advice": advice})}
+
+
+def spends_margin(req: PlanRequest) -> bool:
+    """Whether the plan's last steps spend the margin its rounds kept (a pointing with a
+    failed leg first, :func:`planner.programme.margin_round`, then the consolidation):
+    :func:`planner.consolidation.applies`."""
+    return consolidation.applies(plan_mode(req), req.keep_configurations is not None)
 
 
 def sync_limit_s(budget_s: float | None) -> float:

@@ -122,7 +122,8 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return [recorded(t) for t in tasks]  # type: ignore[misc]
 
     try:
-        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute)
+        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute,
+                             spend_margin=pipeline.spends_margin(req))
     except _Stopped:
         return None
     pointings = [answers[i] for i in range(n)]

@@ -238,3 +238,24 @@ def test_the_wall_clock_keeps_back_the_answer_of_a_larger_plan() -> None:
             last = kept
     assert pp.wall_reserve_s(120.0, 247) == pytest.approx(0.5 + 0.004 * 247)
     assert pp.wall_reserve_s(None, 300) == pp.wall_reserve_s(math.inf, 300) == 0.0
+
+
+def test_the_margin_round_gives_a_failed_leg_what_the_rounds_kept_for_a_slower_machine() -> None:
+    """With ``spend_margin`` a pointing still failing when no round is due gets one more round:
+    what the rounds left with their effort at face value (the consolidation's count), split by
+    need; without it, or when every pointing is executable, no such round."""
+    needs = [20.0, 30.0, 10.0]
+    # pointing 0 spends its whole effort budget and fails on any share; the others spend 1 s
+    cost = {0: 1e9, 1: 1.0, 2: 1.0}
+    plain = pp.run_rounds(needs, 60.0, fake_compute(cost, {0: 1e9}, []))
+    log: list = []
+    spent = pp.run_rounds(needs, 60.0, fake_compute(cost, {0: 1e9}, log), spend_margin=True)
+    assert len(spent) == len(plain) + 1 and [t.index for t in log[-1]] == [0]
+    effort = sum(min(o.effort_s, SHARES.effort_share * o.share_s) for r in plain for o in r)
+    assert log[-1][0].share_s == pytest.approx(pp.usable_s(60.0) - effort)
+    assert log[-1][0].round == len(plain) + 1
+    # the margin is what the effort share kept: a fifth of what pointing 0 was given
+    assert log[-1][0].share_s >= (1 - SHARES.effort_share) * sum(o.share_s for r in plain for o in r if o.index == 0) - 1e-9
+    ok = pp.run_rounds(needs, 60.0, fake_compute({0: 1.0, 1: 1.0, 2: 1.0}, {}, []), spend_margin=True)
+    assert len(ok) == 1
+    assert pp.margin_round(needs, None, plain) == [] and pp.margin_round(needs, 60.0, []) == []
