@@ -209,12 +209,14 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     ``elsewhere``: bool mask of the targets another pointing of the model's solution holds.
     The pointing is centred on the smallest circle enclosing ``given`` (:func:`recentre`),
     unless at its best angle some of ``given`` are out of every arm's reach
-    (:func:`out_of_reach`) and fewer are about ``start``: then about ``start``. The pointing
+    (:func:`out_of_reach`) and fewer are about ``start``, whose FOV holds them all: then about
+    ``start``. The pointing
     keeps at least ``given``'s targets when its allocation keeps nothing."""
     centre = recentre(f, given, start)
     members, pa, search = _placed(f, todo, given, centre, opts)
     lost = out_of_reach(f, given, centre, pa, opts)
-    if lost and centre != start:  # the model's own centre may reach what the recentred one loses
+    if lost and centre != start and within(f, np.asarray(given, np.int64), start).all():
+        # the model's own centre, when its FOV holds them all, may reach what the recentred one loses
         at_start = _placed(f, todo, given, start, opts)
         if out_of_reach(f, given, start, at_start[1], opts) < lost:
             centre, (members, pa, search) = start, at_start
