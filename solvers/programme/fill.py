@@ -33,7 +33,7 @@ from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
-           "allocate_pointing", "commit", "observed_members", "out_of_reach", "pointing_angle", "position_angle", "recentre", "within"]
+           "allocate_pointing", "commit", "observed_members", "pointing_angle", "position_angle", "recentre", "within"]
 
 #: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
 #: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
@@ -148,7 +148,8 @@ def position_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
 
     def tried(order: list[float]) -> bool:
         for a in order:
-            lost[a] = out_of_reach(f, members, centre, a, opts)
+            x, y = sky_to_focal_mm(f.ra_deg[members], f.dec_deg[members], centre[0], centre[1], f.scale, a)
+            lost[a] = int(np.count_nonzero(opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), members) == 0))
             if lost[a] == 0:
                 return True
         return False
@@ -207,19 +208,12 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
     """One step (module docstring): the pointing the model gives ``given`` (target indices)
     about ``start`` (sky), taking every target of the bool mask ``todo`` inside its FOV;
     ``elsewhere``: bool mask of the targets another pointing of the model's solution holds.
-    The pointing is centred on the smallest circle enclosing ``given`` (:func:`recentre`),
-    unless at its best angle some of ``given`` are out of every arm's reach
-    (:func:`out_of_reach`) and fewer are about ``start``, whose FOV holds them all: then about
-    ``start``. The pointing
-    keeps at least ``given``'s targets when its allocation keeps nothing."""
+    The pointing keeps at least ``given``'s targets when its allocation keeps nothing."""
     centre = recentre(f, given, start)
-    members, pa, search = _placed(f, todo, given, centre, opts)
-    lost = out_of_reach(f, given, centre, pa, opts)
-    if lost and centre != start and within(f, np.asarray(given, np.int64), start).all():
-        # the model's own centre, when its FOV holds them all, may reach what the recentred one loses
-        at_start = _placed(f, todo, given, start, opts)
-        if out_of_reach(f, given, start, at_start[1], opts) < lost:
-            centre, (members, pa, search) = start, at_start
+    inside = np.flatnonzero(todo)
+    inside = inside[within(f, inside, centre)]
+    members = np.union1d(inside, given)
+    pa, search = pointing_angle(f, members, centre, opts)
     p = Pointing(centre, pa, members, pa_search=search)
     only = ~elsewhere[members]
     if budget.expired():
@@ -238,26 +232,6 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
         p.allocation = witness(result, members, keep, p.exposures, f.priority)
     p.members = keep
     return p
-
-
-def _placed(f: Field, todo: np.ndarray, given: np.ndarray, centre: tuple[float, float], opts: FillOptions,
-            ) -> tuple[np.ndarray, float, AngleChoice | None]:
-    """A pointing about ``centre``: its members (``given`` and every target of the bool mask
-    ``todo`` inside its FOV) and its angle (:func:`pointing_angle`)."""
-    inside = np.flatnonzero(todo)
-    members = np.union1d(inside[within(f, inside, centre)], given)
-    pa, search = pointing_angle(f, members, centre, opts)
-    return members, pa, search
-
-
-def out_of_reach(f: Field, idx: np.ndarray, centre: tuple[float, float], pa_deg: float, opts: FillOptions) -> int:
-    """How many of the targets ``idx`` no arm reaches within the park move limit (and its
-    locks) from the pointing at ``centre`` and ``pa_deg``."""
-    idx = np.asarray(idx, dtype=np.int64)
-    if idx.size == 0:
-        return 0
-    x, y = sky_to_focal_mm(f.ra_deg[idx], f.dec_deg[idx], centre[0], centre[1], f.scale, pa_deg)
-    return int(np.count_nonzero(opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), idx) == 0))
 
 
 def observed_members(members: np.ndarray, result: AllocationResult) -> set[int]:
