@@ -44,7 +44,7 @@ from models.budget import Budget
 from models.instrument import Instrument
 from models.types import AllocationResult, ArmAssignment, Configuration
 from planner.known_legs import new_legs
-from planner.programme import PointingOutcome, RoundTask, best_outcomes, usable_s
+from planner.programme import PointingOutcome, RoundTask, best_outcomes, margin_left_s
 from planner.shares import SHARES, ProgrammeShares
 from solvers.programme.consolidate import (
     LegCosts,
@@ -273,11 +273,7 @@ def left_s(limit_s: float | None, history: Sequence[Sequence[PointingOutcome]], 
     :func:`planner.programme.next_round` counts it but with each outcome's effort at
     ``consolidation_effort_share`` (:class:`planner.shares.ProgrammeShares`): the plan's last
     step spends the margin the rounds kept."""
-    usable = usable_s(limit_s, table)
-    if math.isinf(usable):
-        return math.inf
-    return usable - spent_s - sum(o.spent_s(table, table.consolidation_effort_share)
-                                  for outcomes in history for o in outcomes)
+    return margin_left_s(limit_s, history, table) - spent_s
 
 
 def consolidation_tasks(costs_s: Mapping[int, float], left: float, round_: int, changed: Sequence[int],

@@ -58,7 +58,7 @@ __all__ = [
     "pointing_telescope_time",
     "ProgrammeShares", "RoundTask", "best_outcomes", "better", "planned", "estimated_exposures", "given_allocation", "exposure_caps", "first_round_shares",
     "by_expected_share", "expected_share_s", "fitting", "next_round",
-    "keeps_plan", "margin_round", "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
+    "keeps_plan", "margin_left_s", "margin_round", "optimiser_guard_s", "optimiser_s", "variants_s", "rounds_limit_s", "plan_pointing", "pointing_need", "pointing_seed", "pointing_shares", "plan_progress", "rank", "reserve_s", "wall_reserve_s",
     "run_rounds", "segmentation_mode", "usable_s",
 ]
 
@@ -378,7 +378,7 @@ def next_round(needs: Sequence[float], limit_s: float | None,
         return []  # without a limit every pointing already had all the time it asked for
     best = best_outcomes(history)
     spent = sum(o.spent_s(table) for outcomes in history for o in outcomes)
-    failed = [i for i, o in best.items() if o.attempted and not o.executable]
+    failed = _failed(best)
     left = usable - spent
     if left < table.min_pointing_s:
         return []
@@ -405,6 +405,22 @@ def _by_need(left_s: float, indices: Sequence[int], needs: Sequence[float],
     return {}
 
 
+def _failed(best: dict[int, PointingOutcome]) -> list[int]:
+    """The pointings whose best plan was attempted and has a failed leg."""
+    return [i for i, o in best.items() if o.attempted and not o.executable]
+
+
+def margin_left_s(limit_s: float | None, history: Sequence[Sequence[PointingOutcome]],
+                  table: ProgrammeShares = SHARES) -> float:
+    """What the rounds ``history`` left of the plan's usable limit with their effort counted
+    at face value (``consolidation_effort_share``): the margin they kept for a slower
+    machine included (inf: no limit)."""
+    usable = usable_s(limit_s, table)
+    if math.isinf(usable):
+        return math.inf
+    return usable - sum(o.spent_s(table, table.consolidation_effort_share) for outcomes in history for o in outcomes)
+
+
 def margin_round(needs: Sequence[float], limit_s: float | None,
                  history: Sequence[Sequence[PointingOutcome]],
                  table: ProgrammeShares = SHARES) -> list[RoundTask]:
@@ -415,12 +431,10 @@ def margin_round(needs: Sequence[float], limit_s: float | None,
     for a slower machine). A failed leg gets that margin before any pointing is changed to
     save an exposure. Empty when every pointing is executable or less than
     ``min_pointing_s`` is left."""
-    usable = usable_s(limit_s, table)
-    if math.isinf(usable) or not history:
+    left = margin_left_s(limit_s, history, table)
+    if math.isinf(left) or not history:
         return []
-    best = best_outcomes(history)
-    failed = [i for i, o in best.items() if o.attempted and not o.executable]
-    left = usable - sum(o.spent_s(table, table.consolidation_effort_share) for outcomes in history for o in outcomes)
+    failed = _failed(best_outcomes(history))
     if not failed or left < table.min_pointing_s:
         return []
     r = len(history) + 1

@@ -265,6 +265,15 @@ def motion_in(d: Mapping[str, Any]) -> MotionPlan:
                       tuple(int(a) for a in d["failed_arms"]), dict(d.get("stats") or {}))
 
 
+def assignment_in(a: Mapping[str, Any], target_index: int | None, target_id: str | None) -> ArmAssignment:
+    """An AssignmentOut dict back as an :class:`ArmAssignment`: on its target when
+    ``target_index`` is given, else at park or fixed as it says, and an idle arm off park
+    (reported "sky" or "blank") as "blank" (a plan places its sky again)."""
+    kind = "target" if target_index is not None else a["kind"] if a["kind"] in ("park", "fixed") else "blank"
+    return ArmAssignment(int(a["arm"]), kind, float(a["theta1_rad"]), float(a["theta2_rad"]), float(a["x_mm"]),
+                         float(a["y_mm"]), target_index, None if target_index is None else target_id)
+
+
 def known_legs_in(inst: Instrument, p: Mapping[str, Any]) -> KnownLegs:
     """The verified legs of a PlanPointing dict (:class:`planner.known_legs.KnownLegs`), by
     the joint angles of the configurations they end at."""

@@ -15,7 +15,7 @@ from models.budget import Budget
 from models.instrument import Instrument
 from models.locks import arm_limits
 from models.sky import tangent_radius_mm
-from models.types import ArmAssignment, Configuration
+from models.types import Configuration
 from planner.consolidation import (
     NO_TIME_REASON,
     PASS_EFFORT_S,
@@ -216,9 +216,7 @@ def _planned(p: dict[str, Any], index: dict[str, int]) -> PlannedPointing:
         arms = []
         for a in sorted(c["assignments"], key=lambda a: a["arm"]):
             t = index.get(a["target_id"]) if a["target_id"] is not None else None
-            kind = "target" if t is not None else a["kind"] if a["kind"] in ("park", "fixed") else "blank"
-            arms.append(ArmAssignment(int(a["arm"]), kind, float(a["theta1_rad"]), float(a["theta2_rad"]),
-                                      float(a["x_mm"]), float(a["y_mm"]), t, None if t is None else str(t)))
+            arms.append(adapters.assignment_in(a, t, str(t)))
         configs.append(Configuration(len(configs), tuple(arms), 0, sum(x.kind == "target" for x in arms), "feasible"))
     unobserved = {index[u["target_id"]]: u["reason"] for u in p["unallocated"] if u["target_id"] in index}
     return PlannedPointing((float(p["ra_deg"]), float(p["dec_deg"])), float(p["position_angle_deg"] or 0.0),

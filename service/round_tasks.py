@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from models.instrument import Instrument
-from models.types import AllocationResult, ArmAssignment, Configuration, Unallocated
+from models.types import AllocationResult, Configuration, Unallocated
 from planner.programme import RoundTask, keeps_plan, rank
 from service import adapters, pipeline
 from service.schemas import PlanRequest
@@ -50,9 +50,7 @@ def allocation_in(p: Mapping[str, Any], members: Sequence[str]) -> AllocationRes
             t = a["target_id"]
             if t is not None and t not in pos:
                 return None
-            kind = "target" if t is not None else a["kind"] if a["kind"] in ("park", "fixed") else "blank"
-            arms.append(ArmAssignment(int(a["arm"]), kind, float(a["theta1_rad"]), float(a["theta2_rad"]),
-                                      float(a["x_mm"]), float(a["y_mm"]), None if t is None else pos[t], t))
+            arms.append(adapters.assignment_in(a, None if t is None else pos[t], t))
         yield_ = sum(x.kind == "target" for x in arms)
         configs.append(Configuration(len(configs), tuple(arms), int(c["total_priority"]), yield_, "feasible"))
     seen: set[str] = set()
