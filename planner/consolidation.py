@@ -56,7 +56,7 @@ from solvers.programme.consolidate import (
 from solvers.programme.fill import Field
 from solvers.programme.spare import FEW_TARGETS
 
-__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PLAN_FAILED_REASON", "REPLAN_WALL_MARGIN", "REPLAN_WALL_MARGIN_MIN_S", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
+__all__ = ["MAX_PASSES", "MODE", "NEW_LEG_FACTOR", "NO_TIME_REASON", "PLAN_FAILED_REASON", "REUSED_LEG_S", "REPLAN_WALL_MARGIN", "REPLAN_WALL_MARGIN_MIN_S", "PASS_EFFORT_S", "PASS_WALL_GUARD", "PlannedPointing", "Regrouped", "accepted", "affordable", "another_pass", "applies",
            "consolidation_tasks", "costs", "few_observed", "groups_of", "left_s", "no_time", "pass_wall_s", "regroup", "replan_wall_s", "replan_costs", "retry_tasks"]
 
 #: the segmentation mode whose plans are consolidated (the programme optimiser's)
@@ -69,10 +69,16 @@ PASS_EFFORT_S = 3.0
 #: which ends the pass (its plan then stays as it was); what the pass spends is counted on the
 #: effort clock, so the plan is the same on any machine the guard does not stop
 PASS_WALL_GUARD = 2.0
-#: a leg the pass makes new costs this many times an average leg of its pointing in the rounds:
-#: it goes into or out of an exposure that took a target on an arm its allocation left idle,
-#: or joins two exposures no leg joined, a move no search of the rounds made easy
+#: a leg the pass makes new costs this many times an average leg of its pointing in the rounds
+#: (its costliest round's motion seconds over its legs): it goes into or out of an exposure
+#: that took a target on an arm its allocation left idle, or joins two exposures no leg joined,
+#: a move no search of the rounds made easy (the 25 new legs of cluster-18001's crowded core
+#: took 1.6 times its round's average leg: ``python benchmarks/replan_costs.py cluster:18001``)
 NEW_LEG_FACTOR = 2.0
+#: a leg the pass reuses (:mod:`planner.known_legs`) costs this many wall-clock seconds: it is
+#: verified again (0.02-0.08 s measured per leg on pointings of 11-60 legs,
+#: ``benchmarks/replan_costs.py``)
+REUSED_LEG_S = 0.1
 #: a pass's reason when :func:`no_time` stops it before it searches
 NO_TIME_REASON = "no time left to plan a changed pointing"
 #: why a target of an exposure observing few stays although another exposure could take it:
@@ -244,14 +250,20 @@ def replan_costs(costs_s: Mapping[int, float], pointings: Sequence[PlannedPointi
                  changed: Sequence[Regrouped]) -> dict[int, float]:
     """What planning each ``changed`` pointing again costs when the legs of its plan are
     reused where its new configurations make the same moves (:mod:`planner.known_legs`):
-    its cost in the rounds (``costs_s``, :func:`costs`) per leg, times :data:`NEW_LEG_FACTOR`
-    for each leg it plans anew (:func:`planner.known_legs.new_legs`); at most its cost in the
-    rounds."""
+    :data:`NEW_LEG_FACTOR` times its average leg in the rounds (its cost there, ``costs_s``,
+    :func:`costs`, over its legs) for each leg it plans anew
+    (:func:`planner.known_legs.new_legs`), and :data:`REUSED_LEG_S` for each leg it reuses; at
+    most its cost in the rounds."""
     out = {}
     for r in changed:
-        old, cost = pointings[r.index].configurations, costs_s[r.index]
-        out[r.index] = min(cost, NEW_LEG_FACTOR * cost * new_legs(old, r.allocation.configurations) / (len(old) + 1))
+        p, cost = pointings[r.index], costs_s[r.index]
+        legs = len(r.allocation.configurations) + 1
+        fresh = new_legs(p.configurations, r.allocation.configurations)
+        per_leg_s = cost / (len(p.configurations) + 1)
+        out[r.index] = min(cost, NEW_LEG_FACTOR * per_leg_s * fresh + REUSED_LEG_S * (legs - fresh))
     return out
+
+
 
 
 def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:

@@ -325,15 +325,43 @@ def _thresholds_after_motion(inst: Instrument, seq: SequencePlan, targets: Plane
 def _sequence_with_sky(inst: Instrument, plain: AllocationResult, skyed: AllocationResult | None,
                        targets: PlaneTargets, options: PointingOptions, budget: Budget, progress: Progress,
                        table: ProgrammeShares) -> tuple[AllocationResult, SequencePlan, str | None]:
-    """The legs of ``plain`` (the spare arms where the allocator left them); then, when they
-    are all planned and the motion time left is at least ``table.sky_motion_factor`` times
-    what they took, the legs of ``skyed`` (the spare arms on sky, :func:`planner.sky.place_sky`),
-    kept when all of them are planned and they observe no fewer targets. Resting arms on sky
-    never costs the plan a leg, nor the time its legs need. Returns the allocation whose legs
-    were kept."""
+    """The legs of ``skyed`` (the spare arms on sky, :func:`planner.sky.place_sky`), kept when
+    every one is planned and the motion planner dropped no target; else the legs of ``plain``
+    (the spare arms where the allocator left them) on what is left, and the sky legs kept only
+    when they are executable and drop no more targets. Returns the allocation whose legs were
+    kept.
+
+    The sky legs come first because a spare arm resting on sky near the field moves less
+    between exposures than one sent back to park: on cluster-18005's 35-exposure pointing the
+    legs took 40 s each on sky against 105 s plain (docs/allocation.md, *Sky positions (spare arms)*),
+    and planning them first spends the pointing's motion time once. A pointing planned again
+    from an earlier plan (known legs, :mod:`planner.known_legs`: a later round's retry of a
+    failed leg, the consolidation) plans the plain legs first (:func:`_plain_first`): its legs
+    come before its sky, and a failed sky attempt could take the time they need."""
+    if skyed is None or skyed.configurations == plain.configurations:
+        seq, err = _sequence(inst, plain.configurations, targets, options, budget, progress)
+        return plain, seq, err
+    if options.known_legs is not None:
+        return _plain_first(inst, plain, skyed, targets, options, budget, progress, table)
+    sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, progress)
+    sky_ok = sky_err is None and sky_seq.executable
+    if sky_ok and not sky_seq.dropped:
+        return skyed, sky_seq, None
+    seq, err = _sequence(inst, plain.configurations, targets, options, budget, _noop)
+    if sky_ok and (err is not None or not seq.executable or len(sky_seq.dropped) <= len(seq.dropped)):
+        return skyed, sky_seq, None
+    return plain, seq, err
+
+
+def _plain_first(inst: Instrument, plain: AllocationResult, skyed: AllocationResult,
+                 targets: PlaneTargets, options: PointingOptions, budget: Budget, progress: Progress,
+                 table: ProgrammeShares) -> tuple[AllocationResult, SequencePlan, str | None]:
+    """The legs of ``plain``; then, when they are all planned and the motion time left is at
+    least ``table.sky_motion_factor`` times what they took, the legs of ``skyed``, kept when
+    all of them are planned and they drop no more targets."""
     left_s = budget.left_s()
     seq, err = _sequence(inst, plain.configurations, targets, options, budget, progress)
-    if skyed is None or skyed.configurations == plain.configurations or err is not None or not seq.executable:
+    if err is not None or not seq.executable:
         return plain, seq, err
     took_s = left_s - budget.left_s()
     if budget.left_s() < table.sky_motion_factor * took_s:

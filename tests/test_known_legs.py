@@ -10,11 +10,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from models import clock
 from models.instrument import default_instrument
-from models.types import Configuration, PlaneTargets
+from models.types import AllocationResult, Configuration, PlaneTargets
 from planner import verify_trajectories
+from planner.consolidation import PlannedPointing, Regrouped, replan_costs
 from planner.known_legs import KnownLegs, new_legs
 from planner.sequence import SequenceOptions, SequencePlan, end_of, plan_sequence
+from planner.shares import SHARES
 from solvers.allocation import allocate
 
 INST = default_instrument()
@@ -176,3 +179,35 @@ def _stops(tr) -> int:
     from planner.commands import stop_count
 
     return stop_count(tr.t_s, tr.theta1_rad, tr.theta2_rad)
+
+
+@pytest.fixture(scope="module")
+def round_plan() -> tuple[tuple[Configuration, ...], SequencePlan, float]:
+    """Five configurations of a 60-target field, the plan of its first four as a round plans
+    them, and what that plan cost in wall-clock seconds of share (effort over effort_share)."""
+    alloc = allocate(INST, _targets(60, 5), method="semigreedy", configurations="all", seed=2)
+    configs = tuple(alloc.configurations[:5])
+    assert len(configs) == 5, "premise: five configurations"
+    with clock.effort() as effort:
+        seq = plan_sequence(INST, configs[:4], OPTIONS)
+    assert seq.executable
+    return configs, seq, effort.t_s / SHARES.effort_share
+
+
+@pytest.mark.parametrize("order", [(0, 2, 3), (0, 1, 4, 3), (0, 2, 1, 3), (4, 1, 2, 3), (0, 1, 2, 3)])
+def test_replan_costs_cover_what_the_changed_plan_takes(round_plan, order) -> None:
+    """planner.consolidation.replan_costs against a measurement: the changed configurations
+    (one removed, replaced, swapped, the first replaced, none) planned again with the round's
+    legs known take no more effort than it estimates, and less than the round took when most
+    legs are reused."""
+    configs, seq, round_s = round_plan
+    new = tuple(configs[i] for i in order)
+    with clock.effort() as effort:
+        again = plan_sequence(INST, new, OPTIONS, known=_known(seq))
+    assert again.executable and again.stats["plans"] == new_legs(seq.configurations, new)
+    old = PlannedPointing((0.0, 0.0), 0.0, seq.configurations, {})
+    changed = Regrouped(0, (), AllocationResult(new, (), {}))
+    estimate_s = replan_costs({0: round_s}, [old], [changed])[0]
+    assert effort.t_s / SHARES.effort_share <= estimate_s
+    if new_legs(seq.configurations, new) <= 1:
+        assert estimate_s < 0.5 * round_s

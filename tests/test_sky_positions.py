@@ -286,3 +286,68 @@ def test_cli_bad_sky_file_and_radius(tmp_path: Path, capsys) -> None:
     assert "row 2: Dec 'north' is not a number" in capsys.readouterr().err
     assert main(["plan", str(src), "--out", str(tmp_path / "o"), "--sky-radius", "-3", "--quiet"]) == 2
     assert "sky_radius_arcsec" in capsys.readouterr().err
+
+
+def _sequencing(monkeypatch, outcomes: dict[str, tuple[bool, int]]) -> list[str]:
+    """planner.pointing._sequence replaced by a stand-in that plans the configurations named
+    "sky" or "plain" as ``outcomes`` says (executable, targets dropped), recording the order."""
+    from types import SimpleNamespace
+
+    import planner.pointing as pointing
+
+    calls: list[str] = []
+
+    def fake(inst, configs, targets, options, budget, progress):
+        name = configs[0].name
+        calls.append(name)
+        ok, dropped = outcomes[name]
+        return SimpleNamespace(executable=ok, dropped=(None,) * dropped, name=name), None
+
+    monkeypatch.setattr(pointing, "_sequence", fake)
+    return calls
+
+
+@pytest.mark.parametrize(("sky", "plain", "order", "kept"), [
+    ((True, 0), (True, 0), ["sky"], "sky"),  # the sky legs planned and kept: no plain legs
+    ((False, 0), (True, 0), ["sky", "plain"], "plain"),  # a sky leg failed: the plain legs
+    ((True, 2), (True, 1), ["sky", "plain"], "plain"),  # the sky legs dropped more targets
+    ((True, 1), (True, 1), ["sky", "plain"], "sky"),  # as many dropped: the arms stay on sky
+    ((True, 1), (False, 0), ["sky", "plain"], "sky"),  # the plain legs failed
+])
+def test_the_sky_legs_are_planned_first_and_the_plain_ones_only_when_they_fall_short(
+        monkeypatch, sky, plain, order, kept) -> None:
+    from types import SimpleNamespace
+
+    from models.budget import Budget
+    from planner.pointing import PointingOptions, _sequence_with_sky
+    from planner.shares import SHARES
+
+    calls = _sequencing(monkeypatch, {"sky": sky, "plain": plain})
+    plain_a = SimpleNamespace(configurations=(SimpleNamespace(name="plain", q=np.zeros((12, 2))),))
+    sky_a = SimpleNamespace(configurations=(SimpleNamespace(name="sky", q=np.ones((12, 2))),))
+    result, seq, err = _sequence_with_sky(INST, plain_a, sky_a, None, PointingOptions(), Budget.start(10.0),
+                                          lambda *_: None, SHARES)
+    assert calls == order and err is None
+    assert result is (sky_a if kept == "sky" else plain_a) and seq.name == kept
+
+
+@pytest.mark.parametrize(("sky_ok", "kept"), [(True, "sky"), (False, "plain")])
+def test_a_pointing_planned_again_from_known_legs_plans_its_plain_legs_first(monkeypatch, sky_ok,
+                                                                              kept) -> None:
+    """A pointing planned again from an earlier plan (planner.known_legs: a later round's
+    retry, the consolidation) plans its plain legs first, and the sky legs after them."""
+    from types import SimpleNamespace
+
+    from models.budget import Budget
+    from planner.known_legs import KnownLegs
+    from planner.pointing import PointingOptions, _sequence_with_sky
+    from planner.shares import SHARES
+
+    calls = _sequencing(monkeypatch, {"sky": (sky_ok, 0), "plain": (True, 0)})
+    plain_a = SimpleNamespace(configurations=(SimpleNamespace(name="plain", q=np.zeros((12, 2))),))
+    sky_a = SimpleNamespace(configurations=(SimpleNamespace(name="sky", q=np.ones((12, 2))),))
+    options = PointingOptions(known_legs=KnownLegs())
+    result, seq, _ = _sequence_with_sky(INST, plain_a, sky_a, None, options, Budget.start(10.0),
+                                        lambda *_: None, SHARES)
+    assert calls == ["plain", "sky"] and seq.name == kept
+    assert result is (sky_a if kept == "sky" else plain_a)
