@@ -7,7 +7,8 @@ Each ``shape:seed`` is a programme of ``benchmarks/programme_time.py`` (the same
 the same call, ``service.pipeline.plan`` at the server's default budget, mode
 "fewest-exposures"), planned without its consolidation (the rounds' plan). On that plan the
 consolidation's first pass (``planner.consolidation.regroup``) runs with time to spare; each
-pointing it changes is then planned again alone, as a pass plans it (its new allocation final, the legs of
+pointing it changes is then planned again alone, as a pass plans it
+(``service.plan_consolidation.changed_segmentation``: its new allocation final; the legs of
 its plan known, ``planner.known_legs``) but without the sky pass and on a share of 60 s, so
 that the effort measured is that of its legs. Per changed pointing: its legs, the legs it
 plans anew (``planner.known_legs.new_legs``) and reuses, its cost in the rounds
@@ -63,11 +64,7 @@ def measured(shape: str, seed: int) -> list[dict[str, Any]]:
                             Budget.start(30.0))
     estimate = replan_costs(cost, planned, changed)
     seg = pipeline.segment_plan(req, inst, pipeline.plan_limit_s(req, Settings().plan_budget_s))
-    pointings = list(seg.pointings)
-    for r in changed:
-        pointings[r.index] = dataclasses.replace(pointings[r.index], target_indices=r.members, allocation=r.allocation,
-                                                 allocation_final=True, exposures=len(r.allocation.configurations))
-    seg = dataclasses.replace(seg, pointings=tuple(pointings))
+    seg = plan_consolidation.changed_segmentation(req, inst, seg, changed)
     out = []
     for r in changed:
         old, new = planned[r.index].configurations, r.allocation.configurations

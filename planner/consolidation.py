@@ -264,8 +264,6 @@ def replan_costs(costs_s: Mapping[int, float], pointings: Sequence[PlannedPointi
     return out
 
 
-
-
 def costs(history: Sequence[Sequence[PointingOutcome]], table: ProgrammeShares = SHARES) -> dict[int, float]:
     """What planning each pointing again costs, in wall-clock seconds counted as
     :func:`planner.programme.next_round` counts them: the most one of its rounds spent on its

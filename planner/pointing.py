@@ -344,13 +344,19 @@ def _sequence_with_sky(inst: Instrument, plain: AllocationResult, skyed: Allocat
     if options.known_legs is not None:
         return _plain_first(inst, plain, skyed, targets, options, budget, progress, table)
     sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, progress)
-    sky_ok = sky_err is None and sky_seq.executable
-    if sky_ok and not sky_seq.dropped:
+    if sky_err is None and sky_seq.executable and not sky_seq.dropped:
         return skyed, sky_seq, None
     seq, err = _sequence(inst, plain.configurations, targets, options, budget, _noop)
-    if sky_ok and (err is not None or not seq.executable or len(sky_seq.dropped) <= len(seq.dropped)):
-        return skyed, sky_seq, None
-    return plain, seq, err
+    return (skyed, sky_seq, None) if _sky_kept(sky_seq, sky_err, seq, err) else (plain, seq, err)
+
+
+def _sky_kept(sky_seq: SequencePlan, sky_err: str | None, seq: SequencePlan, err: str | None) -> bool:
+    """Whether the sky legs ``sky_seq`` are kept over the plain ones ``seq`` (``*_err``: why a
+    sequence was not planned): they are executable, and the plain ones are not or drop no
+    fewer targets."""
+    if sky_err is not None or not sky_seq.executable:
+        return False
+    return err is not None or not seq.executable or len(sky_seq.dropped) <= len(seq.dropped)
 
 
 def _plain_first(inst: Instrument, plain: AllocationResult, skyed: AllocationResult,
@@ -370,9 +376,7 @@ def _plain_first(inst: Instrument, plain: AllocationResult, skyed: AllocationRes
         return plain, seq, err
     # the pointing's progress has reached the end of its legs: the sky pass does not move it back
     sky_seq, sky_err = _sequence(inst, skyed.configurations, targets, options, budget, _noop)
-    if sky_err is None and sky_seq.executable and len(sky_seq.dropped) <= len(seq.dropped):
-        return skyed, sky_seq, None
-    return plain, seq, err
+    return (skyed, sky_seq, None) if _sky_kept(sky_seq, sky_err, seq, err) else (plain, seq, err)
 
 
 def _sequence(inst: Instrument, configs: Sequence[Configuration], targets: PlaneTargets,

@@ -43,7 +43,7 @@ from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
 from solvers.segmentation import Segmentation
 
-__all__ = ["consolidated"]
+__all__ = ["changed_segmentation", "consolidated"]
 
 
 def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[dict[str, Any]],
@@ -102,16 +102,7 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
         if no_time(left):
             stats["reason"] = NO_TIME_REASON
         return seg, answers, stats, [], frozenset()
-    pointings = list(seg.pointings)
-    for r in changed:
-        p = pointings[r.index]
-        radius = tangent_radius_mm(np.array([req.targets[i].ra_deg for i in r.members]),
-                                   np.array([req.targets[i].dec_deg for i in r.members]), p.ra_deg, p.dec_deg,
-                                   float(inst.plate_scale_arcsec_per_mm))
-        pointings[r.index] = dataclasses.replace(
-            p, target_indices=r.members, allocation=r.allocation, allocation_final=True,
-            exposures=len(r.allocation.configurations), radius_mm=float(np.max(radius, initial=0.0)))
-    new_seg = dataclasses.replace(seg, pointings=tuple(pointings))
+    new_seg = changed_segmentation(req, inst, seg, changed)
     spent_s += pass_wall_s(effort.t_s)
     need = replan_costs(cost, planned, changed)
     tasks = consolidation_tasks(need, left_s(limit_s, history, spent_s), len(history) + 1,
@@ -139,6 +130,22 @@ def _pass(req: PlanRequest, inst: Instrument, seg: Segmentation, answers: list[d
     if refused:  # the groups whose plans were not better keep their old plans
         stats.update(refused=[answers[i]["id"] for i in refused], failed=[answers[i]["id"] for i in sorted(failed)])
     return dataclasses.replace(seg, pointings=tuple(pointings)), out, stats, tries, failed
+
+
+def changed_segmentation(req: PlanRequest, inst: Instrument, seg: Segmentation,
+                         changed: Sequence[Regrouped]) -> Segmentation:
+    """``seg`` with the pointings a pass ``changed`` given their new members and allocation,
+    observed as it is (``allocation_final``)."""
+    pointings = list(seg.pointings)
+    for r in changed:
+        p = pointings[r.index]
+        radius = tangent_radius_mm(np.array([req.targets[i].ra_deg for i in r.members]),
+                                   np.array([req.targets[i].dec_deg for i in r.members]), p.ra_deg, p.dec_deg,
+                                   float(inst.plate_scale_arcsec_per_mm))
+        pointings[r.index] = dataclasses.replace(
+            p, target_indices=r.members, allocation=r.allocation, allocation_final=True,
+            exposures=len(r.allocation.configurations), radius_mm=float(np.max(radius, initial=0.0)))
+    return dataclasses.replace(seg, pointings=tuple(pointings))
 
 
 def _kept_groups(changed: Sequence[Regrouped], answers: Sequence[dict[str, Any]],

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -17,11 +18,16 @@ from astropy import units as u
 from astropy.coordinates import SkyCoord
 from fastapi.testclient import TestClient
 
+import planner.pointing as pointing
+from models.budget import Budget
 from models.collision import fcl_configuration_collisions
 from models.instrument import default_instrument
 from models.kinematics import tip_fov
 from models.sky import focal_mm_to_sky, sky_to_focal_mm
 from models.types import ArmAssignment, Configuration
+from planner.known_legs import KnownLegs
+from planner.pointing import PointingOptions, _sequence_with_sky
+from planner.shares import SHARES
 from planner.sky import arm_sky, place_sky, sky_field
 from service.app import create_app
 from service.cli import main
@@ -291,10 +297,6 @@ def test_cli_bad_sky_file_and_radius(tmp_path: Path, capsys) -> None:
 def _sequencing(monkeypatch, outcomes: dict[str, tuple[bool, int]]) -> list[str]:
     """planner.pointing._sequence replaced by a stand-in that plans the configurations named
     "sky" or "plain" as ``outcomes`` says (executable, targets dropped), recording the order."""
-    from types import SimpleNamespace
-
-    import planner.pointing as pointing
-
     calls: list[str] = []
 
     def fake(inst, configs, targets, options, budget, progress):
@@ -316,12 +318,6 @@ def _sequencing(monkeypatch, outcomes: dict[str, tuple[bool, int]]) -> list[str]
 ])
 def test_the_sky_legs_are_planned_first_and_the_plain_ones_only_when_they_fall_short(
         monkeypatch, sky, plain, order, kept) -> None:
-    from types import SimpleNamespace
-
-    from models.budget import Budget
-    from planner.pointing import PointingOptions, _sequence_with_sky
-    from planner.shares import SHARES
-
     calls = _sequencing(monkeypatch, {"sky": sky, "plain": plain})
     plain_a = SimpleNamespace(configurations=(SimpleNamespace(name="plain", q=np.zeros((12, 2))),))
     sky_a = SimpleNamespace(configurations=(SimpleNamespace(name="sky", q=np.ones((12, 2))),))
@@ -336,13 +332,6 @@ def test_a_pointing_planned_again_from_known_legs_plans_its_plain_legs_first(mon
                                                                               kept) -> None:
     """A pointing planned again from an earlier plan (planner.known_legs: a later round's
     retry, the consolidation) plans its plain legs first, and the sky legs after them."""
-    from types import SimpleNamespace
-
-    from models.budget import Budget
-    from planner.known_legs import KnownLegs
-    from planner.pointing import PointingOptions, _sequence_with_sky
-    from planner.shares import SHARES
-
     calls = _sequencing(monkeypatch, {"sky": (sky_ok, 0), "plain": (True, 0)})
     plain_a = SimpleNamespace(configurations=(SimpleNamespace(name="plain", q=np.zeros((12, 2))),))
     sky_a = SimpleNamespace(configurations=(SimpleNamespace(name="sky", q=np.ones((12, 2))),))
