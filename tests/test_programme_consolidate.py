@@ -27,7 +27,7 @@ LIMIT_S = 120.0
 DEG_PER_MM = INST.plate_scale_arcsec_per_mm / 3600.0
 V1 = INST.arm_array("joint1_speed_rad_s")
 V2 = INST.arm_array("joint2_speed_rad_s")
-OPTS = FillOptions(park_move_limit_s=LIMIT_S, allocation_cap_s=20.0)
+OPTS = FillOptions(park_move_limit_s=LIMIT_S)
 
 
 def _field(xy_mm: np.ndarray, seed: int) -> Field:
@@ -141,7 +141,7 @@ def test_locked_targets_move_only_to_an_arm_they_may_use() -> None:
         moved_free += sum(1 for i in pts[1].members if i < 13)
         f, pts = _overlapping(seed)
         limits = tuple([0b111] * 13 + [(1 << INST.n_arms) - 1] * 5)
-        consolidate(f, pts, FillOptions(park_move_limit_s=LIMIT_S, allocation_cap_s=20.0, arm_limits=limits),
+        consolidate(f, pts, FillOptions(park_move_limit_s=LIMIT_S, arm_limits=limits),
                     Budget.start(30.0))
         for c in pts[1].allocation.configurations:
             for a in c.assignments:
@@ -208,3 +208,23 @@ def test_leg_costs_count_the_legs_a_taken_target_makes_new(seed) -> None:
         want = new_legs(_legs_of(orig), _legs_of(taken)) - new_legs(_legs_of(orig), _legs_of(cur))
         assert legs.extra_s(7, cur, int(x)) == pytest.approx(2.5 * want)
     assert legs.extra_s(3, cur, int(np.flatnonzero(cur.alive)[0])) == 0.0  # a pointing it does not know
+
+
+def test_an_allocation_uses_what_is_left_of_a_long_budget() -> None:
+    """A feedback allocation late in a long budget (9.5 of 10 s spent, 0.5 s left) gets those
+    0.5 s: it observes every member, as the same allocation on a fresh budget does. Reading
+    the seconds left as a fraction of the budget's length put its deadline 4.5 s in the past
+    (it then observed nothing)."""
+    from models import clock
+
+    f, pts = _overlapping(1)
+    p = Pointing(pts[1].centre, 0.0, pts[1].members)
+    fresh = fill.allocate_pointing(f, p, f.priority, OPTS, Budget.start(60.0))
+    t_s = clock.now()
+    late = Budget(t_s - 9.5, t_s + 0.5, 10.0)
+    result = fill.allocate_pointing(f, p, f.priority, OPTS, late)
+    observed = {a.target_index for c in result.configurations for a in c.assignments if a.target_index is not None}
+    assert observed == {a.target_index for c in fresh.configurations for a in c.assignments
+                        if a.target_index is not None}
+    assert len(observed) == len(p.members)
+    assert len(result.configurations) == len(fresh.configurations)

@@ -62,7 +62,6 @@ class FillOptions:
     position_angle_deg: float = 0.0
     search_position_angle: bool = True
     fill_min: int = 8
-    allocation_cap_s: float = 1.0
     angle_search: AngleSearch | None = None
     arm_limits: tuple[int, ...] | None = None
 
@@ -188,9 +187,8 @@ def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
 def allocate_pointing(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget,
                       ) -> AllocationResult:
     """``p``'s members allocated as the plan allocates a pointing (at ``priority``), to
-    completeness, without the repacking post-pass, on
-    ``budget.part(min(opts.allocation_cap_s, budget.left_s()))``: :meth:`Budget.part` takes a
-    fraction of the budget's length, so the allocation may use the whole of ``budget``."""
+    completeness, without the repacking post-pass, within what is left of ``budget`` (a
+    pointing's allocation ends when its last exposure is proven, well before that on most)."""
     m = p.members
     x, y = sky_to_focal_mm(f.ra_deg[m], f.dec_deg[m], p.centre[0], p.centre[1], f.scale, p.pa_deg)
     targets = PlaneTargets.from_lists([str(int(i)) for i in m], np.asarray(x, float), np.asarray(y, float),
@@ -198,9 +196,8 @@ def allocate_pointing(f: Field, p: Pointing, priority: np.ndarray, opts: FillOpt
     options = AllocationOptions(sequence=SequenceOptions(park_move_limit_s=opts.park_move_limit_s,
                                                          lower_bound_flow=False),
                                 packing=PackingOptions(enabled=False))
-    call = budget.part(min(opts.allocation_cap_s, max(budget.left_s(), 1e-3)))
     return allocate(f.inst, targets, method=opts.method, solver=opts.solver, configurations="all",
-                    seed=opts.seed, budget=call, options=options)
+                    seed=opts.seed, budget=budget, options=options)
 
 
 def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, float], elsewhere: np.ndarray,
