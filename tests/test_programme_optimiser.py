@@ -625,6 +625,56 @@ def test_plan_never_needs_more_exposures_than_the_optimiser_counted(plan_run) ->
     assert checked, "premise: some pointing has the optimiser's allocation"
 
 
+def test_plan_observes_the_optimisers_allocation_as_it_is(plan_run, monkeypatch) -> None:
+    """A pointing whose optimiser allocation (its witness) takes one exposure per 12 targets
+    observed, which no allocation can better, is final: the plan observes the witness target
+    for target and in order. A witness that takes more exposures than that is not final."""
+    out, targets = plan_run
+    req = PlanRequest.model_validate({"targets": targets, "seed": 5, "segmentation_mode": "fewest-exposures",
+                                      "time_limit_s": 20, "position_angle_deg": PLAN_PA})
+    seg = pipeline.segment_plan(req, INST, pipeline.plan_limit_s(req, None))
+    checked = 0
+    for p, sp in zip(out["pointings"], seg.pointings, strict=True):
+        if sp.allocation is None:
+            assert not sp.allocation_final
+            continue
+        observed = sum(a.target_index is not None for c in sp.allocation.configurations for a in c.assignments)
+        assert sp.allocation_final == (len(sp.allocation.configurations) == math.ceil(observed / ARMS))
+        if not sp.allocation_final or p["changes"]:
+            continue
+        witness = [sorted(targets[int(sp.target_indices[a.target_index])]["id"] for a in c.assignments
+                          if a.target_index is not None) for c in sp.allocation.configurations]
+        planned = [sorted(a["target_id"] for a in c["assignments"] if a["target_id"] is not None)
+                   for c in p["configurations"]]
+        assert planned == witness
+        checked += 1
+    assert checked, "premise: some pointing's witness is final"
+
+
+def test_plan_does_not_allocate_again_a_pointing_whose_witness_is_final(monkeypatch) -> None:
+    """Three pairs of targets 0.2 deg apart (each pair 48 arcsec across): each pointing's
+    witness observes its pair in one exposure, so every one is final, and the plan plans with the allocator made to fail,
+    observing every target."""
+    import planner.pointing
+
+    targets = [{"id": f"t{i}", "ra_deg": 150.0 + 0.2 * (i % 3) + 0.004 * i, "dec_deg": 2.0 + 0.002 * i,
+                "priority": 1 + i % 4} for i in range(6)]
+    req = PlanRequest.model_validate({"targets": targets, "seed": 3, "time_limit_s": 30})
+    seg = pipeline.segment_plan(req, INST, pipeline.plan_limit_s(req, None))
+    assert len(seg.pointings) == 3 and all(p.allocation_final for p in seg.pointings)
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the plan allocated a pointing whose witness is final")
+
+    monkeypatch.setattr(planner.pointing, "_allocate", refuse)
+    seen: list[str] = []
+    out = pipeline.plan(req, INST, on_stage=seen.append)
+    assert out["executable"]
+    assert not [s for s in seen if "allocating" in s] and "planning motion, pointing 3 of 3" in seen
+    assert sorted(a["target_id"] for p in out["pointings"] for c in p["configurations"] for a in c["assignments"]
+                  if a["target_id"] is not None) == sorted(t["id"] for t in targets)
+
+
 def test_a_plan_job_gives_the_synchronous_plan(plan_run, tmp_path) -> None:
     """A plan job segments the same way (the optimiser on the effort clock) and plans the same
     pointings, angles and exposures as the synchronous plan."""

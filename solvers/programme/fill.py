@@ -10,8 +10,10 @@ no other pointing of the model's solution holds (those are allocated first: thei
 raised by :data:`ONLY_HERE_BOOST` for this allocation). The targets of the exposures dropped
 stay for the later pointings, where an arm is spare. So an exposure observing few targets is
 kept only for targets no other pointing holds. The exposures kept go to the plan as a witness
-(:func:`witness`): the plan keeps them unless its own allocation is better. :func:`spare_arms` then gives up a pointing's last
-exposure when other pointings take its targets in the exposures they already have.
+(:func:`witness`), which the plan observes as it is when no allocation can take fewer
+exposures, and keeps unless its own allocation is better otherwise.
+:func:`spare_arms` then gives up a pointing's last exposure when other pointings take its
+targets in the exposures they already have.
 """
 
 from __future__ import annotations

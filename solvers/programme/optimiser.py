@@ -24,9 +24,10 @@ and the measured figures are in docs/programme.md.
 7. **Merged pointings** (:mod:`.merge`): two pointings one FOV holds become one when the
    allocation of their members together takes no more exposures than the two apart.
 
-The allocation each pointing keeps (its witness) goes to the plan, which keeps it when its own
-allocation of the pointing is not better: the plan has no more exposures than the optimiser
-counted.
+The allocation each pointing keeps (its witness) goes to the plan, which observes it as it is
+when it takes as few exposures as the arms allow (``allocation_final``: the pointing is
+allocated once) and otherwise keeps it when its own allocation of the pointing is not better:
+the plan has no more exposures than the optimiser counted before its motion planner's changes.
 
 The searches run on the caller's clock (a plan's effort clock), so the result depends on the
 programme, the options and the budget only.

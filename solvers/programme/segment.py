@@ -72,7 +72,7 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
     opts = OptimiserOptions(fill=FillOptions(seed=int(seed)) if fill is None else fill)
     t0 = time.perf_counter()
     result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget, variants_s)
-    seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
+    seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0, inst.n_arms)
     if opts.fill.angle_search is None:
         return seg
     return searched_angles(inst, seg, ra, dec, prio, opts.fill.angle_search, opts.fill.park_move_limit_s,
@@ -99,7 +99,19 @@ def searched_angles(inst: Instrument, seg: Segmentation, ra_deg, dec_deg, priori
     return replace(seg, pointings=tuple(pointings))
 
 
-def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float) -> Segmentation:
+def _final(p: OptimisedPointing, arms: int) -> bool:
+    """Whether the plan observes ``p``'s allocation (its witness) as it is: the witness
+    observes its targets in as few exposures as ``arms`` arms can (one exposure per ``arms``
+    targets), so no allocation of the pointing takes fewer. Other witnesses the plan keeps
+    only when its own allocation, with the repacking post-pass the witness has not had, is
+    not better (on crowded pointings it takes one exposure fewer in ten)."""
+    if p.allocation is None:
+        return False
+    observed = sum(a.target_index is not None for c in p.allocation.configurations for a in c.assignments)
+    return len(p.allocation.configurations) <= -(-observed // arms)
+
+
+def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float, arms: int) -> Segmentation:
     """The optimiser's pointings as a :class:`Segmentation`, after the guarantees every mode
     gives (:func:`solvers.segmentation.field.checked_pointings`)."""
     groups = [np.asarray(p.members, dtype=np.int64) for p in result.pointings]
@@ -107,6 +119,7 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
     pdec = np.array([p.dec_deg for p in result.pointings])
     extras = [{"position_angle_deg": _reported_angle(p), "exposures": p.exposures,
                "only_here": tuple(sorted(p.only_here)), "allocation": p.allocation,
+               "allocation_final": _final(p, arms),
                "position_angle_search": p.position_angle_search} for p in result.pointings]
     pointings = checked_pointings(groups, pra, pdec, ra, dec, tangent, R, scale, extras)
     b = result.bound

@@ -80,8 +80,9 @@ class Pointing:
     only_here: tuple[int, ...] = ()
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
     position_angle_search: AngleChoice | None = field(default=None, compare=False, repr=False)
-    #: the plan observes ``allocation`` as it is instead of searching its own (a pointing the
-    #: plan's consolidation changed, :mod:`planner.consolidation`)
+    #: the plan observes ``allocation`` as it is instead of searching its own (the programme
+    #: optimiser's witness, :mod:`solvers.programme.segment`; a pointing the plan's
+    #: consolidation changed, :mod:`planner.consolidation`)
     allocation_final: bool = False
 
 
