@@ -12,6 +12,7 @@ import itertools
 import numpy as np
 import pytest
 
+from models import clock
 from models.budget import Budget
 from models.collision import fcl_clearance_mm
 from models.instrument import default_instrument
@@ -215,8 +216,6 @@ def test_an_allocation_uses_what_is_left_of_a_long_budget() -> None:
     0.5 s: it observes every member, as the same allocation on a fresh budget does. Reading
     the seconds left as a fraction of the budget's length put its deadline 4.5 s in the past
     (it then observed nothing)."""
-    from models import clock
-
     f, pts = _overlapping(1)
     p = Pointing(pts[1].centre, 0.0, pts[1].members)
     fresh = fill.allocate_pointing(f, p, f.priority, OPTS, Budget.start(60.0))

@@ -625,7 +625,7 @@ def test_plan_never_needs_more_exposures_than_the_optimiser_counted(plan_run) ->
     assert checked, "premise: some pointing has the optimiser's allocation"
 
 
-def test_plan_observes_the_optimisers_allocation_as_it_is(plan_run, monkeypatch) -> None:
+def test_plan_observes_the_optimisers_allocation_as_it_is(plan_run) -> None:
     """A pointing whose optimiser allocation (its witness) takes one exposure per 12 targets
     observed, which no allocation can better, is final: the plan observes the witness target
     for target and in order. A witness that takes more exposures than that is not final."""
@@ -653,8 +653,8 @@ def test_plan_observes_the_optimisers_allocation_as_it_is(plan_run, monkeypatch)
 
 def test_plan_does_not_allocate_again_a_pointing_whose_witness_is_final(monkeypatch) -> None:
     """Three pairs of targets 0.2 deg apart (each pair 48 arcsec across): each pointing's
-    witness observes its pair in one exposure, so every one is final, and the plan plans with the allocator made to fail,
-    observing every target."""
+    witness observes its pair in one exposure, so every one is final, and the plan plans with
+    the allocator made to fail, observing every target."""
     import planner.pointing
 
     targets = [{"id": f"t{i}", "ra_deg": 150.0 + 0.2 * (i % 3) + 0.004 * i, "dec_deg": 2.0 + 0.002 * i,

@@ -103,8 +103,8 @@ def _final(p: OptimisedPointing, arms: int) -> bool:
     """Whether the plan observes ``p``'s allocation (its witness) as it is: the witness
     observes its targets in as few exposures as ``arms`` arms can (one exposure per ``arms``
     targets), so no allocation of the pointing takes fewer. Other witnesses the plan keeps
-    only when its own allocation, with the repacking post-pass the witness has not had, is
-    not better (on crowded pointings it takes one exposure fewer in ten)."""
+    only when its own allocation, on the pointing's larger share and with the repacking
+    post-pass, is not better: on crowded pointings it takes fewer (docs/programme.md)."""
     if p.allocation is None:
         return False
     observed = sum(a.target_index is not None for c in p.allocation.configurations for a in c.assignments)
