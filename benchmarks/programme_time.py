@@ -23,7 +23,10 @@ rejects is reported under ``modes_rejected`` with the schema's message and not r
 
 Per programme and mode: exposures (configurations), pointings, ``stats.exposures_lower_bound``
 and the gap exposures / bound when the plan reports a bound (and the trivial bound
-ceil(targets / 12) always), priority and field completeness, executable, telescope time
+ceil(targets / 12) always), the pointings' own proven least exposures at their placements
+summed (``pointing_bounds``, :func:`pointing_bound`) and the exposures above it
+(``allocation_gap``: what the allocations leave; the rest of the gap to the bound is where
+the pointings are placed and what the bound cannot see), priority and field completeness, executable, telescope time
 (``stats.telescope_time.total_s`` when reported), wall time, the segmentation's (optimiser's)
 own time ``stats.segmentation.time_s`` and its fraction of the wall time, whether the
 optimiser's wall-clock guard ended it (``optimiser_overran``: its pointings then depend on the
@@ -208,6 +211,20 @@ def bound_of(value: Any) -> float | None:
     return value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
 
 
+def pointing_bound(pointing: dict[str, Any]) -> int:
+    """The fewest exposures any allocation of ``pointing``'s observed targets at its placement
+    and angle can take, as far as its plan proves it: its allocation's
+    ``lower_bound_configurations_proven`` when the pointing observes every target that
+    allocation observed (the bound is for that set), and at least ⌈observed / 12⌉."""
+    observed = {t for c in pointing["configurations"] for t in observed_ids(c)}
+    floor = math.ceil(len(observed) / ARMS)
+    alloc = (pointing.get("stats") or {}).get("allocation") or {}
+    proven = alloc.get("lower_bound_configurations_proven")
+    if isinstance(proven, int) and alloc.get("n_allocated") == len(observed):
+        return max(floor, proven)
+    return floor
+
+
 def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     """One plan's figures (see the module doc)."""
     s = plan["stats"]
@@ -220,6 +237,10 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
         "exposures_lower_bound": bound,
         "gap": round(exposures / bound, 4) if bound else None,
         "targets_bound": math.ceil(int(s["targets"]) / ARMS),
+        # the pointings' own proven least exposures at their placements: what the
+        # allocations leave above it is theirs, the rest is placement and the bound's
+        "pointing_bounds": (pb := sum(pointing_bound(p) for p in plan["pointings"])),
+        "allocation_gap": exposures - pb,
         "priority_completeness": round(float(s["priority_completeness"]), 4),
         "field_completeness": round(float(s["field_completeness"]), 4),
         "executable": bool(plan["executable"]),
@@ -285,6 +306,8 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
         "errors": sum("error" in r["modes"].get(mode, {}) for r in rows),
         "exposures_total": sum(x["exposures"] for x in res),
         "pointings_total": sum(x["pointings"] for x in res),
+        "pointing_bounds_total": sum(x["pointing_bounds"] for x in res),
+        "allocation_gap_total": sum(x["allocation_gap"] for x in res),
         "ratio_to_complete_linkage_total": ratio(
             sum(r["modes"][mode]["exposures"] for r in both),
             sum(r["modes"][BASELINE]["exposures"] for r in both)) if both else None,

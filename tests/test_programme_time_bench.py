@@ -22,12 +22,14 @@ from benchmarks import programmes  # noqa: E402
 pytestmark = pytest.mark.xdist_group("test_programme_time_bench")
 
 ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_bound",
+            "pointing_bounds", "allocation_gap",
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",
             "optimiser_s", "optimiser_fraction", "optimiser_overran", "small_exposures", "small_exposures_only_here",
             "small_exposures_explained", "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
             "violation_kinds", "validate_s"}
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
+                "pointing_bounds_total", "allocation_gap_total",
                 "ratio_to_complete_linkage_total", "ratio_to_complete_linkage", "with_bound",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
                 "wall_s_total", "over_limit", "priority_completeness_min", "field_completeness_min",
@@ -100,6 +102,18 @@ def test_each_figure_is_what_its_plan_gives(smoke) -> None:
             assert res["priority_completeness"] == pytest.approx(
                 sum(prio[t] for t in seen) / sum(prio.values()), abs=1e-4)
             assert res["targets_bound"] == math.ceil(len(prio) / 12)
+            # each pointing's proven least, recomputed: no plan of it takes fewer exposures
+            least = []
+            for p in plan["pointings"]:
+                seen_here = {t for c in p["configurations"] for t in
+                             (a["target_id"] for a in c["assignments"]) if t is not None}
+                alloc = p["stats"].get("allocation") or {}
+                proven = alloc.get("lower_bound_configurations_proven")
+                ok = isinstance(proven, int) and alloc.get("n_allocated") == len(seen_here)
+                least.append(max(math.ceil(len(seen_here) / 12), proven if ok else 0))
+                assert least[-1] <= len(p["configurations"]) and pt.pointing_bound(p) == least[-1]
+            assert res["pointing_bounds"] == sum(least)
+            assert res["allocation_gap"] == res["exposures"] - sum(least) >= 0
             bound = plan["stats"].get("exposures_lower_bound")
             if res["exposures_lower_bound"] is None:
                 assert res["gap"] is None
@@ -130,6 +144,8 @@ def test_the_summary_adds_up(smoke) -> None:
         total = sum(exposures(n, mode) for n in names)
         assert s["exposures_total"] == total
         assert s["pointings_total"] == sum(len(plans[(n, mode)]["pointings"]) for n in names)
+        assert s["pointing_bounds_total"] == sum(r["pointing_bounds"] for r in rows)
+        assert s["allocation_gap_total"] == total - s["pointing_bounds_total"]
         assert s["ratio_to_complete_linkage_total"] == pytest.approx(
             total / sum(exposures(n, pt.BASELINE) for n in names), abs=1e-4)
         assert s["ratio_to_complete_linkage"] == pytest.approx(
