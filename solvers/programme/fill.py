@@ -333,18 +333,29 @@ def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget)
 
 def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOptions, budget: Budget,
           ) -> dict[int, Pointing] | None:
-    """Other pointings taking every target of ``tail`` without a new exposure, or None."""
+    """Other pointings taking every target of ``tail`` without a new exposure, or None. No
+    allocation is run when a target of ``tail`` lies in no other allocated pointing's FOV,
+    nor for a pointing whose exposures cannot hold its members and the ones it would take
+    (12 targets an exposure): neither can succeed."""
+    others = [k for k in range(len(pts)) if k != j and pts[k].allocation is not None]
+    held = np.zeros(len(tail), bool)
+    for k in others:
+        held |= within(f, tail, pts[k].centre)
+    if not held.all():
+        return None
     left = set(int(t) for t in tail)
     trial: dict[int, Pointing] = {}
-    for k in sorted(range(len(pts)), key=lambda k: (-(pts[k].exposures or 0), k)):
+    for k in sorted(others, key=lambda k: (-(pts[k].exposures or 0), k)):
         q = trial.get(k, pts[k])
-        if k == j or not left or q.allocation is None or budget.expired():
+        if not left or budget.expired():
             continue
         idx = np.array(sorted(left), dtype=np.int64)
         inside = idx[within(f, idx, q.centre)]
         if inside.size == 0:
             continue
         members = np.union1d(q.members, inside)
+        if len(members) > f.inst.n_arms * (q.exposures or 0):
+            continue
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = allocate_pointing(f, new, f.priority, opts, budget)
         if len(result.configurations) <= q.exposures and observed_members(members, result) >= set(members.tolist()):
