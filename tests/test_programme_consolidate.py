@@ -8,6 +8,7 @@ park within the limit, and a count of every target observed before and after."""
 from __future__ import annotations
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -274,3 +275,12 @@ def test_a_pointing_whose_exposures_cannot_hold_the_tail_is_not_allocated(monkey
     assert calls == []
     fill._take(f, pts, 1, np.arange(8, 8 + room), OPTS, Budget.start(30.0))
     assert calls == [12 * e0]
+
+
+def test_a_tail_target_only_full_pointings_hold_runs_no_allocation(monkeypatch) -> None:
+    """A pointing whose exposures already hold 12 members each has no arm to spare: a tail
+    target only such a pointing's field holds cannot be taken, and no allocation runs."""
+    f, pts, _ = _spare_setup()
+    full = replace(pts[0], members=np.arange(12 * pts[0].exposures), exposures=pts[0].exposures)
+    monkeypatch.setattr(fill, "allocate_pointing", lambda *a, **k: pytest.fail("an allocation ran"))
+    assert fill._take(f, [full, pts[1]], 1, np.array([8]), OPTS, Budget.start(30.0)) is None

@@ -334,13 +334,15 @@ def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget)
 def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOptions, budget: Budget,
           ) -> dict[int, Pointing] | None:
     """Other pointings taking every target of ``tail`` without a new exposure, or None. No
-    allocation is run when a target of ``tail`` lies in no other allocated pointing's FOV,
-    nor for a pointing whose exposures cannot hold its members and the ones it would take
-    (12 targets an exposure): neither can succeed."""
+    allocation is run when a target of ``tail`` lies in the FOV of no other allocated pointing
+    with an arm to spare, nor for a pointing whose exposures cannot hold its members and the
+    ones it would take (12 targets an exposure): neither can succeed."""
+    arms = f.inst.n_arms
     others = [k for k in range(len(pts)) if k != j and pts[k].allocation is not None]
     held = np.zeros(len(tail), bool)
     for k in others:
-        held |= within(f, tail, pts[k].centre)
+        if len(pts[k].members) < arms * (pts[k].exposures or 0):
+            held |= within(f, tail, pts[k].centre)
     if not held.all():
         return None
     left = set(int(t) for t in tail)
@@ -354,7 +356,7 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
         if inside.size == 0:
             continue
         members = np.union1d(q.members, inside)
-        if len(members) > f.inst.n_arms * (q.exposures or 0):
+        if len(members) > arms * (q.exposures or 0):
             continue
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = allocate_pointing(f, new, f.priority, opts, budget)
