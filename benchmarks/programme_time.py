@@ -230,6 +230,9 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     s = plan["stats"]
     exposures = int(s["configurations"])
     bound = bound_of(s.get("exposures_lower_bound"))
+    # the pointings' own proven least exposures at their placements: what the allocations
+    # leave above it is theirs, the rest is placement and the bound's
+    pointing_bounds = sum(pointing_bound(p) for p in plan["pointings"])
     tt = s.get("telescope_time")
     seg_s = (s.get("segmentation") or {}).get("time_s")
     return {
@@ -237,10 +240,7 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
         "exposures_lower_bound": bound,
         "gap": round(exposures / bound, 4) if bound else None,
         "targets_bound": math.ceil(int(s["targets"]) / ARMS),
-        # the pointings' own proven least exposures at their placements: what the
-        # allocations leave above it is theirs, the rest is placement and the bound's
-        "pointing_bounds": (pb := sum(pointing_bound(p) for p in plan["pointings"])),
-        "allocation_gap": exposures - pb,
+        "pointing_bounds": pointing_bounds, "allocation_gap": exposures - pointing_bounds,
         "priority_completeness": round(float(s["priority_completeness"]), 4),
         "field_completeness": round(float(s["field_completeness"]), 4),
         "executable": bool(plan["executable"]),

@@ -339,24 +339,21 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
     ones it would take (12 targets an exposure): neither can succeed."""
     arms = f.inst.n_arms
     others = [k for k in range(len(pts)) if k != j and pts[k].allocation is not None]
+    fields = {k: within(f, tail, pts[k].centre) for k in others}  # the tail targets each FOV holds
     held = np.zeros(len(tail), bool)
     for k in others:
         if len(pts[k].members) < arms * (pts[k].exposures or 0):
-            held |= within(f, tail, pts[k].centre)
+            held |= fields[k]
     if not held.all():
         return None
-    left = set(int(t) for t in tail)
+    left = np.ones(len(tail), bool)
     trial: dict[int, Pointing] = {}
     for k in sorted(others, key=lambda k: (-(pts[k].exposures or 0), k)):
-        q = trial.get(k, pts[k])
-        if not left or budget.expired():
-            continue
-        idx = np.array(sorted(left), dtype=np.int64)
-        inside = idx[within(f, idx, q.centre)]
-        if inside.size == 0:
-            continue
-        members = np.union1d(q.members, inside)
-        if len(members) > arms * (q.exposures or 0):
+        if not left.any() or budget.expired():
+            break
+        q, inside = pts[k], fields[k] & left
+        members = np.union1d(q.members, tail[inside])
+        if not inside.any() or len(members) > arms * (q.exposures or 0):
             continue
         new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
         result = allocate_pointing(f, new, f.priority, opts, budget)
@@ -365,8 +362,8 @@ def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOpt
             new.allocation = witness(result, members, members, new.exposures, f.priority)
             if new.allocation is not None:
                 trial[k] = new
-                left -= set(int(t) for t in inside)
-    return trial if not left else None
+                left &= ~inside
+    return None if left.any() else trial
 
 
 def mark_only_here(f: Field, pts: list[Pointing]) -> None:
