@@ -36,7 +36,7 @@ from solvers.programme import FillOptions, lower_bound, segment_programme
 from solvers.programme.bound import RADIUS_SLACK
 from solvers.programme.candidates import Candidates, maximal_sets
 from solvers.programme.fill import Field, position_angle
-from solvers.programme.model import greedy_cover, solve_cover
+from solvers.programme.model import greedy_cover, greedy_solution, solve_cover
 from solvers.programme.reach import arm_masks
 from solvers.segmentation import segment_field, smallest_enclosing_circle
 from tests.plan_jobs import plan_job_result
@@ -443,6 +443,45 @@ def test_greedy_cover_assigns_each_target_to_a_candidate_holding_it() -> None:
         assert np.all(owner[~keep] == -1)
         for i in np.flatnonzero(keep):
             assert i in sub.of(int(owner[i]))
+
+
+def test_greedy_solution_is_a_valid_cover_no_better_than_the_optimum() -> None:
+    """The model's greedy start as a solution: each target at a candidate holding it, each
+    used candidate's exposures exactly what its load needs (rows (2)), the objective its
+    exposures plus the pointing cost per pointing, and never fewer exposures than CP-SAT's
+    optimum on the same candidates (an independent engine)."""
+    for xy, radius, arms in cover_instances(10, seed=78):
+        n = len(xy)
+        cand = maximal_sets(xy, radius)
+        sol = greedy_solution(cand, n, arms=arms, pointing_cost=0.3)
+        assert sol.status == "greedy" and sol.exposures_bound == 0  # no bound claimed
+        for i in range(n):
+            assert i in cand.of(int(sol.owner[i]))
+        load = np.bincount(sol.owner, minlength=len(cand))
+        assert np.array_equal(sol.exposures, -(-load // arms))
+        assert sol.objective == pytest.approx(sol.exposures.sum() + 0.3 * np.count_nonzero(sol.exposures))
+        assert sol.exposures.sum() >= cpsat_min_exposures(cand, n, arms)
+
+
+def test_models_beyond_the_search_size_take_the_greedy_start(monkeypatch) -> None:
+    """A shortlist of more entries than SEARCH_MAX_ENTRIES is not searched (HiGHS is not
+    called); the optimiser's steps go on from the greedy start and still partition the
+    programme inside each FOV."""
+    import solvers.programme.optimiser as opt
+
+    called, solve = [], opt.solve_cover
+
+    def counted(*a, **k):  # the model's searches (the bound's solve has no pointing cost)
+        called.append(k.get("pointing_cost") is not None)
+        return solve(*a, **k)
+
+    monkeypatch.setattr(opt, "SEARCH_MAX_ENTRIES", 0)
+    monkeypatch.setattr(opt, "solve_cover", counted)
+    ra, dec, _ = PROG
+    s = optimise_prog()
+    assert not any(called)
+    assert s.stats["optimiser"]["model_status"] == "greedy"
+    check_partition_in_fov(s, ra, dec)
 
 
 # ------------------------------------------------------------------------ 5. segment_programme

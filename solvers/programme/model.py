@@ -37,7 +37,7 @@ from models.budget import Budget
 from solvers.effort import HighsMeter, interrupt_at
 from solvers.programme.candidates import Candidates
 
-__all__ = ["CoverSolution", "ReachRows", "greedy_cover", "solve_cover"]
+__all__ = ["CoverSolution", "ReachRows", "greedy_cover", "greedy_solution", "solve_cover"]
 
 #: the HiGHS meter counts this many non-zeros per non-zero of the model: its MIP search
 #: works harder per callback than the allocator's models the meter's costs were fitted on
@@ -56,7 +56,8 @@ STRONG_ROWS_MAX_SET = 24
 class CoverSolution:
     """``exposures[j]`` at candidate j (0: unused); ``objective``, ``dual_bound`` of the
     model; ``exposures_bound``: the proven bound on the exposures it implies; ``status``:
-    "optimal", "feasible" or "timeout" (no solution); ``owner[i]``: the candidate
+    "optimal", "feasible", "greedy" (the greedy start, not searched) or "timeout" (no
+    solution); ``owner[i]``: the candidate
     observing target i (its largest x; -1 without a solution)."""
 
     exposures: np.ndarray
@@ -188,6 +189,23 @@ def solve_cover(cand: Candidates, n: int, budget: Budget, cap: np.ndarray | None
     optimal = h.getModelStatus() == highspy.HighsModelStatus.kOptimal
     return CoverSolution(e, owner, float(info.objective_function_value), dual, bound,
                          "optimal" if optimal else "feasible", int(info.mip_node_count))
+
+
+def greedy_solution(cand: Candidates, n: int, arms: int = 12, reach: ReachRows | None = None,
+                    allowed: np.ndarray | None = None, pointing_cost: float | None = None) -> CoverSolution:
+    """The model's greedy start (:func:`greedy_cover`) as its solution, without a search
+    (status "greedy"; "timeout" when the sets leave a target no allowed entry holds): what
+    :func:`solve_cover` returns for a model whose search finds nothing better in its budget."""
+    k, nx = len(cand), len(cand.index)
+    cap = np.full(k, float(arms))
+    start = greedy_cover(cand, n, cap, allowed, reach)
+    if start is None:
+        return CoverSolution(np.zeros(k, np.int64), np.full(n, -1, np.int64), math.inf, 0.0, 0, "timeout", 0)
+    col = _start_vector(cand, start, nx, cap, reach)
+    e = np.rint(col[nx:nx + k]).astype(np.int64)
+    delta = 1.0 / (2.0 * (n + 1)) if pointing_cost is None else float(pointing_cost)
+    owner = _owner(cand, n, col[:nx] * (e[np.repeat(np.arange(k), cand.sizes)] > 0))
+    return CoverSolution(e, owner, float(e.sum() + delta * np.count_nonzero(e)), 0.0, 0, "greedy", 0)
 
 
 def greedy_cover(cand: Candidates, n: int, cap: np.ndarray, allowed: np.ndarray | None = None,

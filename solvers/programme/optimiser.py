@@ -64,7 +64,7 @@ from solvers.programme.fill import (
     spare_arms,
 )
 from solvers.programme.merge import merge_pointings
-from solvers.programme.model import CoverSolution, solve_cover
+from solvers.programme.model import CoverSolution, greedy_solution, solve_cover
 from solvers.programme.reach import entry_masks, reach_rows, shortlist
 
 __all__ = ["VARIANTS", "ModelVariant", "OptimisedPointing", "OptimiserOptions", "ProgrammeResult", "optimise"]
@@ -72,6 +72,11 @@ __all__ = ["VARIANTS", "ModelVariant", "OptimisedPointing", "OptimiserOptions", 
 
 #: the bound solves the model over every candidate only up to this many (set, member) entries
 BOUND_MODEL_MAX_ENTRIES = 8_000
+#: the model's search runs on shortlists of at most this many (set, member) entries; a larger
+#: model takes its greedy start (:func:`solvers.programme.model.greedy_solution`): HiGHS's root
+#: LP of such a model takes the search's whole share, and on the 300-star programmes of the
+#: benchmark the search never improved on the start (docs/programme.md, *Model*)
+SEARCH_MAX_ENTRIES = 3_000
 
 
 @dataclass(frozen=True)
@@ -284,8 +289,11 @@ def _model(space: _Space, todo: np.ndarray, options: OptimiserOptions, variant: 
     entries = entries[within_sub]
     allowed, rows = reach_rows(sub, space.masks[entries], arms)
     rows = with_crowding(rows, sub, space.cells, None if variant.crowding else arms)
-    cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
-                        pointing_cost=variant.pointing_cost)
+    if len(sub.index) > SEARCH_MAX_ENTRIES:
+        cover = greedy_solution(sub, n, arms=arms, reach=rows, allowed=allowed, pointing_cost=variant.pointing_cost)
+    else:
+        cover = solve_cover(sub, n, budget, arms=arms, seed=options.fill.seed, reach=rows, allowed=allowed,
+                            pointing_cost=variant.pointing_cost)
     if cover.status == "timeout":  # the greedy start is a solution; a guard only
         raise RuntimeError("the programme model found no solution within its budget")
     return cover, sub
