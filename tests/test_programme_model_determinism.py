@@ -17,6 +17,7 @@ from models.budget import Budget
 from models.instrument import load_instrument
 from service.tables import read_target_table
 from solvers import effort
+from solvers.programme import optimiser
 from solvers.programme.bound import RADIUS_SLACK
 from solvers.programme.candidates import maximal_sets
 from solvers.programme.crowding import crowding_cells, exclusion_distance_mm
@@ -53,9 +54,11 @@ def solve(slow: bool):
     """The plan's first programme model on the M67-like case, on the effort clock; ``slow``:
     every HiGHS callback sleeps :data:`SLEEP_S` first. Returns the point where the run
     stopped (the callbacks it took) with its solution, the run's wall seconds and the seconds
-    it slept."""
+    it slept. The model is searched whatever its size: the M67-like case's first model holds
+    more entries than the plan searches (:data:`optimiser.SEARCH_MAX_ENTRIES`), and the
+    property is that of HiGHS's run on the effort clock."""
     space, n, opts = first_model_inputs()
-    real = effort.HighsMeter.on_callback
+    real, size = effort.HighsMeter.on_callback, optimiser.SEARCH_MAX_ENTRIES
     calls = [0]
 
     def counted(self, callback_type, data_out):
@@ -65,13 +68,14 @@ def solve(slow: bool):
         real(self, callback_type, data_out)
 
     effort.HighsMeter.on_callback = counted
+    optimiser.SEARCH_MAX_ENTRIES = len(space.cand.index)
     try:
         t0 = time.perf_counter()
         with clock.effort(wall_limit_s=120.0):
             cover, _ = _model(space, np.ones(n, bool), opts, VARIANTS[0], Budget.start(BUDGET_S))
         wall_s = time.perf_counter() - t0
     finally:
-        effort.HighsMeter.on_callback = real
+        effort.HighsMeter.on_callback, optimiser.SEARCH_MAX_ENTRIES = real, size
     key = (calls[0], cover.status, cover.nodes, round(cover.objective, 9), tuple(cover.exposures),
            tuple(cover.owner))
     return key, wall_s, calls[0] * SLEEP_S if slow else 0.0
