@@ -19,7 +19,7 @@ class ProgrammeShares:
     reserve_max_s: float = 0.5
     #: Wall-clock seconds per target the plan's wall clock also keeps back (within
     #: ``reserve_fraction`` of the limit) for the answer's account of its exposures observing
-    #: few targets (:func:`service.pipeline.few_target_exposures`, run on the finished plan):
+    #: few targets (:func:`service.plan_output.few_target_exposures`, run on the finished plan):
     #: twice the 2.1 ms a target it takes on cluster-18001 (247 stars, 69 such exposures,
     #: 0.53 s), so that a plan whose last step runs to its wall-clock guard on a busy machine
     #: still answers within its limit. Only the wall-clock guards read it: on the effort clock
