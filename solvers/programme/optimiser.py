@@ -74,8 +74,9 @@ __all__ = ["VARIANTS", "ModelVariant", "OptimisedPointing", "OptimiserOptions", 
 BOUND_MODEL_MAX_ENTRIES = 8_000
 #: the model's search runs on shortlists of at most this many (set, member) entries; a larger
 #: model takes its greedy start (:func:`solvers.programme.model.greedy_solution`): HiGHS's root
-#: LP of such a model takes the search's whole share, and on the 300-star programmes of the
-#: benchmark the search never improved on the start (docs/programme.md, *Model*)
+#: LP of such a model takes the search's whole share, what it finds there beyond the start
+#: (on first models of clustered programmes) the plans' exposures do not follow, and the
+#: plans take as many exposures in less time without it (docs/programme.md, *Model*)
 SEARCH_MAX_ENTRIES = 3_000
 
 
