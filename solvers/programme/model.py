@@ -141,8 +141,7 @@ def solve_cover(cand: Candidates, n: int, budget: Budget, cap: np.ndarray | None
     k, nx = len(cand), len(cand.index)
     cap = np.full(k, float(arms)) if cap is None else np.asarray(cap, float)
     A, lo, hi = _matrix(cand, n, cap, reach)
-    delta = 1.0 / (2.0 * (n + 1))
-    cost = np.r_[np.zeros(nx), np.ones(k), np.full(k, delta if pointing_cost is None else float(pointing_cost))]
+    cost = np.r_[np.zeros(nx), np.ones(k), np.full(k, _pointing_weight(n, pointing_cost))]
     x_hi = np.ones(nx) if allowed is None else np.asarray(allowed, float)
     col_hi = np.r_[x_hi, cand.sizes.astype(float), np.ones(k)]
     h = highspy.Highs()
@@ -203,9 +202,15 @@ def greedy_solution(cand: Candidates, n: int, arms: int = 12, reach: ReachRows |
         return CoverSolution(np.zeros(k, np.int64), np.full(n, -1, np.int64), math.inf, 0.0, 0, "timeout", 0)
     col = _start_vector(cand, start, nx, cap, reach)
     e = np.rint(col[nx:nx + k]).astype(np.int64)
-    delta = 1.0 / (2.0 * (n + 1)) if pointing_cost is None else float(pointing_cost)
     owner = _owner(cand, n, col[:nx] * (e[np.repeat(np.arange(k), cand.sizes)] > 0))
-    return CoverSolution(e, owner, float(e.sum() + delta * np.count_nonzero(e)), 0.0, 0, "greedy", 0)
+    objective = float(e.sum() + _pointing_weight(n, pointing_cost) * np.count_nonzero(e))
+    return CoverSolution(e, owner, objective, 0.0, 0, "greedy", 0)
+
+
+def _pointing_weight(n: int, pointing_cost: float | None) -> float:
+    """The weight of a used pointing in the objective: ``pointing_cost``, else the bound's
+    ``delta = 1 / (2 (n + 1))`` (module docstring)."""
+    return 1.0 / (2.0 * (n + 1)) if pointing_cost is None else float(pointing_cost)
 
 
 def greedy_cover(cand: Candidates, n: int, cap: np.ndarray, allowed: np.ndarray | None = None,
