@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import signal
 import threading
-import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from importlib.metadata import PackageNotFoundError, version
@@ -17,13 +16,13 @@ from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import JSONResponse, Response
-from pydantic import BaseModel, ValidationError
+from fastapi.responses import JSONResponse
+from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from models.errors import InputError
 from models.instrument import Instrument
-from service import pipeline
+from service import finding_charts, pipeline, validations
 from service.admission import check_stage
 from service.auth import Auth, AuthMiddleware, describe_security, effective_token, warn_if_empty
 from service.errors import (
@@ -40,9 +39,8 @@ from service.executor import (
     HeavyExecutor,
     Overloaded,
     RefuseWhenFull,
-    Ticket,
-    run_heavy,
 )
+from service.heavy_answer import answer_heavy
 from service.job_schemas import JOB_STATUS, JobCreated, JobRequest, JobStatus
 from service.jobpool import JobManager, PoolOptions
 from service.jobs import CANCELLED, EXPIRED
@@ -65,7 +63,7 @@ from service.schemas import (
     ValidationErrorResponse,
 )
 from service.settings import Settings, env_name
-from service.sync_workers import StageCall, WorkerOptions, WorkerPool
+from service.sync_workers import WorkerOptions, WorkerPool
 from service.target_lists import TargetListStore, install_target_lists, resolve
 from service.uploads import start_fork_server
 from service.web import install_web
@@ -257,48 +255,6 @@ async def _on_overloaded(_: Request, exc: Overloaded) -> JSONResponse:
                         headers={"Retry-After": str(exc.retry_after_s)})
 
 
-def _cancelling(ticket: Ticket) -> pipeline.Progress:
-    """A progress callback that stops the computation once its request is cancelled."""
-
-    def progress(_: float) -> None:
-        ticket.check()
-
-    return progress
-
-
-_MIN_LIMIT_S = 0.1  # the least time limit a request that waited for a worker is given
-Stage = Callable[..., dict[str, Any]]
-
-
-async def _heavy(request: Request, st: ServiceState, model: type[BaseModel], fn: Stage,
-                 req: Any, limit: tuple[str, float] | None = None) -> Response:
-    """Answer ``fn(req, instrument, progress, **{name: seconds})`` in a slot of the bounded
-    executor (503 + Retry-After when full), validated against ``model`` and encoded off the
-    event loop; stop it if the client leaves. ``limit`` = (``fn``'s keyword, time limit):
-    what remains of the limit after the wait for a worker is passed; without one the work is
-    bounded by ``MXS_MAX_TIME_LIMIT_S``. With ``MXS_HEAVY_PROCESSES`` (the default) ``fn``
-    runs in a worker process (:mod:`service.sync_workers`), else in the heavy thread."""
-
-    def stage_call(ticket: Ticket) -> StageCall:
-        if limit is None:
-            return StageCall(fn, req, model, st.settings.max_time_limit_s)
-        name, limit_s = limit
-        left_s = max(limit_s - (time.monotonic() - ticket.admitted_at), _MIN_LIMIT_S)
-        return StageCall(fn, req, model, left_s, {name: left_s})
-
-    def work(ticket: Ticket) -> Response:
-        pool = st.workers
-        if pool is not None:
-            with pool.slot() as slot:
-                body = slot.call(lambda: stage_call(ticket), ticket.cancel)
-            return Response(body, media_type="application/json")
-        call = stage_call(ticket)
-        result = call.fn(call.request, st.instrument, _cancelling(ticket), **call.kwargs)
-        return JSONResponse(model.model_validate(result).model_dump(mode="json", by_alias=True))
-
-    return await run_heavy(st.heavy, work, request.is_disconnected, st.settings.retry_after_s)
-
-
 def _on_sigterm(action: Callable[[], None]) -> Callable[[], None]:
     """Run ``action`` first when the server (uvicorn) handling SIGTERM receives it: stage
     requests in flight are answered 503 at once, so the server's graceful shutdown, which
@@ -376,8 +332,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     _service_routes(app)
     _stage_routes(app)
     _job_routes(app)
-    app.include_router(__import__("service.finding_charts", fromlist=["router"]).router)
-    app.include_router(__import__("service.validations", fromlist=["router"]).router, responses=ERRORS)
+    app.include_router(finding_charts.router)
+    app.include_router(validations.router, responses=ERRORS)
     return app
 
 
@@ -446,7 +402,7 @@ def _stage_routes(app: FastAPI) -> None:
         that names no stored list is a 404."""
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
-        return await _from_list(list_id, _heavy(
+        return await _from_list(list_id, answer_heavy(
             request, st, SegmentationResponse, pipeline.segmentation, req))
 
     @app.post("/v1/allocations", operation_id="create_allocation", response_model=AllocationResponse, tags=["stages"],
@@ -461,7 +417,7 @@ def _stage_routes(app: FastAPI) -> None:
         target 90 deg or more from the pointing, an arm the instrument does not have. A valid
         request that cannot be satisfied answers 200 with `unallocated[].reason`."""
         req, limit = await _admit(req, st)
-        return await _heavy(request, st, AllocationResponse, pipeline.allocation, req,
+        return await answer_heavy(request, st, AllocationResponse, pipeline.allocation, req,
                             ("time_limit_s", limit))
 
     @app.post("/v1/motion-plans", operation_id="create_motion_plan", response_model=MotionPlanResponse, tags=["stages"],
@@ -475,7 +431,7 @@ def _stage_routes(app: FastAPI) -> None:
         alone must be a multiple of 0.1 s), and (220 s / dt_s) x (220 s / dt_col_s) may not
         exceed 1e6. A plan that cannot be found answers 200 with `status: "failed"`."""
         req, limit = await _admit(req, st)
-        return await _heavy(request, st, MotionPlanResponse, pipeline.motion_plan, req,
+        return await answer_heavy(request, st, MotionPlanResponse, pipeline.motion_plan, req,
                             ("time_limit_s", limit))
 
     @app.post("/v1/plans", operation_id="create_plan", response_model=PlanResponse, tags=["stages"],
@@ -500,7 +456,7 @@ def _stage_routes(app: FastAPI) -> None:
         """
         list_id = req.target_list_id
         req, _ = await _admit(req, st)
-        return await _from_list(list_id, _heavy(
+        return await _from_list(list_id, answer_heavy(
             request, st, PlanResponse, pipeline.plan, req,
             ("budget_s", st.settings.plan_budget_s)))
 

@@ -23,6 +23,7 @@ from models.errors import InputError
 from models.instrument import Instrument
 from service.auth import Auth
 from service.errors import FieldError
+from service.heavy_answer import answer_heavy
 from service.schemas import Response
 
 router = APIRouter(tags=["validation"])
@@ -96,6 +97,4 @@ async def create_validation(
     start-stop cycles, controller commands) and the `content_hash`. A plan whose checks pass
     answers `valid: true`; a plan that says `executable: false` is checked for what it holds
     and answers `executable: false`. The checks and tolerances: docs/validation.md."""
-    from service.app import _heavy
-
-    return await _heavy(request, request.app.state.mxs, ValidationResponse, validation, plan)
+    return await answer_heavy(request, request.app.state.mxs, ValidationResponse, validation, plan)
