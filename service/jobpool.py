@@ -33,7 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from service.executor import Overloaded, QueueLimit
-from service.jobs import CANCELLED, JobStore, QueueFull, run_job
+from service.job_run import run_job
+from service.jobs import CANCELLED, JobStore, QueueFull
 from service.parent_death import kill_with_parent
 
 log = logging.getLogger("service.jobs")

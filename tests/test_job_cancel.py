@@ -12,8 +12,9 @@ import numpy as np
 from fastapi.testclient import TestClient
 
 from service.app import create_app
+from service.job_run import run_job
 from service.jobpool import JobManager, PoolOptions
-from service.jobs import CANCELLED, JobStore, run_job
+from service.jobs import CANCELLED, JobStore
 from service.settings import Settings
 from tests.test_service_jobs import SEG_REQUEST, wait_terminal
 

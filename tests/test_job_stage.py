@@ -10,7 +10,7 @@ import pytest
 
 from planner import stages
 from planner.programme import ALLOCATION_PART
-from service import jobs, pipeline
+from service import job_run, jobs, pipeline
 from service.job_schemas import JOB_STATUS
 from service.schemas import PlanRequest
 
@@ -72,7 +72,7 @@ def test_the_synchronous_plan_names_its_stages(mode) -> None:
 
 
 def test_a_plan_job_persists_its_stages(tmp_path: Path, monkeypatch) -> None:
-    """A plan job run by a job-pool worker (service.jobs.run_job, the local runner): its
+    """A plan job run by a job-pool worker (service.job_run.run_job, the local runner): its
     ``stage`` passes queued -> the segmentation -> pointing by pointing -> assembling -> done,
     each stage stored as it begins; the status schema types it."""
     store = jobs.JobStore(tmp_path / "j.db")
@@ -90,7 +90,7 @@ def test_a_plan_job_persists_its_stages(tmp_path: Path, monkeypatch) -> None:
         stored.append(self.get(jid)["stage"])  # as a poll of the job would read it
 
     monkeypatch.setattr(jobs.JobStore, "set_stage", recording)
-    assert jobs.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 60.0, 3600.0,
+    assert job_run.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 60.0, 3600.0,
                         owner="srv/1") == "done"
     job = store.get(job_id)
     assert job["status"] == "done" and job["stage"] == stages.DONE
@@ -109,7 +109,7 @@ def test_other_jobs_name_their_stage_and_a_requeued_job_is_queued_again(tmp_path
     real = jobs.JobStore.set_stage
     monkeypatch.setattr(jobs.JobStore, "set_stage",
                         lambda self, jid, s: (seen.append(s), real(self, jid, s))[1])
-    assert jobs.run_job(str(store.db_path), job_id, "segmentation", seg, None, 10.0,
+    assert job_run.run_job(str(store.db_path), job_id, "segmentation", seg, None, 10.0,
                         owner="srv/1") == "done"
     assert seen == [stages.SEGMENTING] and store.get(job_id)["stage"] == stages.DONE
     # a running job handed back to the queue reads 'queued' again

@@ -22,7 +22,7 @@ from models.sky import focal_mm_to_sky
 from models.types import ArmTrajectory, Configuration, MotionPlan, PlaneTargets
 from planner import pointing, programme
 from planner.sequence import PlanChange, SequenceOptions, SequencePlan
-from service import jobs
+from service import job_run, jobs
 from service.app import create_app
 from service.cli import EXIT_NOT_EXECUTABLE, build_parser, main
 from service.job_schemas import PlanJobStatus
@@ -174,7 +174,7 @@ def test_plan_job_result_carries_executable(tmp_path: Path, monkeypatch) -> None
     with TestClient(app) as c:
         request = {"targets": targets(), "seed": 1, "time_limit_s": 10}
         job_id = jobs.JobStore(db).create("plan", request)
-        assert jobs.run_job(str(db), job_id, "plan", request, None, 3.0, 60.0) == "done"
+        assert job_run.run_job(str(db), job_id, "plan", request, None, 3.0, 60.0) == "done"
         r = c.get(f"/v1/jobs/{job_id}")
     assert r.status_code == 200, r.text
     job = PlanJobStatus.model_validate(r.json())

@@ -19,7 +19,7 @@ from fastapi.testclient import TestClient
 
 from planner import programme as programme_policy
 from planner.plan_file import content_hash
-from service import jobs, pipeline
+from service import job_run, jobs, pipeline
 from service.app import create_app
 from service.errors import json_safe
 from service.runners import DaskRunner, LocalPoolRunner
@@ -144,7 +144,7 @@ def test_interrupted_job_resumes_from_its_finished_pointings(tmp_path, reference
     store, job_id = new_job(tmp_path, owner="old/1")
     first = Counting(die_after=2)
     with pytest.raises(Killed):
-        jobs.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
+        job_run.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
                      owner="old/1", runner=first)
     assert first.computed == [0, 1]
     job = store.get(job_id)
@@ -158,7 +158,7 @@ def test_interrupted_job_resumes_from_its_finished_pointings(tmp_path, reference
     claimed = store.claim("new/2", lease_s=60.0)
     assert claimed is not None and claimed.job_id == job_id
     second = Counting()
-    assert jobs.run_job(str(store.db_path), job_id, "plan", claimed.request, None, 10.0,
+    assert job_run.run_job(str(store.db_path), job_id, "plan", claimed.request, None, 10.0,
                         3600.0, owner="new/2", runner=second) == "done"
     assert second.computed == [2]
     job = store.get(job_id)
@@ -244,7 +244,7 @@ def test_compose_has_an_optional_dask_cluster_from_the_same_image() -> None:
 def test_an_unreachable_scheduler_fails_the_job_with_the_reason(tmp_path) -> None:
     store, job_id = new_job(tmp_path)
     runner = DaskRunner(f"tcp://127.0.0.1:{_closed_port()}", connect_timeout_s=1.0)
-    assert jobs.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
+    assert job_run.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
                         owner="srv/1", runner=runner) == "failed"
     job = store.get(job_id)
     assert job is not None and job["status"] == "failed"
@@ -306,7 +306,7 @@ def test_a_cancelled_dask_job_stops_submitting_and_cancels_its_tasks(tmp_path, c
 
     monkeypatch.setattr(jobs.JobStore, "commit_pointing", commit_then_cancel)
     runner = DaskRunner(cluster.scheduler_address, window=1)
-    assert jobs.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
+    assert job_run.run_job(str(store.db_path), job_id, "plan", REQUEST, None, 10.0, 3600.0,
                         owner="srv/1", runner=runner) == jobs.CANCELLED
     client = runner.client()
     deadline = time.monotonic() + 1.0  # far less than a pointing takes
