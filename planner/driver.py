@@ -50,8 +50,8 @@ from models.types import ArmTrajectory, MotionPlan
 from planner import options as sh
 from planner.commands import stop_count
 from planner.options import DEFAULT_STRATEGIES, MotionOptions
+from planner.registry import STRATEGIES
 from planner.strategy import (
-    STRATEGIES,
     Candidate,
     Leg,
     LegCache,

@@ -16,6 +16,7 @@ import numpy as np
 from models.budget import Budget
 from models.errors import InputError
 from models.instrument import CONFIGURATION_TIME_GOAL_S
+from planner.registry import STRATEGIES
 
 #: A leg is never given less than this (a leg of a sequence, and each leg of the "via"
 #: fallback): a short budget still has every leg tried rather than failed unplanned.
@@ -97,7 +98,7 @@ MAX_DELAY_SAMPLES = 1e6
 
 DEFAULT_STRATEGIES = ("delays", "sequenced", "evasion", "cluster", "forward", "reverse")
 # names with a fixed place in the order (planner.driver.strategy_sequence); others are looked up
-# in the registry (planner.strategy.STRATEGIES)
+# in the registry (planner.registry.STRATEGIES)
 BUILTIN_NAMES = ("delays", "cluster", "evasion", "sequenced", "forward", "reverse", "via")
 
 
@@ -178,8 +179,6 @@ class MotionOptions:
         if isinstance(s, str) or not all(isinstance(x, str) for x in s):
             raise InputError("strategies", "must be a sequence of strategy names")
         s = tuple(s)
-        from planner.strategy import STRATEGIES  # the registry, filled by planner.strategies
-
         bad = [x for x in s if x not in BUILTIN_NAMES and x not in STRATEGIES]
         if bad:
             raise InputError("strategies", f"unknown strategy {bad[0]!r}")

@@ -139,13 +139,6 @@ class Strategy(Protocol):
     def plan(self, leg: Leg, budget: Budget) -> Candidate | Refusal: ...
 
 
-STRATEGIES: dict[str, Strategy] = {}
-
-
-def register(strategy: Strategy) -> Strategy:
-    """Make ``strategy`` available to the driver under ``strategy.name``."""
-    STRATEGIES[strategy.name] = strategy
-    return strategy
 
 
 def check_configuration(instrument: Instrument, q, name: str) -> np.ndarray:

@@ -15,8 +15,9 @@ from models.errors import InputError
 from models.instrument import default_instrument
 from models.types import ArmTrajectory
 from planner import MotionOptions, plan_motion, verify_trajectories
+from planner.registry import STRATEGIES
 from planner.strategies.reversed import reverse_trajectories
-from planner.strategy import STRATEGIES, Candidate, Leg, Refusal
+from planner.strategy import Candidate, Leg, Refusal
 from tests.test_planner import _en_route
 
 INST = default_instrument()

@@ -20,6 +20,7 @@ from planner import options as planner_options
 from planner import plan_motion
 from planner.driver import at_positive_turn_bound, positive_turn_bound_s
 from planner.options import MotionOptions
+from planner.registry import STRATEGIES
 from planner.sequenced import (
     Attempt,
     at_goal,
@@ -31,7 +32,7 @@ from planner.sequenced import (
     search_starts,
     via_grid,
 )
-from planner.strategy import STRATEGIES, Candidate, Leg
+from planner.strategy import Candidate, Leg
 from planner.timeline import Timeline
 from planner.verify import verify_trajectories
 

@@ -7,6 +7,7 @@ the CSP with clear detours and step-aside moves), "cluster" (:mod:`.cluster`),
 (:mod:`.sequenced`: straight moves and one-stop detours planned arm by arm on a time grid).
 """
 
+from planner.registry import register
 from planner.strategies.cluster import Cluster
 from planner.strategies.delays import Delays, Detours
 from planner.strategies.evasion import Evasion
@@ -14,7 +15,7 @@ from planner.strategies.prioritized import Prioritized
 from planner.strategies.reversed import Reversed, reverse_trajectories
 from planner.strategies.sequenced import Sequenced
 from planner.strategies.via import Via
-from planner.strategy import FirstOf, register
+from planner.strategy import FirstOf
 
 DELAYS = register(Delays())
 CLUSTER = register(Cluster())
