@@ -17,7 +17,7 @@ COPY service ./service
 # the 'distributed' extra lets the same image run the Dask scheduler and workers (compose.yaml)
 ARG EXTRAS=distributed
 RUN pip install ".[${EXTRAS}]" \
-    && (cd / && python -c "from planner.clearance import compile_kernels; compile_kernels()") \
+    && (cd / && python -c "from planner.kernels import compile_kernels; compile_kernels()") \
     && useradd --create-home --uid 10001 mxs \
     && mkdir -p /data \
     && chown mxs:mxs /data

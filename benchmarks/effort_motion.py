@@ -33,9 +33,8 @@ from motion import thesis_field  # noqa: E402
 from models import clock  # noqa: E402
 from models.instrument import default_instrument  # noqa: E402
 from planner import plan_motion  # noqa: E402
-from planner.clearance import compile_kernels  # noqa: E402
 from planner.effort import PLANNER_WORK_S  # noqa: E402
-from planner.timeline import compile_kernels as compile_timeline  # noqa: E402
+from planner.kernels import compile_kernels  # noqa: E402
 from solvers.allocation import allocate  # noqa: E402
 
 KINDS = tuple(PLANNER_WORK_S)
@@ -91,7 +90,6 @@ def main(argv: list[str] | None = None) -> dict:
     args = ap.parse_args(argv)
     inst = default_instrument()
     compile_kernels()
-    compile_timeline()
     rows = []
     for f, kind, a, b in legs_of(inst, args.seed, args.fields, args.method):
         row = plan_on_effort(inst, a, b, args.budget_s, args.seed)

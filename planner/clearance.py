@@ -249,9 +249,8 @@ def clearance_to_arms(cs: np.ndarray, ce: np.ndarray, r: np.ndarray,
 
 
 def compile_kernels() -> None:
-    """Compile (or load from the on-disk cache) every kernel of this module and of
-    :mod:`planner.timeline`; the Docker image calls it at build time so that no request pays
-    for the compilation."""
+    """Compile (or load from the on-disk cache) this module's kernels
+    (:func:`planner.kernels.compile_kernels` compiles every kernel of the planner)."""
     z = np.zeros((1, 1, 2))
     r = np.zeros(1)
     clearance_rows(z, z, r, z, z, r)
@@ -259,8 +258,3 @@ def compile_kernels() -> None:
     rest_clear(z, z, r, b, z, z, r, b, 0, 1.0, 0.0)
     diagonals_bad(z, z, r, b, z, z, r, b, 1, 0, 0, 1.0, 0.0)
     clearance_to_arms(z, z, r, z[None], z[None], r[None])
-    from planner.geometry import compile_kernels as geometry_kernels  # both import this module
-    from planner.timeline import compile_kernels as timeline_kernels
-
-    geometry_kernels()
-    timeline_kernels()

@@ -30,7 +30,7 @@ from models.locks import arm_limits
 from models.sky import sky_to_focal_mm
 from models.types import AllocationResult, PlaneTargets
 from planner import consolidation, keep, plan_motion, programme, stages
-from planner.clearance import compile_kernels
+from planner.kernels import compile_kernels
 from planner.known_legs import KnownLegs
 from planner.options import MotionOptions
 from planner.programme import (

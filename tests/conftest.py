@@ -59,6 +59,6 @@ def live_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[LiveServer
 def compiled_kernels() -> None:
     """The planner's compiled kernels, loaded (or compiled) before any test's time budget starts,
     as the service and the image do at start-up."""
-    from planner.clearance import compile_kernels
+    from planner.kernels import compile_kernels
 
     compile_kernels()

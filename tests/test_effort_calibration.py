@@ -27,8 +27,7 @@ from benchmarks.effort_allocation import DISTRIBUTIONS, measure, thesis_field
 from models import clock
 from models.instrument import default_instrument
 from planner import plan_motion
-from planner import timeline as timeline_module
-from planner.clearance import compile_kernels
+from planner.kernels import compile_kernels
 from solvers.allocation import allocate
 
 INST = default_instrument()
@@ -53,7 +52,6 @@ REFIT = {
 def _warm() -> None:
     """Compiled kernels, imports and caches: the first calls' extra CPU seconds are not work."""
     compile_kernels()
-    timeline_module.compile_kernels()
     with clock.effort():
         plan_motion(INST, np.array(LEGS[0]["start_q"]), np.array(LEGS[0]["goal_q"]), seed=0, time_budget_s=0.5)
         allocate(INST, thesis_field(50, None, 0), time_limit_s=2.0)

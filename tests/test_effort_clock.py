@@ -17,8 +17,8 @@ from models import clock
 from models.instrument import default_instrument
 from planner import plan_motion, pointing, programme
 from planner import timeline as timeline_module
-from planner.clearance import compile_kernels
 from planner.effort import PLANNER_WORK_S
+from planner.kernels import compile_kernels
 from planner.programme import RoundTask
 from service import pipeline
 from service.errors import json_safe
@@ -31,7 +31,6 @@ LEGS = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_tex
 @pytest.fixture(scope="module", autouse=True)
 def _compiled() -> None:
     compile_kernels()
-    timeline_module.compile_kernels()
 
 
 # ------------------------------------------------------------------------------ the clock
