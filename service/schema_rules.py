@@ -19,12 +19,18 @@ said in the operations' descriptions and answered 422 naming the field.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol, TypeVar
 
 from pydantic import ValidationError, ValidationInfo
 
-if TYPE_CHECKING:
-    from service.schemas import ArmState
+
+class _OnArm(Protocol):
+    """An item naming its arm (:class:`service.schemas.ArmState`)."""
+
+    arm: int
+
+
+A = TypeVar("A", bound=_OnArm)
 
 ONE_TARGET_SOURCE: dict[str, Any] = {
     "if": {"required": ["targets"], "properties": {"targets": {"type": "array"}}},
@@ -69,7 +75,7 @@ def one_target_source(target_list_id: str | None, info: ValidationInfo) -> str |
     return target_list_id
 
 
-def unique_arms_check(states: list[ArmState] | None, field: str) -> list[ArmState] | None:
+def unique_arms_check(states: list[A] | None, field: str) -> list[A] | None:
     """``states`` when no arm is listed twice (else a ValueError naming the item)."""
     if states is None:
         return None
