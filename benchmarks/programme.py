@@ -160,7 +160,7 @@ def _committed(db: Path, job_id: str) -> dict[int, str]:
 def kill_restart(a: argparse.Namespace) -> dict[str, Any]:
     import httpx
 
-    from benchmarks.load import end, free_port, start_server
+    from benchmarks.serve import end, free_port, start_server
 
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MPLBACKEND": "Agg"}
     port = free_port()

@@ -39,7 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.load import free_port  # noqa: E402
+from benchmarks.serve import free_port  # noqa: E402
 
 
 def targets(n: int, area_deg2: float, seed: int) -> tuple[list[str], np.ndarray, np.ndarray,

@@ -39,7 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from hostile_corpus import Attack, build  # noqa: E402
 
-from benchmarks.load import probe_health  # noqa: E402
+from benchmarks.serve import end, probe_health, start_server, workdir  # noqa: E402
 
 GOAL_S, GOAL_HEALTH_MS, GOAL_RSS_MB = 10.0, 100.0, 2048.0
 PAIRS = (("fits_many_rows", "gzip_bomb"), ("many_columns", "many_columns"),
@@ -136,8 +136,8 @@ def _valid_upload(url: str) -> dict[str, Any]:
             "s": round(time.monotonic() - t0, 2)}
 
 
-def scenario_attack(a: argparse.Namespace, start_server: Any, end: Any, workdir: Any) -> dict[str, Any]:
-    """The attack scenario (see the module doc); the server helpers come from load.py."""
+def scenario_attack(a: argparse.Namespace) -> dict[str, Any]:
+    """The attack scenario (see the module doc), on a planner served by :mod:`benchmarks.serve`."""
     size = int(a.attack_mb * 1e6) - 65_536
     decompressed_limit = 100_000_000 if a.attack_mb >= 50 else int(a.attack_mb * 1e6)
     with workdir() as d:
