@@ -39,7 +39,7 @@ def measured(shape: str, seed: int) -> list[dict[str, Any]]:
     from planner.known_legs import new_legs
     from planner.programme import RoundTask
     from planner.shares import SHARES
-    from service import adapters, pipeline, plan_consolidation
+    from service import adapters, pipeline, plan_consolidation, pointing_plans
     from service.plan_consolidation import _planned
     from service.schemas import PlanRequest
     from service.settings import Settings
@@ -57,7 +57,7 @@ def measured(shape: str, seed: int) -> list[dict[str, Any]]:
     index = {t.id: i for i, t in enumerate(req.targets)}
     answers = plan["pointings"]
     planned = [_planned(p, index) for p in answers]
-    history = [[o for j, p in enumerate(answers) for o in pipeline.outcomes_of(p, j)]]
+    history = [[o for j, p in enumerate(answers) for o in pointing_plans.outcomes_of(p, j)]]
     cost = costs(history)
     _, _, changed = regroup(inst, np.array([t.ra_deg for t in req.targets]), np.array([t.dec_deg for t in req.targets]),
                             np.array([int(t.priority) for t in req.targets]), planned, req.park_move_limit_s, None,
@@ -68,10 +68,10 @@ def measured(shape: str, seed: int) -> list[dict[str, Any]]:
     out = []
     for r in changed:
         old, new = planned[r.index].configurations, r.allocation.configurations
-        task = pipeline.pointing_task(req, seg, RoundTask(r.index, len(history) + 1, 60.0),
+        task = pointing_plans.pointing_task(req, seg, RoundTask(r.index, len(history) + 1, 60.0),
                                       adapters.known_legs_in(inst, answers[r.index]))
         task = dataclasses.replace(task, sky=None)  # the legs alone: no sky pass
-        answer = pipeline.pointing_result(task, inst)
+        answer = pointing_plans.pointing_result(task, inst)
         o = answer["stats"]["rounds"][-1]
         motion_s = (o["effort_s"] - o["allocation_effort_s"]) / SHARES.effort_share
         fresh, legs = new_legs(old, new), len(new) + 1

@@ -20,7 +20,7 @@ from typing import Any
 
 from models.errors import InputError
 from models.instrument import Instrument
-from service import adapters, pipeline, plan_locks
+from service import adapters, pipeline, plan_locks, pointing_plans
 from service.errors import FieldError, parse_loc
 from service.schemas import (
     AllocationRequest,
@@ -47,7 +47,7 @@ def _allocation(req: AllocationRequest, inst: Instrument) -> None:
     adapters.check_arms(req.disabled_arms, inst, "disabled_arms")
     if req.sky and req.pointing is not None:
         p = req.pointing
-        targets = pipeline.sky_plane_targets(req.targets, p.ra_deg, p.dec_deg, inst,  # type: ignore[arg-type]
+        targets = pointing_plans.sky_plane_targets(req.targets, p.ra_deg, p.dec_deg, inst,  # type: ignore[arg-type]
                                              p.position_angle_deg)
     else:
         targets = adapters.plane_targets_of(req.targets)  # type: ignore[arg-type]

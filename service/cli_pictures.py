@@ -67,7 +67,7 @@ def write_pictures(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
     configurations, up at the pointing's PA."""
     from tqdm import tqdm
 
-    from service import pipeline
+    from service import pointing_plans
     from service.plots import plot_configuration, sequence_states, view_half_width_mm, view_size_px
 
     by_id = {t.id: t for t in req.targets}
@@ -77,7 +77,7 @@ def write_pictures(result: Mapping[str, Any], req: Any, inst: Any, out: Path,
     for p, c in tqdm(jobs, desc="pictures", disable=quiet or not jobs):
         pa = pointing_pa_deg(p, req)
         members = [by_id[t] for t in p["target_ids"]]
-        x, y = pipeline.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst, pa)
+        x, y = pointing_plans.sky_to_focal(members, p["ra_deg"] % 360.0, p["dec_deg"], inst, pa)
         if image is not None and p["id"] not in charts:
             half_arcmin = view_half_width_mm(inst) * inst.plate_scale_arcsec_per_mm / 60.0
             charts[p["id"]] = chart_or_none(image, p["ra_deg"], p["dec_deg"], half_arcmin, pa,

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from models.instrument import Instrument
-from service import pipeline
+from service import pointing_plans
 from service.errors import FieldError
 from service.schemas import AllocationRequest, ArmState, PlanRequest, SegmentationRequest
 from service.settings import Settings
@@ -70,7 +70,7 @@ def _check_projection(req: Any, inst: Instrument, prefix: Loc) -> None:
     if not getattr(req, "sky", False) or pointing is None:
         return
     try:
-        pipeline.sky_to_focal(req.targets, pointing.ra_deg, pointing.dec_deg, inst, pointing.position_angle_deg)
+        pointing_plans.sky_to_focal(req.targets, pointing.ra_deg, pointing.dec_deg, inst, pointing.position_angle_deg)
     except FieldError as exc:
         raise FieldError((*prefix, *exc.loc[1:]), exc.bare, exc.type) from exc
 

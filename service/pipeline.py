@@ -12,10 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import re
-import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from datetime import UTC, date, datetime
 from functools import lru_cache
 from typing import Any
@@ -27,59 +24,49 @@ from models.budget import Budget
 from models.errors import InputError
 from models.instrument import Instrument, default_instrument, load_instrument
 from models.locks import arm_limits
-from models.sky import sky_to_focal_mm
-from models.types import AllocationResult, PlaneTargets
+from models.types import AllocationResult
 from planner import consolidation, keep, plan_motion, programme, stages
 from planner.kernels import compile_kernels
-from planner.known_legs import KnownLegs
 from planner.options import MotionOptions
 from planner.programme import (
     DEFAULT_LIMIT_S,
-    PointingOptions,
     PointingOutcome,
-    PointingPlan,
     RoundTask,
-    better,
-    estimated_exposures,
-    exposure_caps,
     plan_progress,
-    pointing_need,
-    pointing_seed,
-    rank,
     run_rounds,
     wall_reserve_s,
 )
-from planner.sky import SkyRequest
-from planner.telescope_time import ObservingRules
 from planner.time_advice import time_advice
-from service import adapters, plan_locks
-from service.errors import FieldError
+from service import adapters, plan_locks, pointing_plans
 from service.lock_schemas import target_locks
-from service.plan_output import few_target_exposures, left_out_of, plan_out, pointing_plan_out
-from service.plan_sky import plan_sky, sky_stats, task_sky
+from service.plan_consolidation import consolidated
+from service.plan_output import few_target_exposures, left_out_of, plan_out
+from service.pointing_plans import (
+    Progress,
+    keep_better,
+    no_progress,
+    outcomes_of,
+    pointing_needs,
+    sky_plane_targets,
+)
+from service.round_tasks import round_task
 from service.schemas import (
     REQUEST_TYPES,
     AllocationRequest,
     MotionPlanRequest,
     PlanRequest,
     SegmentationRequest,
-    SkyTarget,
 )
 from solvers.allocation import allocate
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
-from solvers.segmentation import Pointing, Segmentation, segment_field
+from solvers.segmentation import Segmentation, segment_field
 
-Progress = Callable[[float], None]
 log = logging.getLogger("service")
 
 def warm_up() -> None:
     """Load (or compile once) the planner's compiled kernels, so that no request pays for it."""
     compile_kernels()
-
-
-def _noop(_: float) -> None:
-    pass
 
 
 Stage = Callable[[str], None]
@@ -109,38 +96,6 @@ def instrument_from(path: str | None) -> Instrument:
 
 def instrument_info(inst: Instrument) -> dict[str, Any]:
     return adapters.instrument_out(inst)
-
-
-# --------------------------------------------------------------------------- sky
-
-
-def sky_to_focal(
-    targets: Sequence[SkyTarget], ra_deg: float, dec_deg: float, inst: Instrument,
-    position_angle_deg: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Gnomonic projection of ``targets`` about (``ra_deg``, ``dec_deg``) onto the FOV frame.
-
-    A target the projection cannot take (>= 90 deg from the pointing) is a 422 naming
-    ``targets[i]`` (indices of ``targets`` as given)."""
-    try:
-        x, y = sky_to_focal_mm(
-            np.array([t.ra_deg for t in targets], float),
-            np.array([t.dec_deg for t in targets], float),
-            ra_deg, dec_deg, inst.plate_scale_arcsec_per_mm, position_angle_deg,
-        )
-    except InputError as exc:
-        m = re.fullmatch(r"(ra_deg|dec_deg)\[(\d+)\]", str(exc.field))
-        if m is None:
-            raise
-        raise FieldError(("body", "targets", int(m.group(2)), m.group(1)), exc.message) from exc
-    return np.asarray(x, float), np.asarray(y, float)
-
-
-def sky_plane_targets(targets: Sequence[SkyTarget], ra_deg: float, dec_deg: float,
-                      inst: Instrument, position_angle_deg: float = 0.0) -> PlaneTargets:
-    """Sky targets projected about a pointing, as the allocator's ``PlaneTargets``."""
-    x, y = sky_to_focal(targets, ra_deg, dec_deg, inst, position_angle_deg)
-    return adapters.plane_targets([t.id for t in targets], x, y, [t.priority for t in targets])
 
 
 # ------------------------------------------------------------------- segmentation
@@ -187,7 +142,7 @@ def segment(req: SegmentationRequest, inst: Instrument, fill: FillOptions | None
 
 
 def segmentation(
-    req: SegmentationRequest, inst: Instrument, progress: Progress = _noop
+    req: SegmentationRequest, inst: Instrument, progress: Progress = no_progress
 ) -> dict[str, Any]:
     """The segmentation stage on the targets at the request's ``obs_date`` (:func:`at_epoch`;
     its report in ``stats.epoch``)."""
@@ -212,7 +167,7 @@ def _report(progress: Progress, lo: float = 0.0, hi: float = 0.99) -> Callable[[
 
 
 def allocate_request(req: AllocationRequest, inst: Instrument, *, time_limit_s: float,
-                     progress: Progress = _noop) -> AllocationResult:
+                     progress: Progress = no_progress) -> AllocationResult:
     """``solvers.allocation.allocate`` on the request's targets (sky targets are projected
     about ``pointing`` first); ``time_limit_s`` bounds the whole call."""
     adapters.check_arms(req.start, inst, "start")
@@ -236,7 +191,7 @@ def allocate_request(req: AllocationRequest, inst: Instrument, *, time_limit_s: 
 
 
 def allocation(
-    req: AllocationRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float
+    req: AllocationRequest, inst: Instrument, progress: Progress = no_progress, *, time_limit_s: float
 ) -> dict[str, Any]:
     result = allocate_request(req, inst, time_limit_s=time_limit_s, progress=progress)
     progress(1.0)
@@ -259,7 +214,7 @@ def motion_options(req: MotionPlanRequest) -> MotionOptions:
 
 
 def motion_plan(
-    req: MotionPlanRequest, inst: Instrument, progress: Progress = _noop, *, time_limit_s: float
+    req: MotionPlanRequest, inst: Instrument, progress: Progress = no_progress, *, time_limit_s: float
 ) -> dict[str, Any]:
     """``planner.plan_motion`` from ``start`` to ``goal`` within ``time_limit_s``."""
     start = adapters.full_configuration(req.start, inst, "start")
@@ -273,24 +228,6 @@ def motion_plan(
 # -------------------------------------------------------------------- whole pipeline
 
 
-@dataclass(frozen=True)
-class PointingTask:
-    """Everything the plan of one pointing in one round needs, small and picklable (it is what
-    a Dask worker receives): the pointing, its own targets, the request's options, its seed
-    (:func:`planner.programme.pointing_seed`), its round and its wall-clock share ``share_s``
-    (:func:`planner.programme.run_rounds`)."""
-
-    index: int
-    pointing: Pointing
-    members: tuple[SkyTarget, ...]
-    position_angle_deg: float
-    options: PointingOptions
-    share_s: float
-    round: int = 1
-    #: the plan's sky near this pointing (its spare arms' sky positions, :mod:`planner.sky`)
-    sky: SkyRequest | None = None
-
-
 def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
     """The wall-clock limit of a whole plan, its one meaning: the request's ``time_limit_s``
     when it gives one, capped by the server's ``budget_s``; the library default
@@ -302,12 +239,7 @@ def plan_limit_s(req: PlanRequest, budget_s: float | None) -> float:
 def plan_segmentation(req: PlanRequest) -> SegmentationRequest:
     """The segmentation request of a plan."""
     return SegmentationRequest(targets=req.targets, threshold_mm=req.threshold_mm,
-                               mode=plan_mode(req), seed=req.seed)
-
-
-def plan_mode(req: PlanRequest) -> str:
-    """The plan's segmentation mode (:func:`planner.programme.segmentation_mode`)."""
-    return programme.segmentation_mode(req.segmentation_mode, len(req.targets))
+                               mode=pointing_plans.plan_mode(req), seed=req.seed)
 
 
 def segment_plan(req: PlanRequest, inst: Instrument, limit_s: float | None = None) -> Segmentation:
@@ -365,135 +297,16 @@ def kept_angle_deg(req: PlanRequest, p: keep.KeptPointing) -> float:
                      f"request's position_angle_deg is {req.position_angle_deg!r}")
 
 
-def kept_of(req: PlanRequest, pointing_id: str) -> keep.KeptPointing | None:
-    """The kept pointing of the request with id ``pointing_id`` (None: none; the segmentation
-    gives the other pointings ids no kept one has)."""
-    if req.keep_configurations is None:
-        return None
-    return next((k for k in adapters.kept_pointings(req.keep_configurations) if k.id == pointing_id), None)
-
-
 def rounds_limit_s(req: PlanRequest, limit_s: float, seg: Segmentation) -> float:
     """What a plan limited to ``limit_s`` leaves its pointings after its segmentation ``seg``
     (:func:`planner.programme.rounds_limit_s`)."""
-    if plan_mode(req) != "fewest-exposures":
+    if pointing_plans.plan_mode(req) != "fewest-exposures":
         return limit_s
     used_s = (seg.stats.get("optimiser") or {}).get("variants_effort_s", 0.0)
     return programme.rounds_limit_s(limit_s, len(req.targets), used_s)
 
 
-def observing_rules(req: PlanRequest) -> ObservingRules:
-    """The request's times and stop rules as the domain's :class:`ObservingRules`."""
-    return ObservingRules(exposure_time_s=req.exposure_time_s, acquisition_s=req.acquisition_s,
-                          max_exposures=req.max_exposures,
-                          min_priority_per_exposure=req.min_priority_per_exposure,
-                          min_targets_per_exposure=req.min_targets_per_exposure)
-
-
-def pointing_caps(req: PlanRequest, seg: Segmentation) -> list[int | None]:
-    """Each pointing's most exposures: the request's ``max_exposures`` split by
-    :func:`planner.programme.exposure_caps` over the pointings' estimates
-    (:func:`planner.programme.estimated_exposures`); None each without it."""
-    if req.max_exposures is None:
-        return [None] * len(seg.pointings)
-    return list(exposure_caps(int(req.max_exposures), [estimated_exposures(p) for p in seg.pointings]))
-
-
-def pointing_needs(seg: Segmentation, req: PlanRequest | None = None) -> list[float]:
-    """The need of each pointing of ``seg`` (:func:`planner.programme.pointing_need`, with
-    its cap of the request's ``max_exposures``)."""
-    caps = [None] * len(seg.pointings) if req is None else pointing_caps(req, seg)
-    return [pointing_need(len(p.target_indices), max_configurations=cap)
-            for p, cap in zip(seg.pointings, caps, strict=True)]
-
-
-def pointing_task(req: PlanRequest, seg: Segmentation, task: RoundTask,
-                  known_legs: KnownLegs | None = None) -> PointingTask:
-    """The task of pointing ``task.index`` of ``seg`` in ``task.round``, within ``task.share_s``
-    (``known_legs``: an earlier plan's legs its motion planner reuses, :mod:`planner.known_legs`)."""
-    p = seg.pointings[task.index]
-    options = PointingOptions(req.method, req.solver,
-                              pointing_seed(int(req.seed or 0), task.index, task.round),
-                              req.park_move_limit_s, pointing_caps(req, seg)[task.index],
-                              observing_rules(req), p.allocation, p.allocation_final, kept=kept_of(req, p.id))
-    options = dataclasses.replace(options, known_legs=known_legs, locked=plan_locks.member_locks(
-        req, [req.targets[int(k)] for k in p.target_indices]))
-    pa = adapters.requested_angle_deg(req.position_angle_deg) if p.position_angle_deg is None else p.position_angle_deg
-    return PointingTask(task.index, p, tuple(req.targets[int(k)] for k in p.target_indices),
-                        pa, options, float(task.share_s), task.round,
-                        plan_sky(req).near(p.ra_deg % 360.0, p.dec_deg))
-
-
-def plan_pointing(task: PointingTask, inst: Instrument, progress: Progress = _noop, *,
-                  wall_limit_s: float | None = None) -> PointingPlan:
-    """:func:`planner.programme.plan_pointing` on the task's targets, projected about its
-    pointing (``wall_limit_s``: what the plan's deadline has left, when less than the share)."""
-    p = task.pointing
-    targets = sky_plane_targets(task.members, p.ra_deg % 360.0, p.dec_deg, inst,
-                                task.position_angle_deg)
-    sky = task_sky(task, inst)
-    options = task.options if sky is None else dataclasses.replace(task.options, sky=sky)
-    return programme.plan_pointing(inst, targets, options, task.share_s, progress,
-                                   wall_limit_s=wall_limit_s)
-
-
-def pointing_result(task: PointingTask, inst: Instrument,
-                    progress: Progress = _noop, *, wall_limit_s: float | None = None,
-                    ) -> dict[str, Any]:
-    """:func:`plan_pointing` as a PlanPointing dict: the unit of work a plan job commits, and
-    what a Dask worker returns. Its ``stats.rounds`` holds the outcome of this round
-    (:func:`outcome_out`)."""
-    ids = {int(k): t.id for k, t in zip(task.pointing.target_indices, task.members, strict=True)}
-    t0 = time.monotonic()
-    pp = plan_pointing(task, inst, progress, wall_limit_s=wall_limit_s)
-    out = pointing_plan_out(task.pointing, pp, ids, inst, task_sky(task, inst))
-    out.update(adapters.angle_out(task.position_angle_deg, task.pointing.position_angle_search))
-    out["targets"] = adapters.plan_targets_out(task.members, pp.targets)
-    if task.sky is not None:
-        out["stats"]["sky"] = sky_stats(task.sky, out["configurations"])
-    failed = out["stats"]["motion"]["failed_legs"]
-    observed = sum(1 for c in out["configurations"] for a in c["assignments"]
-                   if a["target_id"] is not None)
-    o = PointingOutcome(task.index, task.round, task.share_s, pp.effort_s, out["executable"],
-                        failed, observed, pp.overran, pp.allocation is not None, pp.allocation_effort_s,
-                        len(out["configurations"]), int(out["stats"]["motion"].get("configurations_added", 0)))
-    out["stats"].update({"compute_s": time.monotonic() - t0,
-                         "effort": {"effort_s": pp.effort_s, "overran": pp.overran},
-                         "rounds": [outcome_out(o)]})
-    return out
-
-
-def outcome_out(o: PointingOutcome) -> dict[str, Any]:
-    """One round's outcome as an entry of a PlanPointing's ``stats.rounds``."""
-    return {"round": o.round, "share_s": o.share_s, "effort_s": o.effort_s,
-            "executable": o.executable, "failed_legs": o.failed_legs, "observed": o.observed,
-            "overran": o.overran, "attempted": o.attempted, "allocation_effort_s": o.allocation_effort_s,
-            "exposures": o.exposures, "exposures_added": o.exposures_added}
-
-
-def outcomes_of(answer: Mapping[str, Any], index: int) -> list[PointingOutcome]:
-    """The outcome of every round a committed PlanPointing dict records (its own and those of
-    the rounds whose plans it replaced or kept)."""
-    return [PointingOutcome(index, int(r["round"]), float(r["share_s"]), float(r["effort_s"]),
-                            bool(r["executable"]), int(r["failed_legs"]), int(r["observed"]),
-                            bool(r["overran"]), bool(r.get("attempted", True)),
-                            float(r.get("allocation_effort_s", 0.0)), int(r.get("exposures", 0)),
-                            int(r.get("exposures_added", 0)))
-            for r in answer.get("stats", {}).get("rounds", [])]
-
-
-def keep_better(old: dict[str, Any] | None, new: dict[str, Any], index: int) -> dict[str, Any]:
-    """Of a pointing's answer so far (None: none) and a later round's, the one to keep
-    (:func:`planner.programme.better`), recording both rounds' outcomes."""
-    if old is None:
-        return new
-    earlier, latest = outcomes_of(old, index), outcomes_of(new, index)
-    kept = new if better(latest[-1], max(earlier, key=rank)) else old
-    return {**kept, "stats": {**kept["stats"],
-                              "rounds": [outcome_out(o) for o in earlier + latest]}}
-
-
-def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
+def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = no_progress, *,
                    budget_s: float | None = None, on_stage: Stage = _no_stage,
                    ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
     """Segmentation -> per pointing: projection onto the pointing's own tangent plane
@@ -509,9 +322,9 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
     limit = plan_limit_s(req, budget_s)
     budget = Budget.start(limit - wall_reserve_s(limit, len(req.targets)))  # the wall clock: outside any effort block
     stage = Stages(on_stage)
-    stage(stages.segmentation_stage(plan_mode(req)))
+    stage(stages.segmentation_stage(pointing_plans.plan_mode(req)))
     seg = segment_plan(req, inst, limit)
-    plan_locks.check_pointing_locks(req, seg, inst)
+    pointing_plans.check_pointing_locks(req, seg, inst)
     progress(plan_progress(1, 0, 1))
     answers: dict[int, dict[str, Any]] = {}
 
@@ -519,12 +332,10 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
         progress(plan_progress(round_, done, total))
         stage(stages.plan_stage(round_, done, total))
 
-    from service.round_tasks import round_task  # it builds on this module's tasks
-
     def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
         for done, task in enumerate(tasks):
             i = task.index
-            answer = pointing_result(
+            answer = pointing_plans.pointing_result(
                 round_task(req, seg, task, inst, answers.get(i)), inst,
                 lambda f, d=done, r=task.round: report(r, d + f, len(tasks)),
                 wall_limit_s=max(budget.left_s(), 0.0))
@@ -536,8 +347,6 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = _noo
                          spend_margin=spends_margin(req))
     pointings = [answers[i] for i in range(len(seg.pointings))]
     advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
-    from service.plan_consolidation import consolidated  # it plans pointings with this module
-
     seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, rounds_limit_s(req, limit, seg),
                                                  budget.left_s)
     stage(stages.ASSEMBLING)
@@ -550,7 +359,7 @@ def spends_margin(req: PlanRequest) -> bool:
     """Whether the plan's last steps spend the margin its rounds kept (a pointing with a
     failed leg first, :func:`planner.programme.margin_round`, then the consolidation):
     :func:`planner.consolidation.applies`."""
-    return consolidation.applies(plan_mode(req), req.keep_configurations is not None)
+    return consolidation.applies(pointing_plans.plan_mode(req), req.keep_configurations is not None)
 
 
 def sync_limit_s(budget_s: float | None) -> float:
@@ -567,7 +376,7 @@ def limit_advice(req: PlanRequest, seg: Segmentation, pointings: Sequence[dict[s
     its ``not_planned`` reason, naming the limit. ``sync_s``: the longest limit of a
     synchronous plan (None: the plan already runs as a job, so none is suggested)."""
     advice = time_advice(limit_s, pointing_needs(seg, req), history,
-                         plan_mode(req) == "fewest-exposures", n_targets=len(req.targets))
+                         pointing_plans.plan_mode(req) == "fewest-exposures", n_targets=len(req.targets))
     if advice is None:
         return None
     needed = advice.needed_limit_s
@@ -617,7 +426,7 @@ def at_epoch(req: Any) -> tuple[Any, dict[str, Any]]:
     return req.model_copy(update={"targets": targets}), {} if report is None else {"epoch": report}
 
 
-def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
+def plan(req: PlanRequest, inst: Instrument, progress: Progress = no_progress, *,
          budget_s: float | None = None, on_stage: Stage = _no_stage) -> dict[str, Any]:
     """:func:`plan_pointings` as a PlanResponse dict. A motion leg that cannot be planned is
     returned with status "failed", never as an exception; the pointing and the plan then say
@@ -634,7 +443,7 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = _noop, *,
     return adapters.with_content_hash(out)
 
 
-def run(kind: str, request: Any, inst: Instrument, progress: Progress = _noop,
+def run(kind: str, request: Any, inst: Instrument, progress: Progress = no_progress,
         *, time_limit_s: float, budget_s: float | None = None,
         on_stage: Stage = _no_stage) -> dict[str, Any]:
     """Run one stage by its job kind on an already validated (or raw dict) request

@@ -38,7 +38,7 @@ from planner.consolidation import (
 )
 from planner.known_legs import KnownLegs
 from planner.programme import PointingOutcome, RoundTask
-from service import adapters, pipeline
+from service import adapters, pointing_plans
 from service.lock_schemas import target_locks
 from service.schemas import PlanRequest
 from solvers.segmentation import Segmentation
@@ -59,7 +59,7 @@ def consolidated(req: PlanRequest, inst: Instrument, seg: Segmentation, answers:
     :func:`planner.consolidation.another_pass`), each on what the rounds and the earlier passes
     left.
     ``limit_s``: the rounds' limit; ``wall_left_s``: the wall-clock seconds the plan has left."""
-    if not applies(pipeline.plan_mode(req), req.keep_configurations is not None):
+    if not applies(pointing_plans.plan_mode(req), req.keep_configurations is not None):
         return seg, answers, {}
     passes: list[dict[str, Any]] = []
     history, spent_s = list(history), 0.0
@@ -201,16 +201,16 @@ def _replanned(req: PlanRequest, inst: Instrument, seg: Segmentation, tasks: Seq
     """The changed pointings planned on ``tasks`` (each reusing the legs of its plan before the
     pass where it makes the same moves, ``known``), then again on the tasks ``again`` gives for
     the outcomes so far (:func:`planner.consolidation.retry_tasks`), each pointing's best plan
-    kept (:func:`service.pipeline.keep_better`): {pointing index: PlanPointing dict}, and the
+    kept (:func:`service.pointing_plans.keep_better`): {pointing index: PlanPointing dict}, and the
     outcomes of every plan, try by try."""
     new: dict[int, dict[str, Any]] = {}
     tries: list[list[PointingOutcome]] = []
     while tasks:
         for t in tasks:
-            answer = pipeline.pointing_result(pipeline.pointing_task(req, seg, t, known.get(t.index)), inst,
+            answer = pointing_plans.pointing_result(pointing_plans.pointing_task(req, seg, t, known.get(t.index)), inst,
                                               wall_limit_s=replan_wall_s(wall_left_s()))
-            new[t.index] = pipeline.keep_better(new.get(t.index), answer, t.index)
-        tries.append([pipeline.outcomes_of(new[t.index], t.index)[-1] for t in tasks])
+            new[t.index] = pointing_plans.keep_better(new.get(t.index), answer, t.index)
+        tries.append([pointing_plans.outcomes_of(new[t.index], t.index)[-1] for t in tasks])
         tasks = again(tries)
     return new, tries
 

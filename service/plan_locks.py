@@ -1,12 +1,12 @@
 """A plan request's ``locked`` and ``excluded_targets`` translated for the domain
 (:mod:`models.locks`, :mod:`planner.locks`); the checks and the policy are the domain's.
+Once the pointings are known, :func:`service.pointing_plans.check_pointing_locks` checks every
+lock in its target's pointing.
 
 * :func:`without_excluded`: the checks that need no geometry (422 naming
   ``excluded_targets[i]`` / ``locked[i]``), then the request without its excluded targets, so
   that segmentation and allocation never see them, and the entry of the plan's stats that
   :func:`excluded_out` turns into the answer's top-level ``unallocated``;
-* :func:`check_pointing_locks`: once the pointings are known, every lock checked in its
-  target's pointing (reach, branch, park move limit), before any pointing is planned;
 * :func:`member_locks`: the locks of one pointing's members (its ``PointingOptions.locked``).
 """
 
@@ -19,13 +19,11 @@ from models.errors import InputError
 from models.instrument import Instrument
 from models.locks import TargetLock, check_exclusions, check_lock_targets, check_locks
 from models.types import PlaneTargets
-from planner.programme import RoundTask
 from service import adapters
 from service.lock_schemas import target_locks
 from service.schemas import AllocationRequest, PlanRequest, SkyTarget
-from solvers.segmentation import Segmentation
 
-__all__ = ["EXCLUDED_KEY", "check_allocation_locks", "check_pointing_locks", "excluded_out", "member_locks",
+__all__ = ["EXCLUDED_KEY", "check_allocation_locks", "excluded_out", "member_locks",
            "without_excluded"]
 
 EXCLUDED_KEY = "excluded_targets"  # the stats entry plan_out pops (never part of the answer's stats)
@@ -52,29 +50,6 @@ def member_locks(req: PlanRequest, members: Sequence[SkyTarget]) -> tuple[Target
     """The request's locks of the targets ``members``."""
     have = {t.id for t in members}
     return tuple(lk for lk in target_locks(req.locked) if lk.target_id in have)
-
-
-def check_pointing_locks(req: PlanRequest, seg: Segmentation, inst: Instrument) -> None:
-    """Every lock, in the pointing its target belongs to (projected as that pointing's plan
-    projects it): its arm reaches the target (through its branch) within the park move limit;
-    else a 422 naming ``locked[i]`` of the request."""
-    if not req.locked:
-        return
-    from service import pipeline  # the pointing's task and projection, as its plan makes them
-
-    where = {lk.target_id: i for i, lk in enumerate(req.locked)}
-    locks = target_locks(req.locked)
-    for index, pointing in enumerate(seg.pointings):
-        members = {req.targets[int(k)].id for k in pointing.target_indices}
-        mine = [n for n, lk in enumerate(locks) if lk.target_id in members]
-        if not mine:
-            continue
-        task = pipeline.pointing_task(req, seg, RoundTask(index, 1, 0.0))
-        p = task.pointing
-        targets = pipeline.sky_plane_targets(task.members, p.ra_deg % 360.0, p.dec_deg, inst,
-                                             task.position_angle_deg)
-        check_locks(inst, targets, [locks[n] for n in mine], park_move_limit_s=req.park_move_limit_s,
-                    index=[where[locks[n].target_id] for n in mine])
 
 
 def excluded_out(stats: dict[str, Any]) -> tuple[list[dict[str, Any]], tuple[SkyTarget, ...]]:

@@ -25,7 +25,7 @@ def plan_sky(req: PlanRequest) -> SkyRequest:
 
 
 def task_sky(task: Any, inst: Instrument) -> SkyField | None:
-    """The :class:`planner.sky.SkyField` of a :class:`service.pipeline.PointingTask`'s pointing
+    """The :class:`planner.sky.SkyField` of a :class:`service.pointing_plans.PointingTask`'s pointing
     (None: no sky placement)."""
     if task.sky is None:
         return None

@@ -26,7 +26,7 @@ from typing import Any
 from models.instrument import Instrument
 from planner import stages
 from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
-from service import adapters, pipeline, plan_locks
+from service import adapters, pipeline, plan_locks, pointing_plans
 from service.jobs import JobStore
 from service.plan_consolidation import consolidated
 from service.round_tasks import round_task
@@ -42,7 +42,7 @@ def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
 
 def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instrument,
              runner: PointingRunner, *, budget_s: float | None = None,
-             progress: pipeline.Progress = lambda _: None,
+             progress: pointing_plans.Progress = lambda _: None,
              cancelled: threading.Event | None = None,
              on_stage: pipeline.Stage = lambda _: None) -> dict[str, Any] | None:
     """Run (or resume) plan job ``job_id`` owned by ``owner`` on ``runner``; its
@@ -62,9 +62,9 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     req, excluded = plan_locks.without_excluded(req, inst)
     limit = pipeline.plan_limit_s(req, budget_s)
     stage = pipeline.Stages(on_stage)
-    stage(stages.segmentation_stage(pipeline.plan_mode(req)))
+    stage(stages.segmentation_stage(pointing_plans.plan_mode(req)))
     seg = pipeline.segment_plan(req, inst, limit)
-    plan_locks.check_pointing_locks(req, seg, inst)
+    pointing_plans.check_pointing_locks(req, seg, inst)
     n = len(seg.pointings)
     if not store.start_pointings(job_id, owner, n):
         return None
@@ -81,16 +81,16 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
 
     def recorded(task: RoundTask) -> PointingOutcome | None:
         old = answers.get(task.index)
-        rounds = [] if old is None else pipeline.outcomes_of(old, task.index)
+        rounds = [] if old is None else pointing_plans.outcomes_of(old, task.index)
         return next((o for o in rounds if o.round == task.round), None)
 
     def on_done(index: int, answer: dict[str, Any]) -> bool:
-        rounds = pipeline.outcomes_of(answer, index)
+        rounds = pointing_plans.outcomes_of(answer, index)
         old = answers.get(index)
         if old is not None and rounds and any(
-                o.round == rounds[-1].round for o in pipeline.outcomes_of(old, index)):
+                o.round == rounds[-1].round for o in pointing_plans.outcomes_of(old, index)):
             return True  # the same round computed twice (a re-run task): keep the first
-        kept = pipeline.keep_better(old, answer, index)
+        kept = pointing_plans.keep_better(old, answer, index)
         if not store.commit_pointing(job_id, owner, index, kept, replace=old is not None):
             return False
         answers[index] = kept
@@ -122,7 +122,7 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
         return [recorded(t) for t in tasks]  # type: ignore[misc]
 
     try:
-        history = run_rounds(pipeline.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute,
+        history = run_rounds(pointing_plans.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute,
                              spend_margin=pipeline.spends_margin(req))
     except _Stopped:
         return None
@@ -147,7 +147,7 @@ class _RoundProgress:
     and its stage (:func:`planner.stages.plan_stage`): ``done`` of the round's ``total``
     tasks, plus the part done of the one being computed."""
 
-    progress: pipeline.Progress
+    progress: pointing_plans.Progress
     stage: pipeline.Stage
     round_: int
     total: int

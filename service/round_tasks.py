@@ -1,5 +1,5 @@
 """A round's task of one pointing, as both plan flows (the synchronous plan and a plan job)
-compute it: :func:`service.pipeline.pointing_task`, or, when the round plans the pointing
+compute it: :func:`service.pointing_plans.pointing_task`, or, when the round plans the pointing
 again from its best plan so far (:func:`planner.programme.keeps_plan`), that task with the
 plan's configurations as its allocation (observed as they are) and the plan's verified legs
 for its motion planner to reuse (:mod:`planner.known_legs`)."""
@@ -13,7 +13,7 @@ from typing import Any
 from models.instrument import Instrument
 from models.types import AllocationResult, Configuration, Unallocated
 from planner.programme import RoundTask, keeps_plan, rank
-from service import adapters, pipeline
+from service import adapters, pointing_plans
 from service.schemas import PlanRequest
 from solvers.segmentation import Segmentation
 
@@ -21,11 +21,11 @@ __all__ = ["allocation_in", "round_task"]
 
 
 def round_task(req: PlanRequest, seg: Segmentation, task: RoundTask, inst: Instrument,
-               best: Mapping[str, Any] | None) -> pipeline.PointingTask:
+               best: Mapping[str, Any] | None) -> pointing_plans.PointingTask:
     """The task of pointing ``task.index`` in ``task.round``; ``best``: the PlanPointing dict
     the rounds keep for it so far (None: none yet)."""
-    out = pipeline.pointing_task(req, seg, task)
-    if best is None or not keeps_plan(max(pipeline.outcomes_of(best, task.index), key=rank, default=None),
+    out = pointing_plans.pointing_task(req, seg, task)
+    if best is None or not keeps_plan(max(pointing_plans.outcomes_of(best, task.index), key=rank, default=None),
                                       task.round):
         return out
     members = [req.targets[int(k)].id for k in seg.pointings[task.index].target_indices]

@@ -1,6 +1,6 @@
 """Where the pointings of a plan job are computed: the engine behind one small interface.
 
-A :class:`PointingRunner` takes the :class:`~service.pipeline.PointingTask` s still to do and
+A :class:`PointingRunner` takes the :class:`~service.pointing_plans.PointingTask` s still to do and
 calls ``on_done(index, answer)`` as each pointing finishes (in any order); ``on_done`` commits
 it and returns False when the job must stop (it was cancelled or is no longer this server's),
 and so does ``keep_going()``, which the runner polls while pointings run. A runner that sees
@@ -31,8 +31,8 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol
 
 from models.instrument import Instrument
-from service import pipeline
-from service.pipeline import PointingTask
+from service import pointing_plans
+from service.pointing_plans import PointingTask
 
 OnDone = Callable[[int, dict[str, Any]], bool]
 KeepGoing = Callable[[], bool]
@@ -80,8 +80,8 @@ class LocalPoolRunner:
         self.poll_s = poll_s
 
     def compute(self, task: PointingTask, inst: Instrument,
-                progress: pipeline.Progress) -> dict[str, Any]:
-        return pipeline.pointing_result(task, inst, progress)
+                progress: pointing_plans.Progress) -> dict[str, Any]:
+        return pointing_plans.pointing_result(task, inst, progress)
 
     def run(self, tasks: Sequence[PointingTask], inst: Instrument, on_done: OnDone,
             keep_going: KeepGoing, partial: Partial = _no_partial) -> bool:
@@ -152,7 +152,7 @@ class DaskRunner:
         try:
             while True:
                 while len(running) < window and (task := next(todo, None)) is not None:
-                    running[client.submit(pipeline.pointing_result, task, inst, pure=False,
+                    running[client.submit(pointing_plans.pointing_result, task, inst, pure=False,
                                           key=f"mxs-pointing-{task.index}-{time.time_ns()}")] = task.index
                 if not running:
                     return True

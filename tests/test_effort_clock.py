@@ -20,7 +20,7 @@ from planner import timeline as timeline_module
 from planner.effort import PLANNER_WORK_S
 from planner.kernels import compile_kernels
 from planner.programme import RoundTask
-from service import pipeline
+from service import pipeline, pointing_plans
 from service.errors import json_safe
 from service.schemas import PlanRequest
 
@@ -188,8 +188,8 @@ def _pointing(share_s: float) -> dict:
     req = PlanRequest.model_validate({"targets": targets, "seed": 4})
     seg = pipeline.segment_plan(req, INST)
     assert len(seg.pointings) == 1
-    task = pipeline.pointing_task(req, seg, RoundTask(0, 1, share_s))
-    return json.loads(json.dumps(json_safe(pipeline.pointing_result(task, INST))))
+    task = pointing_plans.pointing_task(req, seg, RoundTask(0, 1, share_s))
+    return json.loads(json.dumps(json_safe(pointing_plans.pointing_result(task, INST))))
 
 
 def test_a_pointing_is_planned_the_same_on_a_slower_machine(monkeypatch) -> None:

@@ -252,7 +252,7 @@ def test_a_tampered_kept_configuration_is_a_422_naming_it(base, client, how, loc
 
 def test_kept_configurations_are_checked_in_the_domain() -> None:
     """Without the service: an arm on a target its tip is not on, and a target observed twice."""
-    from service.pipeline import sky_plane_targets
+    from service.pointing_plans import sky_plane_targets
     from service.schemas import SkyTarget
 
     members = [SkyTarget(**t) for t in TARGETS[:3]]

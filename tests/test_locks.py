@@ -212,16 +212,16 @@ def focal_reach() -> dict[str, np.ndarray]:
     """Each target's IK reach in its pointing, as the plan projects it (its segmentation is
     deterministic for the request)."""
     from planner.programme import RoundTask
-    from service import pipeline
+    from service import pipeline, pointing_plans
     from service.schemas import PlanRequest
 
     req = PlanRequest(targets=sky_rows(), time_limit_s=30, seed=1)
     seg = pipeline.segment_plan(req, INST, 30)
     out = {}
     for i in range(len(seg.pointings)):
-        task = pipeline.pointing_task(req, seg, RoundTask(i, 1, 0.0))
+        task = pointing_plans.pointing_task(req, seg, RoundTask(i, 1, 0.0))
         p = task.pointing
-        tg = pipeline.sky_plane_targets(task.members, p.ra_deg % 360, p.dec_deg, INST, task.position_angle_deg)
+        tg = pointing_plans.sky_plane_targets(task.members, p.ra_deg % 360, p.dec_deg, INST, task.position_angle_deg)
         for t, x, y in zip(tg.ids, tg.x_mm, tg.y_mm, strict=True):
             out[t] = ik_valid(float(x), float(y))
     return out

@@ -17,7 +17,7 @@ from models.kinematics import tip_fov
 from models.sky import focal_mm_to_sky
 from models.types import PlaneTargets
 from planner.reassign import other_branches, take_out, try_place
-from service import pipeline
+from service import pointing_plans
 from service.app import create_app
 from service.cli import EXIT_INVALID_INPUT, build_parser, main
 from service.schemas import PlanRequest
@@ -217,7 +217,7 @@ def test_the_default_mode_turns_the_pointing_to_reach_rim_targets(tmp_path) -> N
     assert all(p["position_angle_deg"] not in (None, 0.0) for p in out["pointings"])
     # the request without a mode is this request: the optimiser is the default
     default = PlanRequest.model_validate({k: v for k, v in body.items() if k != "segmentation_mode"})
-    assert pipeline.plan_mode(default) == body["segmentation_mode"]
+    assert pointing_plans.plan_mode(default) == body["segmentation_mode"]
 
 
 def test_cli_park_move_limit_flags(monkeypatch, tmp_path) -> None:

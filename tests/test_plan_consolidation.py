@@ -35,7 +35,7 @@ from planner.consolidation import (
 )
 from planner.programme import SHARES, PointingOutcome, RoundTask, better, usable_s
 from planner.validate import validate_plan
-from service import pipeline, plan_consolidation
+from service import pipeline, plan_consolidation, pointing_plans
 from service.schemas import PlanRequest
 from solvers.programme.fill import within
 from tests.plan_jobs import plan_job_result
@@ -234,10 +234,10 @@ def test_the_pass_plans_a_failed_pointing_again_and_keeps_its_best_plan(monkeypa
         calls.append((task.index, task.round))
         ok = task.index != 1 or task.round >= 4
         out = PointingOutcome(task.index, task.round, task.share_s, 0.5 * task.share_s, ok, 0 if ok else 2, 10)
-        return {"id": f"P{task.index}", "executable": ok, "stats": {"rounds": [pipeline.outcome_out(out)]}}
+        return {"id": f"P{task.index}", "executable": ok, "stats": {"rounds": [pointing_plans.outcome_out(out)]}}
 
-    monkeypatch.setattr(pipeline, "pointing_result", result)
-    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t, known=None: t)
+    monkeypatch.setattr(pointing_plans, "pointing_result", result)
+    monkeypatch.setattr(pointing_plans, "pointing_task", lambda req, seg, t, known=None: t)
     seen = []
 
     def again(tries):
@@ -327,7 +327,7 @@ def test_every_round_records_what_its_allocation_took(plans) -> None:
     for r in rounds:
         assert 0.0 < r["allocation_effort_s"] <= r["effort_s"]
     for i, p in enumerate(plan["pointings"]):
-        back = pipeline.outcomes_of(p, i)
+        back = pointing_plans.outcomes_of(p, i)
         assert [o.allocation_effort_s for o in back] == [r["allocation_effort_s"] for r in p["stats"]["rounds"]]
         assert [(o.exposures, o.exposures_added) for o in back] == [
             (r["exposures"], r["exposures_added"]) for r in p["stats"]["rounds"]]
@@ -410,7 +410,7 @@ def test_each_pass_runs_on_what_the_earlier_passes_left(monkeypatch) -> None:
         return seg, answers, {**stats, "reason": "the changed pointings' plans were not better"}, tries, frozenset()
 
     monkeypatch.setattr(plan_consolidation, "_pass", one)
-    monkeypatch.setattr(pipeline, "plan_mode", lambda req: "fewest-exposures")
+    monkeypatch.setattr(pointing_plans, "plan_mode", lambda req: "fewest-exposures")
     req = PlanRequest.model_validate(_request())
     seg, _, stats = plan_consolidation.consolidated(req, INST, "seg0", [], rounds, 100.0, lambda: 50.0)
     assert seg == "seg2"  # the last accepted pass's plan
@@ -494,7 +494,7 @@ def test_a_refused_pass_runs_again_without_the_pointings_whose_plans_failed(monk
         return seg, answers, {**stats, "reason": "not better"}, [], frozenset()
 
     monkeypatch.setattr(plan_consolidation, "_pass", one)
-    monkeypatch.setattr(pipeline, "plan_mode", lambda req: "fewest-exposures")
+    monkeypatch.setattr(pointing_plans, "plan_mode", lambda req: "fewest-exposures")
     req = PlanRequest.model_validate(_request())
     seg, _, stats = plan_consolidation.consolidated(req, INST, "seg0", [], [], 100.0, lambda: 50.0)
     assert seen == [frozenset(), frozenset({2, 5}), frozenset({2, 5})]
@@ -711,8 +711,8 @@ def test_a_changed_pointings_plan_keeps_back_the_margin_for_its_answer(monkeypat
         seen.append(wall_limit_s)
         raise Stop
 
-    monkeypatch.setattr(pipeline, "pointing_task", lambda req, seg, t, known=None: t)
-    monkeypatch.setattr(pipeline, "pointing_result", result)
+    monkeypatch.setattr(pointing_plans, "pointing_task", lambda req, seg, t, known=None: t)
+    monkeypatch.setattr(pointing_plans, "pointing_result", result)
     lefts = (60.0, 12.0, 0.8, -1.0)
     for left in lefts:
         with pytest.raises(Stop):

@@ -30,7 +30,7 @@ from models.budget import Budget
 from models.errors import InputError
 from models.instrument import load_instrument
 from models.sky import focal_mm_to_sky, sky_to_focal_mm, tangent_radius_mm
-from service import pipeline
+from service import pipeline, pointing_plans
 from service.schemas import PlanRequest
 from solvers.programme import FillOptions, lower_bound, segment_programme
 from solvers.programme.bound import RADIUS_SLACK
@@ -750,11 +750,11 @@ def test_the_default_mode_is_complete_linkage_beyond_the_optimisers_size() -> No
                              "priority": int(prio[i])} for i in range(n)]}
         return PlanRequest.model_validate(body if mode is None else {**body, "segmentation_mode": mode})
 
-    assert pipeline.plan_mode(request(MAX_TARGETS)) == "fewest-exposures"
+    assert pointing_plans.plan_mode(request(MAX_TARGETS)) == "fewest-exposures"
     big = request(MAX_TARGETS + 1)
-    assert pipeline.plan_mode(big) == "complete-linkage"
+    assert pointing_plans.plan_mode(big) == "complete-linkage"
     seg = pipeline.segment_plan(big, INST, 120.0)
     assert seg.stats["mode"] == "complete-linkage"
     assert sum(len(p.target_indices) for p in seg.pointings) == MAX_TARGETS + 1
     assert pipeline.rounds_limit_s(big, 120.0, seg) == 120.0
-    assert pipeline.plan_mode(request(5, "balanced")) == "balanced"
+    assert pointing_plans.plan_mode(request(5, "balanced")) == "balanced"

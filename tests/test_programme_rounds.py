@@ -191,16 +191,16 @@ def test_progress_never_falls_and_reaches_one_only_when_the_rounds_are_done(n_ro
 def test_a_synchronous_plan_reports_later_rounds_below_one(monkeypatch) -> None:
     """POST /v1/plans' loop: pointing 0 fails its first round; the progress heard never
     falls, and stays below 1 until the second round has planned it."""
-    from service import pipeline
+    from service import pipeline, pointing_plans
     from service.schemas import PlanRequest
 
     def fake_result(task, inst, progress, *, wall_limit_s=None):
         progress(0.5)
         ok = task.index != 0 or task.round > 1
         o = PointingOutcome(task.index, task.round, task.share_s, 0.1, ok, 0 if ok else 1, 2)
-        return {"configurations": [], "motions": [], "unallocated": [], "stats": {"rounds": [pipeline.outcome_out(o)]}}
+        return {"configurations": [], "motions": [], "unallocated": [], "stats": {"rounds": [pointing_plans.outcome_out(o)]}}
 
-    monkeypatch.setattr(pipeline, "pointing_result", fake_result)
+    monkeypatch.setattr(pointing_plans, "pointing_result", fake_result)
     heard: list[float] = []
     targets = _case_targets()
     req = PlanRequest.model_validate({"targets": targets, "seed": 12, "segmentation_mode": "complete-linkage"})

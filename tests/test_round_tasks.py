@@ -13,7 +13,7 @@ import pytest
 from models.instrument import default_instrument
 from planner import programme as pp
 from planner.programme import PointingOutcome, RoundTask
-from service import pipeline
+from service import pipeline, pointing_plans
 from service.round_tasks import allocation_in, round_task
 from service.schemas import PlanRequest
 
@@ -61,7 +61,7 @@ def test_a_failed_leg_is_planned_again_from_the_best_plan(planned, where: str) -
     best = _failed(answer, leg)
     task = round_task(req, seg, RoundTask(i, 2, 20.0), INST, best)
     assert task.options.allocation_final and task.options.known_legs is not None
-    again = pipeline.pointing_result(task, INST)
+    again = pointing_plans.pointing_result(task, INST)
     assert again["executable"], again["reasons"]
     # the same targets on the same arms at the same joint angles, exposure by exposure
     assert _targets_by_exposure(again) == _targets_by_exposure(answer)
@@ -72,7 +72,7 @@ def test_a_failed_leg_is_planned_again_from_the_best_plan(planned, where: str) -
 
 def test_other_rounds_and_plans_get_the_fresh_task(planned) -> None:
     req, seg, i, answer = planned
-    fresh = pipeline.pointing_task(req, seg, RoundTask(i, 2, 20.0))
+    fresh = pointing_plans.pointing_task(req, seg, RoundTask(i, 2, 20.0))
     assert fresh.options.known_legs is None
     for task, best in ((RoundTask(i, 1, 20.0), _failed(answer, 0)),  # a first round searches
                        (RoundTask(i, 2, 20.0), answer),  # an executable plan is not planned again from
