@@ -70,6 +70,7 @@ from benchmarks.serve import (  # noqa: E402
     cpu_s,
     end,
     probe_health,
+    probe_while,
     rss_mb,
     start_server,
     tree,
@@ -206,22 +207,8 @@ def _greedy_status(c: httpx.Client, req: dict[str, Any]) -> str:
 
 def _prober(url: str, seconds: float, every_s: float, out: Any) -> None:
     """Get ``/v1/health`` every ``every_s`` for ``seconds``; send (latencies s, failures)."""
-    lat: list[float] = []
-    fails = 0
     stop = time.monotonic() + seconds
-    with httpx.Client(base_url=url, timeout=10) as c:
-        while time.monotonic() < stop:
-            t0 = time.perf_counter()
-            try:
-                ok = c.get("/v1/health").status_code == 200
-            except httpx.HTTPError:
-                ok = False
-            if ok:
-                lat.append(time.perf_counter() - t0)
-            else:
-                fails += 1
-            time.sleep(every_s)
-    out.send((lat, fails))
+    out.send(probe_while(url, lambda: time.monotonic() < stop, every_s))
     out.close()
 
 

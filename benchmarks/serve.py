@@ -13,6 +13,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +40,9 @@ class Server:
         return self.proc.pid
 
 
-def start_server(db: Path, **env: Any) -> Server:
+def start_server(db: Path, start_timeout_s: float = 60.0, **env: Any) -> Server:
+    """``mxs-planner serve`` on a free port with job database ``db`` and the settings ``env``
+    (``workers=1`` is ``MXS_WORKERS=1``), once its health answers (within ``start_timeout_s``)."""
     port = free_port()
     full = {**os.environ, "MXS_JOB_DB": str(db), **{f"MXS_{k.upper()}": str(v)
                                                      for k, v in env.items()}}
@@ -47,7 +50,7 @@ def start_server(db: Path, **env: Any) -> Server:
                              "--log-level", "warning"], cwd=ROOT, env=full,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + start_timeout_s
     while time.monotonic() < deadline:
         try:
             if httpx.get(url + "/v1/health", timeout=1).status_code == 200:
@@ -149,22 +152,27 @@ def probe_health(url: str, threads: list[threading.Thread], every_s: float = 0.0
     latencies of its answers (s), and how many probes failed."""
     for t in threads:
         t.start()
+    out = probe_while(url, lambda: any(t.is_alive() for t in threads), every_s)
+    for t in threads:
+        t.join()
+    return out
+
+
+def probe_while(url: str, going: Callable[[], bool], every_s: float) -> tuple[list[float], int]:
+    """Ask ``/v1/health`` every ``every_s`` while ``going()``: the latencies of its answers
+    (s), and how many probes failed."""
     lat: list[float] = []
     fails = 0
     with httpx.Client(base_url=url, timeout=10) as c:
-        while any(t.is_alive() for t in threads):
-            t0 = time.monotonic()
+        while going():
+            t0 = time.perf_counter()
             try:
                 ok = c.get("/v1/health").status_code == 200
             except httpx.HTTPError:
                 ok = False
             if ok:
-                lat.append(time.monotonic() - t0)
+                lat.append(time.perf_counter() - t0)
             else:
                 fails += 1
             time.sleep(every_s)
-    for t in threads:
-        t.join()
     return lat, fails
-
-

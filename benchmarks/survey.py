@@ -26,7 +26,6 @@ import io
 import json
 import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -39,7 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.serve import free_port  # noqa: E402
+from benchmarks.serve import start_server  # noqa: E402
 
 
 def targets(n: int, area_deg2: float, seed: int) -> tuple[list[str], np.ndarray, np.ndarray,
@@ -71,25 +70,6 @@ def memory_mb(pid: int) -> dict[str, float]:
     return {"rss_mb": kb["VmRSS"] / 1024, "peak_rss_mb": kb["VmHWM"] / 1024}
 
 
-def start_server(db: Path) -> tuple[subprocess.Popen[bytes], str]:
-    port = free_port()
-    env = {**os.environ, "MXS_JOB_DB": str(db), "MXS_WORKERS": "1",
-           "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.Popen([sys.executable, "-m", "service.cli", "serve", "--port", str(port),
-                             "--log-level", "warning"], cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    url = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(url + "/v1/health", timeout=1).status_code == 200:
-                return proc, url
-        except httpx.HTTPError:
-            time.sleep(0.1)
-    proc.kill()
-    raise RuntimeError("server did not start")
-
-
 def step(name: str, pid: int, call: Any) -> tuple[dict[str, Any], httpx.Response]:
     t0 = time.perf_counter()
     r = call()
@@ -113,7 +93,8 @@ def run(n: int, area_deg2: float, seed: int) -> dict[str, Any]:
                           zip(ids, ra.tolist(), dec.tolist(), prio.tolist(), strict=True)]}
     body = json.dumps(inline).encode()
     with tempfile.TemporaryDirectory(prefix="mxs-survey-") as tmp:
-        proc, url = start_server(Path(tmp) / "jobs.sqlite3")
+        srv = start_server(Path(tmp) / "jobs.sqlite3", start_timeout_s=120.0, workers=1)
+        proc, url = srv.proc, srv.url
         try:
             rows = [{"step": "idle server", "wall_s": 0.0, **memory_mb(proc.pid)}]
             with httpx.Client(base_url=url, timeout=600) as c:
