@@ -81,10 +81,28 @@ def segment_distance_xy(p0x, p0y, p1x, p1y, q0x, q0y, q1x, q1y) -> np.ndarray:
                                      _point_segment(bx_, by_, cx_, cy_, ex_, ey_)),
                           np.minimum(_point_segment(cx_, cy_, ax_, ay_, bx_, by_),
                                      _point_segment(ex_, ey_, ax_, ay_, bx_, by_)))
+        # nearly parallel segments that cross (each one's ends on either side of the other)
+        ends = np.where(_crossing(ax_, ay_, bx_, by_, cx_, cy_, ex_, ey_), 0.0, ends)
         if out.ndim == 0:
             return np.asarray(min(float(out), float(ends[0])))
         out[m] = np.minimum(out[m], ends)
     return out
+
+
+def _crossing(ax, ay, bx, by, cx, cy, ex, ey) -> np.ndarray:
+    """Whether nearly parallel segments a-b and c-e cross: c and e lie on either side of
+    a-b's line (or on it), a and b on either side of c-e's, and their spans along a-b
+    overlap (which keeps the rounding of the side tests on collinear segments from making
+    disjoint ones cross; collinear ones keep their end points' distance, exact for them)."""
+    def side(px, py, qx, qy, rx, ry):
+        return (qx - px) * (ry - py) - (qy - py) * (rx - px)
+
+    dx, dy = bx - ax, by - ay
+    ll = np.where(dx * dx + dy * dy > _EPS, dx * dx + dy * dy, 1.0)
+    tc, te = ((cx - ax) * dx + (cy - ay) * dy) / ll, ((ex - ax) * dx + (ey - ay) * dy) / ll
+    overlap = np.maximum(np.minimum(tc, te), 0.0) <= np.minimum(np.maximum(tc, te), 1.0)
+    return (overlap & (side(ax, ay, bx, by, cx, cy) * side(ax, ay, bx, by, ex, ey) <= 0.0)
+            & (side(cx, cy, ex, ey, ax, ay) * side(cx, cy, ex, ey, bx, by) <= 0.0))
 
 
 def _point_segment(px, py, ax, ay, bx, by) -> np.ndarray:

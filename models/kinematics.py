@@ -15,6 +15,8 @@ from models.instrument import Instrument
 
 TWO_PI = 2.0 * np.pi
 THETA1_TOL_RAD = 1e-9  # park sits exactly on the theta1 = pi limit
+#: relative rounding of the J3 circle intersection taken as tangency (a point at the arm's full reach)
+H2_TOL = 1e-12
 
 
 @dataclass(frozen=True)
@@ -147,7 +149,9 @@ def inverse(x_mm, y_mm, links: Links) -> IKSolutions:
     with np.errstate(invalid="ignore", divide="ignore"):
         d = np.hypot(px, py)[..., None]
         a = (d**2 + d13**2 - d3t**2) / (2 * d)
-        h = np.sqrt(d13**2 - a**2)
+        h2 = d13**2 - a**2
+        # a point at the full reach (tangent circles) rounds h2 to a tiny negative: h = 0 there
+        h = np.sqrt(np.where((h2 < 0.0) & (h2 > -H2_TOL * d13**2), 0.0, h2))
         ux, uy = px[..., None] / d, py[..., None] / d
         sign3 = np.array([1.0, 1.0, -1.0, -1.0])
         sign4 = np.array([1.0, -1.0, 1.0, -1.0])

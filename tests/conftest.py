@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import socket
 import threading
 import time
@@ -11,6 +12,13 @@ from pathlib import Path
 
 import httpx
 import pytest
+from hypothesis import settings
+
+# The suite runs on fixed seeds: each property test draws the same examples on every run
+# (``derandomize``). MXS_HYPOTHESIS_EXPLORE=1 draws new ones, to look for new edge cases.
+settings.register_profile("fixed", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile("explore" if os.environ.get("MXS_HYPOTHESIS_EXPLORE") else "fixed")
 
 
 def free_port() -> int:

@@ -106,6 +106,20 @@ def test_segment_distance_matches_shapely(ax, ay, bx, by, cx, cy, dx, dy) -> Non
     assert abs(float(d) - shapely.distance(ga, gb)) <= 1.5e-6
 
 
+def test_nearly_parallel_segments_that_cross_touch() -> None:
+    """Segments too close to parallel for the general closest-point formula that still
+    cross are at distance 0 (shapely), at any rotation; collinear ones keep their end points'
+    distance."""
+    a0, a1, b0, b1 = np.array([-7.0, 4e-6]), np.array([0.0, 0.0]), np.array([-10.0, 0.0]), np.array([0.0, 4e-6])
+    for ang in np.radians([0.0, 17.0, 90.0, 200.0]):
+        rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+        p = [rot @ v for v in (a0, a1, b0, b1)]
+        want = shapely.distance(shapely.LineString(p[:2]), shapely.LineString(p[2:]))
+        assert abs(float(segment_distance_mm(*p)) - want) <= 1.5e-6
+    assert float(segment_distance_mm(np.array([0.0, 0.0]), np.array([10.0, 0.0]),
+                                     np.array([11.0, 0.0]), np.array([20.0, 0.0]))) == 1.0
+
+
 def test_other_fcl_shapes_from_the_instrument_file() -> None:
     """A box/sphere instrument works through FCL without code changes."""
     import tomllib

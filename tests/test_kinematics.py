@@ -39,6 +39,18 @@ def _fov_grid(step_mm: float = 2.5) -> tuple[np.ndarray, np.ndarray]:
     return x[inside], y[inside]
 
 
+def test_a_tip_at_the_full_reach_is_reachable() -> None:
+    """theta1 a rounding below pi with theta2 = 0 stretches the arm to its full reach: the
+    J3 circles are tangent there and rounding must not lose the solution."""
+    for arm in range(12):
+        t1 = float(np.nextafter(np.pi, 0.0))
+        tip = tip_fov(INS, arm, t1, 0.0)
+        sol = inverse_fov(INS, arm, tip[0], tip[1])
+        assert sol.valid.any(), arm
+        b = np.flatnonzero(sol.valid[0])[0]
+        assert np.hypot(*(tip_fov(INS, arm, sol.theta1_rad[0, b], sol.theta2_rad[0, b]) - tip)) < 1e-6
+
+
 @settings(max_examples=300, deadline=None)
 @given(
     arm=st.integers(0, 11),
