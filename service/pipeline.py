@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from datetime import UTC, date, datetime
 from functools import lru_cache
 from typing import Any
@@ -306,6 +307,43 @@ def rounds_limit_s(req: PlanRequest, limit_s: float, seg: Segmentation) -> float
     return programme.rounds_limit_s(limit_s, len(req.targets), used_s)
 
 
+@dataclass(frozen=True)
+class PlanRounds:
+    """How a plan computes its pointings in the rounds of :func:`planner.programme.run_rounds`:
+    ``compute`` plans a round's tasks and returns their outcomes; ``answers`` holds each
+    pointing's answer kept so far (:func:`service.pointing_plans.keep_better`), by index. A
+    synchronous plan computes them here (:func:`plan_pointings`), a plan job on its runner,
+    committing each (:func:`service.programme.run_plan`)."""
+
+    compute: Callable[[Sequence[RoundTask]], list[PointingOutcome]]
+    answers: Mapping[int, dict[str, Any]]
+
+
+def plan_programme(req: PlanRequest, inst: Instrument, limit_s: float, stage: Stages,
+                   rounds_for: Callable[[Segmentation], PlanRounds | None], left_s: Callable[[], float],
+                   sync_s: float | None) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]] | None:
+    """The one driver of a plan, synchronous or a job: segmentation (its locks checked in their
+    pointings) -> the pointings in rounds (``rounds_for(seg)``: None stops the plan) -> the
+    plan's ``time_limit_advice`` (:func:`limit_advice`, ``sync_s``: the longest synchronous
+    limit, None for a job) -> the consolidation after the rounds, within ``left_s()``. Its
+    segmentation, its pointings' answers and the stats they share."""
+    stage(stages.segmentation_stage(pointing_plans.plan_mode(req)))
+    seg = segment_plan(req, inst, limit_s)
+    pointing_plans.check_pointing_locks(req, seg, inst)
+    rounds = rounds_for(seg)
+    if rounds is None:
+        return None
+    pointings_limit_s = rounds_limit_s(req, limit_s, seg)
+    history = run_rounds(pointing_needs(seg, req), pointings_limit_s, rounds.compute,
+                         spend_margin=spends_margin(req))
+    pointings = [rounds.answers[i] for i in range(len(seg.pointings))]
+    advice = limit_advice(req, seg, pointings, history, limit_s, sync_s)
+    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, pointings_limit_s, left_s)
+    stage(stages.ASSEMBLING)
+    return seg, pointings, {**consolidation, "time_limit_s": limit_s, "rounds": len(history),
+                            **({} if advice is None else {"time_limit_advice": advice})}
+
+
 def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = no_progress, *,
                    budget_s: float | None = None, on_stage: Stage = _no_stage,
                    ) -> tuple[Segmentation, list[dict[str, Any]], dict[str, Any]]:
@@ -313,7 +351,7 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = no_p
     (``position_angle_deg``) -> allocation (all configurations) -> executable motion sequence
     park -> c1 -> ... -> park (:func:`planner.programme.plan_pointing`), in the rounds of
     :func:`planner.programme.run_rounds` (shares by need, then what is left to the pointings
-    with a failed leg), as a plan job computes them.
+    with a failed leg), computed here one after the other (:func:`plan_programme`).
 
     The whole plan ends within :func:`plan_limit_s`: a pointing's share is cut to what the
     limit has left when a slow machine left less (then the limit comes first). ``on_stage``
@@ -322,37 +360,32 @@ def plan_pointings(req: PlanRequest, inst: Instrument, progress: Progress = no_p
     limit = plan_limit_s(req, budget_s)
     budget = Budget.start(limit - wall_reserve_s(limit, len(req.targets)))  # the wall clock: outside any effort block
     stage = Stages(on_stage)
-    stage(stages.segmentation_stage(pointing_plans.plan_mode(req)))
-    seg = segment_plan(req, inst, limit)
-    pointing_plans.check_pointing_locks(req, seg, inst)
-    progress(plan_progress(1, 0, 1))
-    answers: dict[int, dict[str, Any]] = {}
 
     def report(round_: int, done: float, total: int) -> None:
         progress(plan_progress(round_, done, total))
         stage(stages.plan_stage(round_, done, total))
 
-    def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
-        for done, task in enumerate(tasks):
-            i = task.index
-            answer = pointing_plans.pointing_result(
-                round_task(req, seg, task, inst, answers.get(i)), inst,
-                lambda f, d=done, r=task.round: report(r, d + f, len(tasks)),
-                wall_limit_s=max(budget.left_s(), 0.0))
-            answers[i] = keep_better(answers.get(i), answer, i)
-            report(task.round, done + 1, len(tasks))
-        return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
+    def rounds_for(seg: Segmentation) -> PlanRounds:
+        progress(plan_progress(1, 0, 1))
+        answers: dict[int, dict[str, Any]] = {}
 
-    history = run_rounds(pointing_needs(seg, req), rounds_limit_s(req, limit, seg), compute,
-                         spend_margin=spends_margin(req))
-    pointings = [answers[i] for i in range(len(seg.pointings))]
-    advice = limit_advice(req, seg, pointings, history, limit, sync_limit_s(budget_s))
-    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history, rounds_limit_s(req, limit, seg),
-                                                 budget.left_s)
-    stage(stages.ASSEMBLING)
-    return seg, pointings, {
-        **consolidation, "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
-        "elapsed_s": budget.elapsed_s(), **({} if advice is None else {"time_limit_advice": advice})}
+        def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
+            for done, task in enumerate(tasks):
+                i = task.index
+                answer = pointing_plans.pointing_result(
+                    round_task(req, seg, task, inst, answers.get(i)), inst,
+                    lambda f, d=done, r=task.round: report(r, d + f, len(tasks)),
+                    wall_limit_s=max(budget.left_s(), 0.0))
+                answers[i] = keep_better(answers.get(i), answer, i)
+                report(task.round, done + 1, len(tasks))
+            return [outcomes_of(answers[t.index], t.index)[-1] for t in tasks]
+
+        return PlanRounds(compute, answers)
+
+    planned = plan_programme(req, inst, limit, stage, rounds_for, budget.left_s, sync_limit_s(budget_s))
+    assert planned is not None  # a synchronous plan always computes its rounds
+    seg, pointings, stats = planned
+    return seg, pointings, {**stats, "budget_s": budget_s, "elapsed_s": budget.elapsed_s()}
 
 
 def spends_margin(req: PlanRequest) -> bool:
@@ -436,11 +469,17 @@ def plan(req: PlanRequest, inst: Instrument, progress: Progress = no_progress, *
     req, epoch = at_epoch(req)
     req, excluded = plan_locks.without_excluded(req, inst)
     seg, pointings, stats = plan_pointings(req, inst, progress, budget_s=budget_s, on_stage=on_stage)
-    stats = {**stats, **excluded}
-    few = few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s, left_out_of(stats))
-    out = plan_out(seg, pointings, req.targets, {**stats, **epoch}, few)
+    out = plan_answer(req, inst, seg, pointings, {**stats, **excluded, **epoch})
     progress(1.0)
-    return adapters.with_content_hash(out)
+    return out
+
+
+def plan_answer(req: PlanRequest, inst: Instrument, seg: Segmentation, pointings: Sequence[dict[str, Any]],
+                stats: dict[str, Any]) -> dict[str, Any]:
+    """A plan's PlanResponse dict, with its content hash: its pointings' answers, the stats,
+    and every exposure observing few targets with its reasons (:func:`few_target_exposures`)."""
+    few = few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s, left_out_of(stats))
+    return adapters.with_content_hash(plan_out(seg, pointings, req.targets, stats, few))
 
 
 def run(kind: str, request: Any, inst: Instrument, progress: Progress = no_progress,

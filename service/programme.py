@@ -20,18 +20,18 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from models.instrument import Instrument
 from planner import stages
-from planner.programme import PointingOutcome, RoundTask, plan_progress, run_rounds
+from planner.programme import PointingOutcome, RoundTask, plan_progress
 from service import adapters, pipeline, plan_locks, pointing_plans
 from service.jobs import JobStore
-from service.plan_consolidation import consolidated
 from service.round_tasks import round_task
 from service.runners import PointingRunner
 from service.schemas import PlanRequest
+from solvers.segmentation import Segmentation
 
 
 def _matches(answer: dict[str, Any], expected: dict[str, Any]) -> bool:
@@ -62,83 +62,101 @@ def run_plan(store: JobStore, job_id: str, owner: str, request: Any, inst: Instr
     req, excluded = plan_locks.without_excluded(req, inst)
     limit = pipeline.plan_limit_s(req, budget_s)
     stage = pipeline.Stages(on_stage)
-    stage(stages.segmentation_stage(pointing_plans.plan_mode(req)))
-    seg = pipeline.segment_plan(req, inst, limit)
-    pointing_plans.check_pointing_locks(req, seg, inst)
-    n = len(seg.pointings)
-    if not store.start_pointings(job_id, owner, n):
+    job = _JobRounds(store, job_id, owner, inst, req, runner, progress, stage, cancelled)
+    try:
+        planned = pipeline.plan_programme(req, inst, limit, stage, job.rounds_for,
+                                          lambda: limit - (time.monotonic() - t0), None)
+    except _Stopped:
         return None
-    ids = [t.id for t in req.targets]
-    expected = [adapters.pointing_out(p, ids) for p in seg.pointings]
-    done = store.pointing_results(job_id)
-    stale = [i for i, a in done.items() if i >= n or not _matches(a, expected[i])]
-    if stale:
-        store.drop_pointings(job_id, stale)
-    answers = {i: a for i, a in done.items() if i not in stale}
-    resumed = len(answers)
-    computed = [0]
-    committed = [resumed]
+    if planned is None:
+        return None
+    seg, pointings, stats = planned
+    return pipeline.plan_answer(req, inst, seg, pointings, {
+        **stats, "budget_s": budget_s, "elapsed_s": time.monotonic() - t0, "engine": runner.name,
+        "pointings_resumed": job.resumed, "pointings_computed": job.computed, **epoch, **excluded})
 
-    def recorded(task: RoundTask) -> PointingOutcome | None:
-        old = answers.get(task.index)
+
+@dataclass
+class _JobRounds:
+    """A plan job's rounds (:class:`service.pipeline.PlanRounds`): its pointings computed on
+    ``runner``, each answer committed to the job's table as it comes; a pointing committed by
+    an earlier attempt of the job (the same id and targets) is resumed, and a round whose
+    outcome a committed answer records is not computed again."""
+
+    store: JobStore
+    job_id: str
+    owner: str
+    inst: Instrument
+    req: PlanRequest
+    runner: PointingRunner
+    progress: pointing_plans.Progress
+    stage: pipeline.Stages
+    cancelled: threading.Event | None
+    answers: dict[int, dict[str, Any]] = field(default_factory=dict)
+    resumed: int = 0
+    computed: int = 0
+    committed: int = 0
+    n: int = 0
+
+    def rounds_for(self, seg: Segmentation) -> pipeline.PlanRounds | None:
+        """The job's rounds of ``seg``, its committed answers taken back (None: the job is no
+        longer ``owner``'s)."""
+        self.n = len(seg.pointings)
+        if not self.store.start_pointings(self.job_id, self.owner, self.n):
+            return None
+        ids = [t.id for t in self.req.targets]
+        expected = [adapters.pointing_out(p, ids) for p in seg.pointings]
+        done = self.store.pointing_results(self.job_id)
+        stale = [i for i, a in done.items() if i >= self.n or not _matches(a, expected[i])]
+        if stale:
+            self.store.drop_pointings(self.job_id, stale)
+        self.answers.update({i: a for i, a in done.items() if i not in stale})
+        self.resumed = self.committed = len(self.answers)
+        return pipeline.PlanRounds(lambda tasks: self._compute(seg, tasks), self.answers)
+
+    def _recorded(self, task: RoundTask) -> PointingOutcome | None:
+        old = self.answers.get(task.index)
         rounds = [] if old is None else pointing_plans.outcomes_of(old, task.index)
         return next((o for o in rounds if o.round == task.round), None)
 
-    def on_done(index: int, answer: dict[str, Any]) -> bool:
+    def _on_done(self, index: int, answer: dict[str, Any]) -> bool:
         rounds = pointing_plans.outcomes_of(answer, index)
-        old = answers.get(index)
+        old = self.answers.get(index)
         if old is not None and rounds and any(
                 o.round == rounds[-1].round for o in pointing_plans.outcomes_of(old, index)):
             return True  # the same round computed twice (a re-run task): keep the first
         kept = pointing_plans.keep_better(old, answer, index)
-        if not store.commit_pointing(job_id, owner, index, kept, replace=old is not None):
+        if not self.store.commit_pointing(self.job_id, self.owner, index, kept, replace=old is not None):
             return False
-        answers[index] = kept
+        self.answers[index] = kept
         if old is None:
-            committed[0] += 1
+            self.committed += 1
         return True
 
-    def keep_going() -> bool:
-        return not (cancelled is not None and cancelled.is_set()) and store.owns(job_id, owner)
+    def _keep_going(self) -> bool:
+        return (not (self.cancelled is not None and self.cancelled.is_set())
+                and self.store.owns(self.job_id, self.owner))
 
-    def compute(tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
-        todo = [round_task(req, seg, t, inst, answers.get(t.index)) for t in tasks if recorded(t) is None]
-        computed[0] += len(todo)
+    def _compute(self, seg: Segmentation, tasks: Sequence[RoundTask]) -> list[PointingOutcome]:
+        todo = [round_task(self.req, seg, t, self.inst, self.answers.get(t.index))
+                for t in tasks if self._recorded(t) is None]
+        self.computed += len(todo)
         first = tasks[0].round == 1  # the first round counts every pointing, resumed ones too
-        count = _RoundProgress(progress, stage, tasks[0].round, n if first else len(tasks),
-                               committed[0] if first else len(tasks) - len(todo))
+        count = _RoundProgress(self.progress, self.stage, tasks[0].round, self.n if first else len(tasks),
+                               self.committed if first else len(tasks) - len(todo))
 
         def done(index: int, answer: dict[str, Any]) -> bool:
-            ok = on_done(index, answer)
+            ok = self._on_done(index, answer)
             count.done += ok
             count.part(0.0)
             return ok
 
-        if not runner.run(todo, inst, done, keep_going, count.part):
+        if not self.runner.run(todo, self.inst, done, self._keep_going, count.part):
             raise _Stopped()
-        missing = [t.index for t in tasks if recorded(t) is None]
+        missing = [t.index for t in tasks if self._recorded(t) is None]
         if missing:  # pragma: no cover - the runner handed every task over
             raise RuntimeError(f"pointings {missing} have no committed answer")
-        return [recorded(t) for t in tasks]  # type: ignore[misc]
-
-    try:
-        history = run_rounds(pointing_plans.pointing_needs(seg, req), pipeline.rounds_limit_s(req, limit, seg), compute,
-                             spend_margin=pipeline.spends_margin(req))
-    except _Stopped:
-        return None
-    pointings = [answers[i] for i in range(n)]
-    advice = pipeline.limit_advice(req, seg, pointings, history, limit, None)
-    seg, pointings, consolidation = consolidated(req, inst, seg, pointings, history,
-                                                 pipeline.rounds_limit_s(req, limit, seg),
-                                                 lambda: limit - (time.monotonic() - t0))
-    stage(stages.ASSEMBLING)
-    few = pipeline.few_target_exposures(pointings, req.targets, inst, req.park_move_limit_s,
-                                        pipeline.left_out_of(consolidation))
-    return adapters.with_content_hash(pipeline.plan_out(seg, pointings, req.targets, {
-        "time_limit_s": limit, "budget_s": budget_s, "rounds": len(history),
-        "elapsed_s": time.monotonic() - t0, "engine": runner.name,
-        "pointings_resumed": resumed, "pointings_computed": computed[0], **epoch, **excluded, **consolidation,
-        **({} if advice is None else {"time_limit_advice": advice})}, few))
+        return [self._recorded(t) for t in tasks]  # type: ignore[misc]
 
 
 @dataclass
