@@ -351,11 +351,11 @@ def plan_targets_out(members: Sequence[Any], plane: PlaneTargets) -> list[dict[s
 
 def with_content_hash(plan: Mapping[str, Any]) -> dict[str, Any]:
     """The PlanResponse dict as the service writes it (validated and dumped as JSON values by
-    :class:`service.schemas.PlanResponse`, as the routes do) with its ``content_hash``
+    :class:`service.response_schemas.PlanResponse`, as the routes do) with its ``content_hash``
     (:func:`planner.plan_file.content_hash`): the one place a plan gets its hash, at the
     exit of the synchronous plan, the plan job and the CLI."""
     from planner.plan_file import HASH_FIELD, content_hash
-    from service.schemas import PlanResponse
+    from service.response_schemas import PlanResponse
 
     out = PlanResponse.model_validate({**plan, HASH_FIELD: None}).model_dump(mode="json", by_alias=True)
     out[HASH_FIELD] = content_hash(out)

@@ -46,22 +46,19 @@ from service.jobpool import JobManager, PoolOptions
 from service.jobs import CANCELLED, EXPIRED
 from service.limits import check_request
 from service.middleware import BodyTimeoutMiddleware
-from service.schema_rules import describe_limits
-from service.schemas import (
-    AllocationRequest,
+from service.response_schemas import (
     AllocationResponse,
     ErrorResponse,
     Health,
     InstrumentInfo,
-    MotionPlanRequest,
     MotionPlanResponse,
-    PlanRequest,
     PlanResponse,
     Readiness,
-    SegmentationRequest,
     SegmentationResponse,
     ValidationErrorResponse,
 )
+from service.schema_rules import describe_limits
+from service.schemas import AllocationRequest, MotionPlanRequest, PlanRequest, SegmentationRequest
 from service.settings import Settings, env_name
 from service.sync_workers import WorkerOptions, WorkerPool
 from service.target_lists import TargetListStore, install_target_lists, resolve

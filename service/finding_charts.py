@@ -34,7 +34,7 @@ from service.auth import Auth
 from service.chart_child import ChartJob, child_main
 from service.errors import FieldError, ServiceError
 from service.executor import Ticket, run_heavy
-from service.schemas import ErrorResponse, ValidationErrorResponse
+from service.response_schemas import ErrorResponse, ValidationErrorResponse
 from service.settings import Settings, env_name
 from service.upload_child import MEMORY_EXIT
 from service.uploads import UploadTooLarge, _await, _stop, context

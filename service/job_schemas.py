@@ -8,17 +8,19 @@ from typing import Annotated, Any, Literal
 
 from pydantic import Field, TypeAdapter
 
+from service.response_schemas import (
+    AllocationResponse,
+    MotionPlanResponse,
+    PlanResponse,
+    SegmentationResponse,
+)
 from service.schemas import (
     AllocationRequest,
-    AllocationResponse,
     MotionPlanRequest,
-    MotionPlanResponse,
     PlanRequest,
-    PlanResponse,
     Request,
     Response,
     SegmentationRequest,
-    SegmentationResponse,
 )
 
 

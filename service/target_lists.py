@@ -37,7 +37,8 @@ from starlette.concurrency import run_in_threadpool
 from service.epoch_schemas import PARALLAX_DOC, PMDEC_DOC, PMRA_DOC, REF_EPOCH_DOC, RV_DOC
 from service.errors import NotFound, clip
 from service.executor import HeavyExecutor, Ticket, run_heavy
-from service.schemas import ErrorResponse, SkyTarget
+from service.response_schemas import ErrorResponse
+from service.schemas import SkyTarget
 from service.settings import Settings, env_name
 from service.tables import COMPRESSED, table_suffix
 from service.upload_child import ParsedList, ParseLimits, json_text, listed_targets

@@ -100,7 +100,7 @@ def test_plot_configuration(tmp_path: Path) -> None:
 
 def test_cli_plan(tmp_path: Path, capsys) -> None:
     """`plan` on a small one-pointing field (the 12 M13 stars of examples/requests/plan.json)."""
-    from service.schemas import PlanResponse
+    from service.response_schemas import PlanResponse
 
     rows = json.loads((EXAMPLES / "requests" / "plan.json").read_text())["targets"]
     t = Table(rows=[(r["id"], r["ra_deg"], r["dec_deg"], r["priority"]) for r in rows],

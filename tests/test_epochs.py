@@ -28,7 +28,8 @@ from models.sky import sky_to_focal_mm
 from service import pipeline
 from service.app import create_app
 from service.cli import main
-from service.schemas import PlanRequest, PlanResponse
+from service.response_schemas import PlanResponse
+from service.schemas import PlanRequest
 from service.settings import Settings
 from service.tables import read_target_table
 

@@ -26,7 +26,7 @@ from service import job_run, jobs
 from service.app import create_app
 from service.cli import EXIT_NOT_EXECUTABLE, build_parser, main
 from service.job_schemas import PlanJobStatus
-from service.schemas import PlanResponse
+from service.response_schemas import PlanResponse
 from service.settings import Settings
 
 TOKEN = "t0ken"

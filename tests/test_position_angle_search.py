@@ -22,7 +22,8 @@ from models.instrument import CONFIGURATION_TIME_GOAL_S, default_instrument
 from models.sky import focal_mm_to_sky, sky_to_focal_mm
 from service.app import create_app
 from service.cli import EXIT_INVALID_INPUT, main
-from service.schemas import PlanRequest, PlanResponse
+from service.response_schemas import PlanResponse
+from service.schemas import PlanRequest
 from service.settings import Settings
 from solvers.programme.angle import DEFAULT_STEP_DEG, AngleSearch, choose_angle, reach_exposures
 

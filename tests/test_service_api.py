@@ -19,7 +19,7 @@ from models.kinematics import tip_fov
 from models.sky import sky_to_focal_mm
 from service import pipeline
 from service.app import create_app
-from service.schemas import AllocationResponse, MotionPlanResponse, PlanResponse
+from service.response_schemas import AllocationResponse, MotionPlanResponse, PlanResponse
 from service.settings import Settings
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "requests"

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from planner import programme as pp
 from planner import time_advice as ta
 from planner.programme import SHARES, PointingOutcome
-from service.schemas import PlanResponse
+from service.response_schemas import PlanResponse
 
 DATA = Path(__file__).parent / "data"
 

@@ -31,7 +31,7 @@ from planner.shares import SHARES
 from planner.sky import arm_sky, place_sky, sky_field
 from service.app import create_app
 from service.cli import main
-from service.schemas import PlanResponse
+from service.response_schemas import PlanResponse
 from service.settings import Settings
 
 INST = default_instrument()

@@ -28,7 +28,8 @@ from planner.telescope_time import ObservingRules, TelescopeTime, pointing_time,
 from service import pipeline
 from service.app import create_app
 from service.cli import main
-from service.schemas import PlanRequest, PlanResponse
+from service.response_schemas import PlanResponse
+from service.schemas import PlanRequest
 from service.settings import Settings
 from service.tables import read_targets
 from tests.plan_jobs import plan_job_result
