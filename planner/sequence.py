@@ -295,8 +295,6 @@ class _Sequencer:
         leg = self.from_park.get(_key(self.configs[0])) if i == 0 else None
         if leg is None:
             leg = self.plan_escalating(start_q, goal)
-            if leg.stats.get("reused") and leg.stats.get("strategy") == "via_park":  # a known leg through park
-                self.changes.append(PlanChange("via_park", i, i, (), (), VIA_PARK_REASON))
         if i == 0 and leg.status == "ok":
             self.from_park[_key(self.configs[0])] = leg
         if leg.status == "ok":
@@ -328,6 +326,13 @@ class _Sequencer:
         if leg is not None:
             self.changes.append(PlanChange("via_park", i, i, (), (), VIA_PARK_REASON))
         return leg
+
+    def _note_via_park(self, i: int, leg: MotionPlan) -> None:
+        """Leg i through park is a change of the plan, listed once however the leg came: planned
+        here, or a known leg through park reused (:meth:`plan`, on any of the repairs' paths)."""
+        if leg.status == "ok" and leg.stats.get("strategy") == "via_park" and not any(
+                c.kind == "via_park" and c.leg == i for c in self.changes):
+            self.changes.append(PlanChange("via_park", i, i, (), (), VIA_PARK_REASON))
 
     def _change(self, i: int, start_q: np.ndarray, failed: MotionPlan) -> MotionPlan | None:
         """Take the blocking targets out of configuration i, one at a time, until it can be reached."""
@@ -489,6 +494,7 @@ class _Sequencer:
                 i -= 1
                 self.changes = [c for c in self.changes if not (c.kind == "via_park" and c.leg == i)]
                 continue
+            self._note_via_park(i, leg)
             self.legs.append(leg)
             if self.progress is not None:
                 self.progress(min(1.0, len(self.legs) / (len(self.configs) + 1)))

@@ -211,3 +211,22 @@ def test_replan_costs_cover_what_the_changed_plan_takes(round_plan, order) -> No
     assert effort.t_s / SHARES.effort_share <= estimate_s
     if new_legs(seq.configurations, new) <= 1:
         assert estimate_s < 0.5 * round_s
+
+
+def test_every_leg_through_park_of_a_plan_is_listed_as_one() -> None:
+    """A known leg through park reused on a repair's path (not only as a transition's first
+    try) is listed among the pointing's changes, so the independent validator allows its stop
+    at park: cluster-halo-24003 (300 stars, fewest-exposures, the plan's defaults) reuses such
+    a leg in P0001's leg 18 and answered it unlisted (2 stops > 1 for arms 3 and 8)."""
+    from benchmarks.programme_time import EXTENT_ARCMIN, plan_programme
+    from benchmarks.programmes import programme_targets
+    from planner.validate import validate_plan
+
+    targets, _ = programme_targets("cluster-halo", 24003, extent_arcmin=EXTENT_ARCMIN, n_range=(300, 300))
+    plan, _ = plan_programme(targets, 24003, "fewest-exposures", None)
+    for p in plan["pointings"]:
+        listed = {c["leg"] for c in p.get("changes") or [] if c["kind"] == "via_park"}
+        through = {i for i, m in enumerate(p["motions"]) if (m.get("stats") or {}).get("strategy") == "via_park"}
+        assert through <= listed, (p["id"], sorted(through - listed))
+    report = validate_plan(INST, plan)
+    assert report.valid, report.violations[:3]
