@@ -96,18 +96,17 @@ class _JobRounds:
     resumed: int = 0
     computed: int = 0
     committed: int = 0
-    n: int = 0
 
     def rounds_for(self, seg: Segmentation) -> pipeline.PlanRounds | None:
         """The job's rounds of ``seg``, its committed answers taken back (None: the job is no
         longer ``owner``'s)."""
-        self.n = len(seg.pointings)
-        if not self.store.start_pointings(self.job_id, self.owner, self.n):
+        n = len(seg.pointings)
+        if not self.store.start_pointings(self.job_id, self.owner, n):
             return None
         ids = [t.id for t in self.req.targets]
         expected = [adapters.pointing_out(p, ids) for p in seg.pointings]
         done = self.store.pointing_results(self.job_id)
-        stale = [i for i, a in done.items() if i >= self.n or not _matches(a, expected[i])]
+        stale = [i for i, a in done.items() if i >= n or not _matches(a, expected[i])]
         if stale:
             self.store.drop_pointings(self.job_id, stale)
         self.answers.update({i: a for i, a in done.items() if i not in stale})
@@ -142,7 +141,7 @@ class _JobRounds:
                 for t in tasks if self._recorded(t) is None]
         self.computed += len(todo)
         first = tasks[0].round == 1  # the first round counts every pointing, resumed ones too
-        count = _RoundProgress(self.progress, self.stage, tasks[0].round, self.n if first else len(tasks),
+        count = _RoundProgress(self.progress, self.stage, tasks[0].round, len(seg.pointings) if first else len(tasks),
                                self.committed if first else len(tasks) - len(todo))
 
         def done(index: int, answer: dict[str, Any]) -> bool:
