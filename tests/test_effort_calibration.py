@@ -32,9 +32,12 @@ from solvers.allocation import allocate
 
 INST = default_instrument()
 LEGS = json.loads((Path(__file__).parent / "data" / "motion_legs.json").read_text())["legs"]
-#: wide: the machines the suite runs on differ from the reference (2 cores, nothing else
-#: running) by up to about 1.45x in CPU speed (effort / CPU 0.69 measured on a slower one)
-RATIO_RANGE = (0.6, 1.4)
+#: wide: the machines the suite runs on differ from the one the costs were fitted on, and not
+#: alike for every layer. Measured on the regression legs: 0.96-1.09 where the costs were
+#: fitted, 0.69 on a slower machine, 1.30-1.40 on a faster one (also at the fit's own commit,
+#: so the machine, not the code; the allocator's calls 1.08 there). The range catches a
+#: halving or doubling of what the code's work costs.
+RATIO_RANGE = (0.5, 2.0)
 LEG_BUDGET_S = 3.0
 ALLOCATION_LIMIT_S = 5.0
 # (method, targets, distribution): seeded fields of benchmarks/effort_allocation.py
