@@ -76,9 +76,10 @@ PASS_WALL_GUARD = 2.0
 #: took 1.6 times its round's average leg: ``python benchmarks/replan_costs.py cluster:18001``)
 NEW_LEG_FACTOR = 2.0
 #: a leg the pass reuses (:mod:`planner.known_legs`) costs this many wall-clock seconds: it is
-#: verified again (0.02-0.08 s measured per leg on pointings of 11-60 legs,
-#: ``benchmarks/replan_costs.py``)
-REUSED_LEG_S = 0.1
+#: verified again (0.02-0.08 s per leg measured on pointings of 11-60 legs,
+#: ``benchmarks/replan_costs.py``, at motion costs 1.44 times those of :mod:`planner.effort`:
+#: 0.014-0.056 s at these; 0.053 s on the 60-target field of tests/test_known_legs.py)
+REUSED_LEG_S = 0.07
 #: a pass's reason when :func:`no_time` stops it before it searches
 NO_TIME_REASON = "no time left to plan a changed pointing"
 #: why a target of an exposure observing few stays although another exposure could take it:

@@ -55,14 +55,19 @@ def _observing(p: dict[str, Any], n: int = 2) -> tuple[dict[str, Any], list[dict
 
 def _moving_in(p: dict[str, Any], leg: int = 0, points: int = 3) -> tuple[dict[str, Any], dict[str, Any]]:
     """A motion leg and one of its trajectories with at least ``points`` way-points that moves
-    on its first segment: in leg ``leg`` when it has one, else in the first leg that has."""
+    on its first segment: in leg ``leg`` when it has one, else in the first leg that has; when
+    no trajectory moves on its first segment (every arm waits before it moves), the first that
+    moves on any."""
     motions = p["motions"]
-    for m in [motions[leg]] + motions:
-        for tr in m["trajectories"]:
-            w = tr["waypoints"]
-            if len(w) >= points and any(abs(w[1][k] - w[0][k]) > 1e-6 for k in ("theta1_rad", "theta2_rad")):
-                return m, tr
-    raise ValueError(f"no leg has a trajectory with {points} way-points")
+    for first in (True, False):
+        for m in [motions[leg]] + motions:
+            for tr in m["trajectories"]:
+                w = tr["waypoints"]
+                segments = list(zip(w, w[1:], strict=False))[:1] if first else zip(w, w[1:], strict=False)
+                if len(w) >= points and any(abs(b[k] - a[k]) > 1e-6 for a, b in segments
+                                            for k in ("theta1_rad", "theta2_rad")):
+                    return m, tr
+    raise ValueError(f"no leg has a trajectory with {points} way-points that moves")
 
 
 def _moving(p: dict[str, Any], leg: int = 0, points: int = 3) -> dict[str, Any]:

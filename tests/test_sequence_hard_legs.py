@@ -44,8 +44,8 @@ def _sequence(configs: list[Configuration], seed: int, budget_s: float):
 def test_a_crowded_leg_from_park_gets_more_time_before_a_target_moves(monkeypatch, escalation) -> None:
     """Ten exposures of the crowded configuration in 6 effort seconds: the leg from park fails
     on its share (about 0.5 s) and plans on four times it, so no target moves; planned once
-    only (no escalation), the same leg loses targets to repairs and the plan is not
-    executable."""
+    only (no escalation), the same leg loses a target to a repair, which observes it in an
+    exposure more."""
     monkeypatch.setattr(sequence, "ESCALATION", escalation)
     c1 = _configuration(DATA["crowded_first"])
     plan = _sequence([c1] * 10, DATA["seed_first"], 6.0)
@@ -58,7 +58,7 @@ def test_a_crowded_leg_from_park_gets_more_time_before_a_target_moves(monkeypatc
         assert report.ok  # an independent check of the leg the escalation planned
     else:
         assert any(ch.kind == "moved_target" for ch in plan.changes)
-        assert not plan.executable
+        assert len(plan.configurations) > 10
 
 
 def _ring_neighbours(k: int) -> set[int]:

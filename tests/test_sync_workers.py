@@ -61,7 +61,7 @@ def _spin(req: Any, inst: Any, progress: Any, **_: Any) -> dict[str, Any]:
     """Reports progress every 50 ms for up to 20 s; writes how it ended to the file named by
     the first target's id."""
     marker = Path(req.targets[0].id)
-    marker.write_text("started")
+    _write_whole(marker, "started")
     outcome = "cancelled"
     try:
         for _ in range(400):
@@ -70,7 +70,14 @@ def _spin(req: Any, inst: Any, progress: Any, **_: Any) -> dict[str, Any]:
         outcome = "ran out"
         return {**EMPTY_SEGMENTATION, "stats": {}}
     finally:
-        marker.write_text(f"{outcome} {os.getpid()}")
+        _write_whole(marker, f"{outcome} {os.getpid()}")
+
+
+def _write_whole(path: Path, text: str) -> None:
+    """``text`` into ``path`` at once (a rename): a reader never sees it empty or half written."""
+    part = path.with_name(path.name + ".part")
+    part.write_text(text)
+    part.replace(path)
 
 
 def _input_error(*_: Any, **__: Any) -> dict[str, Any]:
