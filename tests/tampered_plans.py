@@ -63,11 +63,15 @@ def _moving_in(p: dict[str, Any], leg: int = 0, points: int = 3) -> tuple[dict[s
         for m in [motions[leg]] + motions:
             for tr in m["trajectories"]:
                 w = tr["waypoints"]
-                segments = list(zip(w, w[1:], strict=False))[:1] if first else zip(w, w[1:], strict=False)
-                if len(w) >= points and any(abs(b[k] - a[k]) > 1e-6 for a, b in segments
-                                            for k in ("theta1_rad", "theta2_rad")):
+                segments = list(zip(w, w[1:], strict=False))
+                if len(w) >= points and any(_moves(a, b) for a, b in (segments[:1] if first else segments)):
                     return m, tr
     raise ValueError(f"no leg has a trajectory with {points} way-points that moves")
+
+
+def _moves(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Whether a joint moves between way-points ``a`` and ``b``."""
+    return any(abs(b[k] - a[k]) > 1e-6 for k in ("theta1_rad", "theta2_rad"))
 
 
 def _moving(p: dict[str, Any], leg: int = 0, points: int = 3) -> dict[str, Any]:
