@@ -349,23 +349,30 @@ def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey,
     """
     keep = {}
     n_arms = instrument.n_arms
+    bounds = [_joint_bounds(instrument, kk) for kk in range(n_arms)]
     for k in range(n_arms):
         sl = asg.of_arm(k)
         check()
+        capsules: dict[int, list[tuple[int, int, np.ndarray, np.ndarray, float]]] = {}
         for kk in range(n_arms):
             if kk == k:
                 continue
             lo_k, hi_k = min(k, kk), max(k, kk)
-            pairs = _body_pairs_that_can_meet(instrument, lo_k, hi_k, buffer_mm)
-            jb = _joint_bounds(instrument, kk)
-            for p in pairs:
+            for p in _body_pairs_that_can_meet(instrument, lo_k, hi_k, buffer_mm):
                 bi, bj = (p[0], p[1]) if k == lo_k else (p[1], p[0])
                 body = instrument.arms[kk].bodies[bj]
-                (c0, r0), (c1, r1) = jb[body.joint_from], jb[body.joint_to]
-                reach = max(r0, r1) + body.half_width_mm
-                d = segment_distance_xy(sx[bi, sl], sy[bi, sl], ex[bi, sl], ey[bi, sl],
-                                        c0[0], c0[1], c1[0], c1[1])
-                keep[(k, bi, kk, bj)] = d - rad[bi, sl] - reach < buffer_mm
+                (c0, r0), (c1, r1) = bounds[kk][body.joint_from], bounds[kk][body.joint_to]
+                capsules.setdefault(bi, []).append((kk, bj, c0, c1, max(r0, r1) + body.half_width_mm))
+        for bi, caps in capsules.items():
+            # every capsule body bi can meet at once: (capsules, assignments of arm k)
+            c0 = np.array([c[2] for c in caps], float)
+            c1 = np.array([c[3] for c in caps], float)
+            reach = np.array([c[4] for c in caps], float)
+            d = segment_distance_xy(sx[bi, sl][None, :], sy[bi, sl][None, :], ex[bi, sl][None, :],
+                                    ey[bi, sl][None, :], c0[:, [0]], c0[:, [1]], c1[:, [0]], c1[:, [1]])
+            near = d - rad[bi, sl][None, :] - reach[:, None] < buffer_mm
+            for row, (kk, bj, *_) in enumerate(caps):
+                keep[(k, bi, kk, bj)] = near[row]
     return keep
 
 

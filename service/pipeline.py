@@ -59,6 +59,7 @@ from service.schemas import (
     SegmentationRequest,
 )
 from solvers.allocation import allocate
+from solvers.allocation.backends import load_engine_libraries
 from solvers.programme import FillOptions, segment_programme
 from solvers.programme.segment import searched_angles
 from solvers.segmentation import Segmentation, segment_field
@@ -66,8 +67,10 @@ from solvers.segmentation import Segmentation, segment_field
 log = logging.getLogger("service")
 
 def warm_up() -> None:
-    """Load (or compile once) the planner's compiled kernels, so that no request pays for it."""
+    """Load (or compile once) the planner's compiled kernels and the default engines'
+    libraries, so that no request pays for them."""
     compile_kernels()
+    load_engine_libraries()
 
 
 Stage = Callable[[str], None]

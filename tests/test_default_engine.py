@@ -153,3 +153,41 @@ def test_cpsat_hints_are_complete_and_it_runs_at_least_two_workers(monkeypatch: 
     seen.clear()
     get_backend("cpsat").solve(p, AllocationOptions().engine_for("cpsat"))
     assert all(n_hinted in (0, n_vars) and workers >= 2 for n_vars, n_hinted, workers in seen)
+
+
+def test_a_warm_worker_loads_no_engine_library_inside_a_plan() -> None:
+    """``pipeline.warm_up`` (what every worker runs at its start) loads the libraries of the
+    default plan's engines: a fewest-exposures plan run after it imports none of them, so no
+    plan's budget pays for their loading. Without the warm-up the same plan does (which is
+    what makes the check able to fail)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    code = (
+        "import json, sys\n"
+        "from service import pipeline\n"
+        "from service.schemas import PlanRequest\n"
+        "if sys.argv[1] == 'warm':\n"
+        "    pipeline.warm_up()\n"
+        "before = set(sys.modules)\n"
+        "stars = [{'id': f's{i}', 'ra_deg': 132.8 + 0.01 * (i % 5), 'dec_deg': 11.8 + 0.01 * (i // 5),\n"
+        "          'priority': 1 + i % 3} for i in range(15)]\n"
+        "req = PlanRequest.model_validate({'targets': stars, 'seed': 1, 'time_limit_s': 30,\n"
+        "                                  'segmentation_mode': 'fewest-exposures'})\n"
+        "plan = pipeline.plan(req, pipeline.instrument_from(None))\n"
+        "assert plan['executable'], plan\n"
+        "print(json.dumps(sorted(m for m in set(sys.modules) - before\n"
+        "                        if m.split('.')[0] in ('ortools', 'highspy', 'pandas'))))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    loaded = {}
+    for mode in ("warm", "cold"):
+        r = subprocess.run([sys.executable, "-c", code, mode], cwd=root, env=env, capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        loaded[mode] = json.loads(r.stdout.strip().splitlines()[-1])
+    assert loaded["warm"] == []
+    assert "ortools.sat.python.cp_model" in loaded["cold"] and "highspy" in loaded["cold"]

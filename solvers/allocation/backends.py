@@ -4,7 +4,8 @@ A :class:`Backend` solves one :class:`~solvers.problem.ConfigProblem` with its o
 frozen options (:mod:`solvers.allocation.options`).  The registry maps a name to the
 module or package that exports the back-end's ``BACKEND`` (everything under that name is
 the back-end's own code); modules are imported on first use, so an
-engine's library (highspy, OR-Tools) is loaded only when that engine is asked for.  A
+engine's library (highspy, OR-Tools) is loaded only when that engine is asked for, or by
+:func:`load_engine_libraries` when a worker starts.  A
 back-end that needs another engine (the ``bnb`` fallback to CP-SAT, its semi-greedy
 incumbent) asks the registry, never the other module: no back-end imports another.
 """
@@ -23,9 +24,21 @@ from solvers.problem import ConfigProblem, ConfigSolution
 if TYPE_CHECKING:
     from solvers.sequencing.options import SequencingOptions
 
-__all__ = ["BACKEND_MODULES", "Backend", "backend_names", "get_backend", "note_incumbent"]
+__all__ = ["BACKEND_MODULES", "ENGINE_LIBRARIES", "Backend", "backend_names", "get_backend", "load_engine_libraries",
+           "note_incumbent"]
 
 Solve = Callable[..., ConfigSolution]
+
+#: The engines' libraries a default plan loads: CP-SAT for its allocations (OR-Tools loads
+#: pandas with it, about 0.3 s) and HiGHS for the programme optimiser's model and bound.
+ENGINE_LIBRARIES = ("ortools.sat.python.cp_model", "highspy")
+
+
+def load_engine_libraries() -> None:
+    """Import :data:`ENGINE_LIBRARIES`, so that a worker pays for them once at its start,
+    not inside the first plan's budget."""
+    for name in ENGINE_LIBRARIES:
+        importlib.import_module(name)
 
 
 @dataclass(frozen=True)
