@@ -256,13 +256,15 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
                 if cur > state["best"]:
                     state["best"], state["sol"] = cur, list(pick)
                 return
-            k = min(free, key=lambda j: dom[j].bit_count())  # fail first
+            sizes = [dom[j].bit_count() for j in free]
+            k = free[sizes.index(min(sizes))]  # fail first (the first of the smallest domains)
             others = [j for j in free if j != k]
-            rest = cur + sum(bests[j] for j in others)
+            rest = cur + sum([bests[j] for j in others])
             thr = state["best"] if target < 0 else target - 1
             d = dom[k]
             Wk = W[k]
             ok = order[k]
+            taken0 = [tgt_of[p] for p in pick if p >= 0]  # the node's targets (arm k is free)
             while d:
                 low = d & -d
                 i = low.bit_length() - 1
@@ -286,8 +288,7 @@ def solve_bnb_chosen(problem: ConfigProblem, *, node_limit: int = 200_000, minim
                 else:
                     if tot > thr:
                         pick[k] = aidx
-                        taken = [tgt_of[p] for p in pick if p >= 0]
-                        if capped(cur + wv, list(nb.values()), taken) > thr:
+                        if capped(cur + wv, list(nb.values()), taken0 + [tgt_of[aidx]]) > thr:
                             dfs(nd, others, cur + wv, nb, pick)
                         pick[k] = -1
                         thr = state["best"] if target < 0 else target - 1
