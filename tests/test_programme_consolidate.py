@@ -1,4 +1,4 @@
-"""Step 6 of the programme optimiser (solvers.programme.consolidate): an exposure whose every
+"""Step 5 of the programme optimiser (solvers.programme.consolidate): an exposure whose every
 target an idle arm of another exposure can take, as it stands, is given up.
 
 Oracles: forward kinematics (every observing arm's tip on its target, projected about its
@@ -8,7 +8,6 @@ park within the limit, and a count of every target observed before and after."""
 from __future__ import annotations
 
 import itertools
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -228,59 +227,3 @@ def test_an_allocation_uses_what_is_left_of_a_long_budget() -> None:
                         if a.target_index is not None}
     assert len(observed) == len(p.members)
     assert len(result.configurations) == len(fresh.configurations)
-
-
-# ------------------------------------------------------------------ step 6's exact pruning
-
-
-def _spare_setup() -> tuple[Field, list[Pointing], np.ndarray]:
-    """Pointing 0: 8 targets about (0, 0) mm, allocated for real; pointing 1 about (100, 0)
-    (its allocation is not read); targets 8-13 lie in both fields; 14 only in pointing 1's."""
-    ring = [(45.0 * np.cos(a), 45.0 * np.sin(a)) for a in np.linspace(0.0, 2 * np.pi, 8, endpoint=False)]
-    shared = [(50.0 + 4.0 * k, -40.0 + 16.0 * k) for k in range(6)]
-    xy = np.array(ring + shared + [(215.0, 0.0)], float)
-    f = _field(xy, 3)
-    p0 = _pointing(f, np.arange(8), (0.0, 0.0))
-    centre1 = (150.0 + 100.0 * DEG_PER_MM / np.cos(np.radians(20.0)), 20.0)
-    p1 = Pointing(centre1, 0.0, np.arange(8, 15))
-    return f, [p0, p1], np.arange(8, 15)
-
-
-def test_a_tail_target_no_other_field_holds_runs_no_allocation(monkeypatch) -> None:
-    """Step 6 gives up pointing 1's last exposure only when other pointings take all of its
-    targets; target 14 lies in no other field, so no allocation can succeed and none runs."""
-    f, pts, _ = _spare_setup()
-    assert not fill.within(f, np.array([14]), pts[0].centre).any()  # the premise
-    monkeypatch.setattr(fill, "allocate_pointing", lambda *a, **k: pytest.fail("an allocation ran"))
-    assert fill._take(f, pts, 1, np.array([8, 14]), OPTS, Budget.start(30.0)) is None
-
-
-def test_a_pointing_whose_exposures_cannot_hold_the_tail_is_not_allocated(monkeypatch) -> None:
-    """A pointing of e exposures observes at most 12 e targets: with more members than that
-    once it takes the tail, its allocation cannot succeed and does not run; with as many,
-    it runs (the pruning leaves every allocation that could succeed)."""
-    f, pts, _ = _spare_setup()
-    e0 = pts[0].exposures
-    room = 12 * e0 - len(pts[0].members)
-    assert 0 < room < 6 and fill.within(f, np.arange(8, 14), pts[0].centre).all()  # the premise
-    calls = []
-    real = fill.allocate_pointing
-
-    def counted(f_, p, *a, **k):
-        calls.append(len(p.members))
-        return real(f_, p, *a, **k)
-
-    monkeypatch.setattr(fill, "allocate_pointing", counted)
-    assert fill._take(f, pts, 1, np.arange(8, 8 + room + 1), OPTS, Budget.start(30.0)) is None
-    assert calls == []
-    fill._take(f, pts, 1, np.arange(8, 8 + room), OPTS, Budget.start(30.0))
-    assert calls == [12 * e0]
-
-
-def test_a_tail_target_only_full_pointings_hold_runs_no_allocation(monkeypatch) -> None:
-    """A pointing whose exposures already hold 12 members each has no arm to spare: a tail
-    target only such a pointing's field holds cannot be taken, and no allocation runs."""
-    f, pts, _ = _spare_setup()
-    full = replace(pts[0], members=np.arange(12 * pts[0].exposures), exposures=pts[0].exposures)
-    monkeypatch.setattr(fill, "allocate_pointing", lambda *a, **k: pytest.fail("an allocation ran"))
-    assert fill._take(f, [full, pts[1]], 1, np.array([8]), OPTS, Budget.start(30.0)) is None

@@ -1,4 +1,4 @@
-"""Step 7 of the programme optimiser (solvers.programme.merge): two pointings one FOV holds
+"""Step 6 of the programme optimiser (solvers.programme.merge): two pointings one FOV holds
 become one when their members' allocation together takes no more exposures.
 
 Oracles: the checks of tests/test_programme_consolidate.py (forward kinematics of every

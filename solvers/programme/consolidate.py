@@ -1,4 +1,4 @@
-"""Step 6 of the programme optimiser: exposures emptied into the idle arms of the others.
+"""Step 5 of the programme optimiser: exposures emptied into the idle arms of the others.
 
 An exposure of the pointings' allocations (their witnesses, :mod:`.fill`) is given up when
 every target it observes can be observed, as the other exposures stand, by one of their idle
@@ -110,7 +110,7 @@ class LegCosts:
 
 
 def consolidate(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
-    """Step 6 (module docstring) on the allocated pointings ``pts``, in place: the pointings
+    """Step 5 (module docstring) on the allocated pointings ``pts``, in place: the pointings
     that give or take targets are replaced by ones with their new members and allocations.
     Returns the exposures given up."""
     state = {j: _arms_of(f, p) for j, p in enumerate(pts) if p.allocation is not None and p.exposures}

@@ -1,4 +1,4 @@
-"""Steps 4-5 of the programme optimiser: pointings committed one at a time, each allocated as
+"""Step 4 of the programme optimiser: pointings committed one at a time, each allocated as
 the plan allocates it, at a position angle that loses no target to reach.
 
 :func:`commit` takes a pointing of the programme model's solution (:mod:`.model`):
@@ -12,8 +12,6 @@ stay for the later pointings, where an arm is spare. So an exposure observing fe
 kept only for targets no other pointing holds. The exposures kept go to the plan as a witness
 (:func:`witness`), which the plan observes as it is when no allocation can take fewer
 exposures, and keeps unless its own allocation is better otherwise.
-:func:`spare_arms` then gives up a pointing's last exposure when other pointings take its
-targets in the exposures they already have.
 """
 
 from __future__ import annotations
@@ -284,86 +282,6 @@ def _kept(result: AllocationResult, members: np.ndarray, only: np.ndarray, fill_
     keep = {int(members[i]) for c in seen[:last + 1] for i in c}
     keep |= {int(t) for t in members[only]}
     return np.array(sorted(keep), dtype=np.int64), last + 1
-
-
-def _last(p: Pointing) -> np.ndarray:
-    """The targets (programme indices) of the pointing's last exposure."""
-    if p.allocation is None or not p.allocation.configurations:
-        return np.zeros(0, np.int64)
-    return np.array(sorted(int(p.members[a.target_index]) for a in p.allocation.configurations[-1].assignments
-                           if a.target_index is not None), dtype=np.int64)
-
-
-def _drop_last(f: Field, p: Pointing, moved: np.ndarray) -> Pointing:
-    """The pointing without its last exposure and the targets ``moved`` out of it."""
-    keep = np.setdiff1d(p.members, moved)
-    if keep.size == 0:
-        return Pointing(p.centre, p.pa_deg, keep, 0, pa_search=p.pa_search)
-    configs = p.allocation.configurations[:-1]
-    gone = {int(t) for t in moved}
-    local = AllocationResult(configs, tuple(u for u in p.allocation.unallocated
-                                            if int(p.members[u.target_index]) not in gone), p.allocation.stats)
-    return Pointing(p.centre, p.pa_deg, keep, len(configs),
-                    allocation=witness(local, p.members, keep, len(configs), f.priority), pa_search=p.pa_search)
-
-
-def spare_arms(f: Field, pts: list[Pointing], opts: FillOptions, budget: Budget) -> int:
-    """Step 6: the last exposure of a pointing, weakest first, is given up when other
-    pointings take all of its targets in the exposures they already have (each re-allocated
-    on its targets and the ones it takes: kept when it still observes every one of them in
-    no more exposures). Returns the exposures saved."""
-    saved = 0
-    order = sorted(range(len(pts)), key=lambda j: (len(_last(pts[j])) or 10 ** 6, j))
-    for j in order:
-        p = pts[j]
-        tail = _last(p)
-        if budget.expired():
-            break
-        if tail.size == 0 or tail.size > opts.fill_min:
-            continue
-        trial = _take(f, pts, j, tail, opts, budget)
-        if trial is None:
-            continue
-        for k, q in trial.items():
-            pts[k] = q
-        pts[j] = _drop_last(f, p, tail)
-        saved += 1
-    return saved
-
-
-def _take(f: Field, pts: list[Pointing], j: int, tail: np.ndarray, opts: FillOptions, budget: Budget,
-          ) -> dict[int, Pointing] | None:
-    """Other pointings taking every target of ``tail`` without a new exposure, or None. No
-    allocation is run when a target of ``tail`` lies in the FOV of no other allocated pointing
-    with an arm to spare, nor for a pointing whose exposures cannot hold its members and the
-    ones it would take (12 targets an exposure): neither can succeed."""
-    arms = f.inst.n_arms
-    others = [k for k in range(len(pts)) if k != j and pts[k].allocation is not None]
-    fields = {k: within(f, tail, pts[k].centre) for k in others}  # the tail targets each FOV holds
-    held = np.zeros(len(tail), bool)
-    for k in others:
-        if len(pts[k].members) < arms * (pts[k].exposures or 0):
-            held |= fields[k]
-    if not held.all():
-        return None
-    left = np.ones(len(tail), bool)
-    trial: dict[int, Pointing] = {}
-    for k in sorted(others, key=lambda k: (-(pts[k].exposures or 0), k)):
-        if not left.any() or budget.expired():
-            break
-        q, inside = pts[k], fields[k] & left
-        members = np.union1d(q.members, tail[inside])
-        if not inside.any() or len(members) > arms * (q.exposures or 0):
-            continue
-        new = Pointing(q.centre, q.pa_deg, members, pa_search=q.pa_search)
-        result = allocate_pointing(f, new, f.priority, opts, budget)
-        if len(result.configurations) <= q.exposures and observed_members(members, result) >= set(members.tolist()):
-            new.exposures = len(result.configurations)
-            new.allocation = witness(result, members, members, new.exposures, f.priority)
-            if new.allocation is not None:
-                trial[k] = new
-                left &= ~inside
-    return None if left.any() else trial
 
 
 def mark_only_here(f: Field, pts: list[Pointing]) -> None:

@@ -1,4 +1,4 @@
-"""Step 7 of the programme optimiser: two pointings one FOV holds become one.
+"""Step 6 of the programme optimiser: two pointings one FOV holds become one.
 
 The commits (:mod:`.fill`) place the pointings one at a time, and each hands on the targets of
 its weak exposures; the last pointings collect those few targets, often beside (or over) an

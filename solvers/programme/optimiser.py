@@ -17,11 +17,9 @@ and the measured figures are in docs/programme.md.
    7.3), is allocated as the plan allocates it on every target still to observe inside its
    FOV; its weak exposures hand their targets on. The model is solved again on what is left
    when a commit gives back targets it had placed; then the next pointing is committed.
-5. **Spare arms** (:func:`.fill.spare_arms`): a pointing's last exposure is given up when
-   other pointings take its targets in the exposures they already have.
-6. **Emptied exposures** (:mod:`.consolidate`): an exposure whose every target an idle arm
+5. **Emptied exposures** (:mod:`.consolidate`): an exposure whose every target an idle arm
    of another exposure (of any pointing holding it) can take as it stands is given up.
-7. **Merged pointings** (:mod:`.merge`): two pointings one FOV holds become one when the
+6. **Merged pointings** (:mod:`.merge`): two pointings one FOV holds become one when the
    allocation of their members together takes no more exposures than the two apart.
 
 The allocation each pointing keeps (its witness) goes to the plan, which observes it as it is
@@ -61,7 +59,6 @@ from solvers.programme.fill import (
     commit,
     mark_only_here,
     recentre,
-    spare_arms,
 )
 from solvers.programme.merge import merge_pointings
 from solvers.programme.model import CoverSolution, greedy_solution, solve_cover
@@ -90,10 +87,11 @@ class ModelVariant:
 
 
 #: The model's variants, searched in turn while the budget allows (the first always): each is
-#: a whole search (model, commits, spare arms), and the search whose real allocations take the
-#: least telescope time is kept. The model leaves out what the allocations meet (the other
-#: links' collisions, and crowding in the first variant), so which variant's pointings
-#: allocate best differs from programme to programme (docs/programme.md).
+#: a whole search (model, commits, emptied exposures, merges), and the search whose real
+#: allocations take the least telescope time is kept. The model leaves out what the
+#: allocations meet (the other links' collisions, and crowding in the first variant), so
+#: which variant's pointings allocate best differs from programme to programme
+#: (docs/programme.md).
 VARIANTS = (ModelVariant(), ModelVariant(crowding=True), ModelVariant(pointing_cost=0.6))
 
 
@@ -108,7 +106,7 @@ class OptimiserOptions:
     bound_share: float = 0.1
     model_share: float = 0.15
     step_share: float = 0.03
-    #: of a search's budget, at most: its merges (step 7), which allocate pairs that may not
+    #: of a search's budget, at most: its merges (step 6), which allocate pairs that may not
     #: merge, so that they never take the time of the model's other variants
     merge_share: float = 0.1
     #: the cost of a pointing (its acquisition) in exposures (an exposure and its
@@ -117,7 +115,7 @@ class OptimiserOptions:
     #: candidates the model chooses among (:func:`solvers.programme.reach.shortlist`)
     max_candidates: int = 150
     variants: tuple[ModelVariant, ...] = VARIANTS
-    #: step 7: merge pairs of pointings one FOV holds (:mod:`.merge`), within ``merge_share``
+    #: step 6: merge pairs of pointings one FOV holds (:mod:`.merge`), within ``merge_share``
     merge: bool = True
 
 
@@ -181,7 +179,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
              "model_status": best.cover.status, "model_exposures": int(best.cover.exposures.sum()),
              "model_pointings": int(np.count_nonzero(best.cover.exposures)),
              "exposures_estimate": best.exposures,
-             "allocated_pointings": sum(p.exposures is not None for p in pts), "spare_arm_moves": best.saved,
+             "allocated_pointings": sum(p.exposures is not None for p in pts),
              "exposures_emptied": best.emptied, "pointings_merged": best.merged,
              "model_variants": [{"pointing_cost": s.variant.pointing_cost, "crowding": s.variant.crowding,
                                  "exposures": s.exposures, "pointings": len(s.pointings), "complete": s.complete,
@@ -204,14 +202,13 @@ class _Space:
 
 @dataclass(frozen=True)
 class _Searched:
-    """One search's pointings (those with members, after steps 5-7), the model's first
-    solution, its steps and what steps 5-7 saved."""
+    """One search's pointings (those with members, after steps 5-6), the model's first
+    solution, its steps and what steps 5-6 saved."""
 
     variant: ModelVariant
     pointings: list[Pointing]
     cover: CoverSolution
     steps: int
-    saved: int
     emptied: int
     merged: int
 
@@ -241,7 +238,7 @@ def _counted(p: Pointing) -> int | None:
 
 
 def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, budget: Budget) -> _Searched:
-    """Steps 3-7 of the module docstring with the model set as ``variant``, within ``budget``."""
+    """Steps 3-6 of the module docstring with the model set as ``variant``, within ``budget``."""
     f, todo = space.f, np.ones(len(space.f.ra_deg), bool)
     pts: list[Pointing] = []
     first: CoverSolution | None = None
@@ -268,11 +265,10 @@ def _search(space: _Space, options: OptimiserOptions, variant: ModelVariant, bud
         done.add(j)
         pts.append(p)
     steps = len(pts)
-    saved = spare_arms(f, pts, options.fill, budget)
     emptied = consolidate(f, pts, options.fill, budget)
     pts = [p for p in pts if len(p.members)]
     merged = merge_pointings(f, pts, options.fill, budget.share(options.merge_share)) if options.merge else 0
-    return _Searched(variant, pts, first, steps, saved, emptied, merged)
+    return _Searched(variant, pts, first, steps, emptied, merged)
 
 
 def _model(space: _Space, todo: np.ndarray, options: OptimiserOptions, variant: ModelVariant,
