@@ -32,7 +32,7 @@ from models.collision import (
 )
 from models.errors import StructureTooLarge, TimeLimitExceeded
 from models.instrument import Instrument
-from models.kinematics import inverse_fov, positive_turn_move_time_s, tip_fov
+from models.kinematics import inverse_fov_every_arm, positive_turn_move_time_s, tip_fov
 from models.locks import allowed_columns
 
 TIE_MM = 1e-6  # clearances within this of the buffer count as collisions in the structure
@@ -186,7 +186,7 @@ def build_assignments(
     active = np.array([k not in fixed for k in arms])
     beyond = None
     if n_t:
-        sol = inverse_fov(instrument, arms[:, None], x[None, :], y[None, :])  # (n_arms, n_t, 4)
+        sol = inverse_fov_every_arm(instrument, x, y)  # (n_arms, n_t, 4)
         valid = sol.valid & active[:, None, None] & allowed_columns(instrument.n_arms, n_t, locks, excluded)
         if park_move_limit_s is not None:
             reached = valid.any(axis=(0, 2))

@@ -304,3 +304,29 @@ def inverse_fov(instrument: Instrument, arm, x_mm, y_mm) -> IKSolutions:
     a, b = fov_to_arm(instrument, arm, x_mm, y_mm)
     arm_b = np.broadcast_to(np.asarray(arm, dtype=int), np.shape(a))
     return inverse(a, b, Links.of(instrument, arm_b))
+
+
+#: :func:`inverse_fov_every_arm` solves only the points within this distance of an arm's
+#: annulus of reach (J1 to the tip between |d13 - d3tip| and d13 + d3tip); beyond it the
+#: circles of J3 miss each other by far more than the tangent tolerance ``H2_TOL``, so the
+#: solutions left out are exactly those :func:`inverse` finds invalid
+REACH_MARGIN_MM = 1.0
+
+
+def inverse_fov_every_arm(instrument: Instrument, x_mm, y_mm) -> IKSolutions:
+    """:func:`inverse_fov` of every arm at every FOV point, arrays (n_arms, n_points, 4),
+    solved only where a point lies in the arm's annulus of reach (:data:`REACH_MARGIN_MM`):
+    the same solutions, element by element, at the cost of the points each arm can reach."""
+    x = np.asarray(x_mm, float).ravel()
+    y = np.asarray(y_mm, float).ravel()
+    arms = np.arange(instrument.n_arms)
+    a, b = fov_to_arm(instrument, arms[:, None], x[None, :], y[None, :])
+    d13, d3t = instrument.arm_array("d13_mm")[:, None], instrument.arm_array("d3tip_mm")[:, None]
+    d = np.hypot(a, b)
+    k, t = np.nonzero((d >= np.abs(d13 - d3t) - REACH_MARGIN_MM) & (d <= d13 + d3t + REACH_MARGIN_MM))
+    some = inverse(a[k, t], b[k, t], Links.of(instrument, k))
+    shape = (len(arms), len(x), 4)
+    theta1, theta2 = np.full(shape, np.nan), np.full(shape, np.nan)
+    valid = np.zeros(shape, bool)
+    theta1[k, t], theta2[k, t], valid[k, t] = some.theta1_rad, some.theta2_rad, some.valid
+    return IKSolutions(theta1, theta2, valid)

@@ -21,6 +21,7 @@ from models.kinematics import (
     in_zoa,
     inverse,
     inverse_fov,
+    inverse_fov_every_arm,
     jacobian,
     joint_displacement,
     joint_distance,
@@ -256,3 +257,26 @@ def test_joint_positions_respect_link_lengths() -> None:
     u = p["tip"] - p["J3"]
     w = p["J4"] - p["J3"]
     assert np.allclose(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0], 0.0, atol=1e-8)
+
+
+def test_every_arm_inverse_equals_the_broadcast_one_at_and_around_the_reach_circles() -> None:
+    """inverse_fov_every_arm solves only the points in an arm's annulus of reach: its solutions
+    equal inverse_fov's everywhere, bit for bit, on random FOV points and on points at, just
+    inside and just outside every arm's inner and outer reach circles (the tangent cases)."""
+    rng = np.random.default_rng(7)
+    xs, ys = [rng.uniform(-200.0, 200.0, 3000)], [rng.uniform(-200.0, 200.0, 3000)]
+    for k, arm in enumerate(INS.arms):
+        for r in (abs(arm.d13_mm - arm.d3tip_mm), arm.d13_mm + arm.d3tip_mm):
+            for dr in (-1e-6, -1e-12, 0.0, 1e-12, 1e-6, 0.5, -0.5):
+                phi = rng.uniform(0.0, np.pi, 40)
+                x, y = arm_to_fov(INS, k, (r + dr) * np.cos(phi), (r + dr) * np.sin(phi))
+                xs.append(np.asarray(x))
+                ys.append(np.asarray(y))
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    arms = np.arange(INS.n_arms)
+    want = inverse_fov(INS, arms[:, None], x[None, :], y[None, :])
+    got = inverse_fov_every_arm(INS, x, y)
+    assert np.array_equal(got.valid, want.valid)
+    assert np.array_equal(got.theta1_rad, want.theta1_rad, equal_nan=True)
+    assert np.array_equal(got.theta2_rad, want.theta2_rad, equal_nan=True)
+    assert want.valid.any() and not want.valid.all()  # the layout tests both outcomes
