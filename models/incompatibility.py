@@ -339,6 +339,33 @@ def _body_pairs_that_can_meet(instrument: Instrument, k: int, kk: int, buffer_mm
     return out
 
 
+@lru_cache(maxsize=4096)
+def _capsules(instrument: Instrument, k: int, buffer_mm: float,
+              ) -> tuple[tuple[int, tuple[tuple[int, int], ...], np.ndarray, np.ndarray, np.ndarray], ...]:
+    """Per body ``bi`` of arm k: the bodies (arm kk, body bj) of the other arms it can meet
+    (:func:`_body_pairs_that_can_meet`) and the capsules they sweep, as arrays: the centres of
+    their joints' bounding discs ``c0``, ``c1`` (m, 2) and the capsules' radii ``reach`` (m,).
+    They depend on the instrument alone, so every structure build shares them."""
+    caps: dict[int, list[tuple[int, int, np.ndarray, np.ndarray, float]]] = {}
+    for kk in range(instrument.n_arms):
+        if kk == k:
+            continue
+        lo_k, hi_k = min(k, kk), max(k, kk)
+        jb = _joint_bounds(instrument, kk)
+        for p in _body_pairs_that_can_meet(instrument, lo_k, hi_k, buffer_mm):
+            bi, bj = (p[0], p[1]) if k == lo_k else (p[1], p[0])
+            body = instrument.arms[kk].bodies[bj]
+            (c0, r0), (c1, r1) = jb[body.joint_from], jb[body.joint_to]
+            caps.setdefault(bi, []).append((kk, bj, c0, c1, max(r0, r1) + body.half_width_mm))
+    out = tuple((bi, tuple((c[0], c[1]) for c in cs), np.array([c[2] for c in cs], float),
+                 np.array([c[3] for c in cs], float), np.array([c[4] for c in cs], float))
+                for bi, cs in caps.items())
+    for _, _, *arrays in out:  # shared by every build: read-only
+        for v in arrays:
+            v.setflags(write=False)
+    return out
+
+
 def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey, rad,
                        buffer_mm: float, check=lambda: None) -> dict[tuple[int, int, int, int], np.ndarray]:
     """keep[(k, bi, kk, bj)][a]: can body bi of assignment a (of arm k) meet body bj of arm kk?
@@ -348,30 +375,15 @@ def _static_keep_masks(instrument: Instrument, asg: Assignments, sx, sy, ex, ey,
     it removes most rows/columns for the short bodies near the arm bases.
     """
     keep = {}
-    n_arms = instrument.n_arms
-    bounds = [_joint_bounds(instrument, kk) for kk in range(n_arms)]
-    for k in range(n_arms):
+    for k in range(instrument.n_arms):
         sl = asg.of_arm(k)
         check()
-        capsules: dict[int, list[tuple[int, int, np.ndarray, np.ndarray, float]]] = {}
-        for kk in range(n_arms):
-            if kk == k:
-                continue
-            lo_k, hi_k = min(k, kk), max(k, kk)
-            for p in _body_pairs_that_can_meet(instrument, lo_k, hi_k, buffer_mm):
-                bi, bj = (p[0], p[1]) if k == lo_k else (p[1], p[0])
-                body = instrument.arms[kk].bodies[bj]
-                (c0, r0), (c1, r1) = bounds[kk][body.joint_from], bounds[kk][body.joint_to]
-                capsules.setdefault(bi, []).append((kk, bj, c0, c1, max(r0, r1) + body.half_width_mm))
-        for bi, caps in capsules.items():
-            # every capsule body bi can meet at once: (capsules, assignments of arm k)
-            c0 = np.array([c[2] for c in caps], float)
-            c1 = np.array([c[3] for c in caps], float)
-            reach = np.array([c[4] for c in caps], float)
+        for bi, others, c0, c1, reach in _capsules(instrument, k, buffer_mm):
+            # every capsule body bi of arm k can meet at once: (capsules, assignments of arm k)
             d = segment_distance_xy(sx[bi, sl][None, :], sy[bi, sl][None, :], ex[bi, sl][None, :],
                                     ey[bi, sl][None, :], c0[:, [0]], c0[:, [1]], c1[:, [0]], c1[:, [1]])
             near = d - rad[bi, sl][None, :] - reach[:, None] < buffer_mm
-            for row, (kk, bj, *_) in enumerate(caps):
+            for row, (kk, bj) in enumerate(others):
                 keep[(k, bi, kk, bj)] = near[row]
     return keep
 

@@ -6,6 +6,10 @@ branch-and-bound's and a brute-force oracle's; it starts from the branch-and-bou
 from __future__ import annotations
 
 import inspect
+import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -160,11 +164,6 @@ def test_a_warm_worker_loads_no_engine_library_inside_a_plan() -> None:
     default plan's engines: a fewest-exposures plan run after it imports none of them, so no
     plan's budget pays for their loading. Without the warm-up the same plan does (which is
     what makes the check able to fail)."""
-    import json
-    import os
-    import subprocess
-    import sys
-
     root = Path(__file__).resolve().parents[1]
     code = (
         "import json, sys\n"
