@@ -28,7 +28,9 @@ summed (``pointing_bounds``, :func:`pointing_bound`) and the exposures above it
 (``allocation_gap``: what the allocations leave; the rest of the gap to the bound is where
 the pointings are placed and what the bound cannot see), priority and field completeness, executable, telescope time
 (``stats.telescope_time.total_s`` when reported), wall time, the segmentation's (optimiser's)
-own time ``stats.segmentation.time_s`` and its fraction of the wall time, whether the
+time ``stats.segmentation.time_s`` and its fraction of the wall time, the part of it that is
+not the allocations the plan observes as they are (``stats.segmentation.own_time_s``:
+``optimiser_own_s`` and ``optimiser_own_fraction``), whether the
 optimiser's wall-clock guard ended it (``optimiser_overran``: its pointings then depend on the
 machine's speed; counted per mode), the exposures that
 observe at most 2 targets and how many of those the plan flags as observing targets no other
@@ -235,6 +237,7 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     pointing_bounds = sum(pointing_bound(p) for p in plan["pointings"])
     tt = s.get("telescope_time")
     seg_s = (s.get("segmentation") or {}).get("time_s")
+    own_s = (s.get("segmentation") or {}).get("own_time_s", seg_s)  # other modes: all of it
     return {
         "exposures": exposures, "pointings": int(s["pointings"]),
         "exposures_lower_bound": bound,
@@ -250,6 +253,9 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
         "elapsed_s": None if s.get("elapsed_s") is None else round(float(s["elapsed_s"]), 3),
         "optimiser_s": None if seg_s is None else round(float(seg_s), 4),
         "optimiser_fraction": None if seg_s is None else round(float(seg_s) / wall_s, 4),
+        # less the allocations the plan observes as they are (the plan's allocation stage)
+        "optimiser_own_s": None if own_s is None else round(float(own_s), 4),
+        "optimiser_own_fraction": None if own_s is None else round(float(own_s) / wall_s, 4),
         # the optimiser's wall-clock guard ended it: its pointings depend on the machine
         "optimiser_overran": bool(((s.get("segmentation") or {}).get("optimiser") or {}).get("overran", False)),
         **small_exposures(plan),
@@ -330,6 +336,10 @@ def mode_summary(rows: list[dict[str, Any]], mode: str) -> dict[str, Any]:
             [x["optimiser_fraction"] for x in res if x["optimiser_fraction"] is not None]),
         "optimiser_fraction_max": max((x["optimiser_fraction"] for x in res
                                        if x["optimiser_fraction"] is not None), default=None),
+        "optimiser_own_fraction_median": _median(
+            [x["optimiser_own_fraction"] for x in res if x["optimiser_own_fraction"] is not None]),
+        "optimiser_own_fraction_max": max((x["optimiser_own_fraction"] for x in res
+                                           if x["optimiser_own_fraction"] is not None), default=None),
         "optimiser_overran": sum(x["optimiser_overran"] for x in res),
         "small_exposures_total": sum(x["small_exposures"] for x in res),
         "small_exposures_only_here_total": sum(only) if res and None not in only else None,

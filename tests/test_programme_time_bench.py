@@ -25,7 +25,7 @@ ROW_KEYS = {"exposures", "pointings", "exposures_lower_bound", "gap", "targets_b
             "pointing_bounds", "allocation_gap",
             "priority_completeness", "field_completeness", "executable",
             "not_observed_by_reason", "telescope_time_s", "wall_s", "limit_s", "elapsed_s",
-            "optimiser_s", "optimiser_fraction", "optimiser_overran", "small_exposures", "small_exposures_only_here",
+            "optimiser_s", "optimiser_fraction", "optimiser_own_s", "optimiser_own_fraction", "optimiser_overran", "small_exposures", "small_exposures_only_here",
             "small_exposures_explained", "only_here_flag", "ratio_to_complete_linkage", "valid", "hash_ok", "violations",
             "violation_kinds", "validate_s"}
 SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
@@ -34,6 +34,7 @@ SUMMARY_KEYS = {"programmes", "errors", "exposures_total", "pointings_total",
                 "gap_median", "gap_max", "within_gap_goal", "executable", "wall_s_median",
                 "wall_s_total", "over_limit", "priority_completeness_min", "field_completeness_min",
                 "telescope_time_total_s", "optimiser_fraction_median", "optimiser_fraction_max",
+                "optimiser_own_fraction_median", "optimiser_own_fraction_max",
                 "optimiser_overran", "small_exposures_total", "small_exposures_only_here_total",
                 "small_exposures_explained_total", "valid", "bounds_total",
                 "bound_ratio_to_complete_linkage_total", "ratio_goal_allows_gap",
@@ -73,6 +74,9 @@ def test_the_smoke_run_has_every_programme_and_mode(smoke) -> None:
             assert (row["name"], mode) in plans
             assert res["limit_s"] == pt.SMOKE["time_limit_s"]
             assert res["wall_s"] > 0 and 0 <= res["optimiser_fraction"] < 1
+            assert 0 <= res["optimiser_own_fraction"] <= res["optimiser_fraction"]
+            seg = plans[(row["name"], mode)]["stats"]["segmentation"]
+            assert res["optimiser_own_s"] == round(seg.get("own_time_s", seg["time_s"]), 4)
     for s in out["summary"].values():
         assert set(s) == SUMMARY_KEYS and s["programmes"] == len(names) and s["errors"] == 0
         assert s["valid"] == s["programmes"] and s["violations_total"] == 0

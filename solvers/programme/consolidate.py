@@ -302,7 +302,7 @@ def _rebuilt(f: Field, p: Pointing, a: Arms) -> Pointing:
     if not members:
         return Pointing(p.centre, p.pa_deg, np.zeros(0, np.int64), 0, pa_search=p.pa_search)
     return Pointing(p.centre, p.pa_deg, np.array(members, np.int64), len(allocation.configurations),
-                    allocation=allocation, pa_search=p.pa_search)
+                    allocation=allocation, pa_search=p.pa_search, allocation_s=p.allocation_s)
 
 
 def _assignment(f: Field, a: Arms, asg: ArmAssignment, t: int, pose: np.ndarray,

@@ -17,6 +17,7 @@ exposures, and keeps unless its own allocation is better otherwise.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -28,12 +29,14 @@ from models.types import AllocationResult, PlaneTargets, Unallocated
 from solvers.allocation import allocate
 from solvers.allocation.options import DEFAULT_SOLVER, AllocationOptions, PackingOptions
 from solvers.programme.angle import AngleChoice, AngleSearch, choose_angle, refined_angles
-from solvers.programme.reach import arm_masks
+from solvers.programme.crowding import crowding_cells, exclusion_distance_mm
+from solvers.programme.reach import arm_masks, reach_least
 from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
 __all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
-           "allocate_pointing", "commit", "observed_members", "pointing_angle", "position_angle", "recentre", "within"]
+           "allocate_pointing", "commit", "least_exposures", "observed_members", "pointing_angle", "position_angle",
+           "recentre", "timed_allocation", "within"]
 
 #: the position angles a pointing may take (the instrument allows any): every 5 deg (finer
 #: than the arms' pitch, 30 deg on the default instrument, so that a turn moves a rim target
@@ -107,6 +110,8 @@ class Pointing:
     #: when its allocation kept no exposure: the exposures of that allocation observing its
     #: members (at least 1), what the plan's own allocation of them is expected to take
     estimate: int | None = None
+    #: wall seconds of the allocation ``allocation`` was taken from (0: none)
+    allocation_s: float = 0.0
 
 
 def within(f: Field, idx: np.ndarray, centre: tuple[float, float], margin_mm: float = RIM_MARGIN_MM) -> np.ndarray:
@@ -184,6 +189,15 @@ def pointing_angle(f: Field, members: np.ndarray, centre: tuple[float, float], o
     return pa, AngleChoice(pa, tuple(lost), (), objective)
 
 
+def timed_allocation(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget,
+                     ) -> tuple[AllocationResult, float]:
+    """:func:`allocate_pointing` and its wall seconds (the plan reports how much of the
+    optimiser's time went into allocations it observes as they are)."""
+    t0 = time.perf_counter()
+    result = allocate_pointing(f, p, priority, opts, budget)
+    return result, time.perf_counter() - t0
+
+
 def allocate_pointing(f: Field, p: Pointing, priority: np.ndarray, opts: FillOptions, budget: Budget,
                       ) -> AllocationResult:
     """``p``'s members allocated as the plan allocates a pointing (at ``priority``), to
@@ -217,7 +231,7 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
         return p
     raised = f.priority.astype(np.int64).copy()
     raised[members[only]] += ONLY_HERE_BOOST
-    result = allocate_pointing(f, p, raised, opts, budget)
+    result, p.allocation_s = timed_allocation(f, p, raised, opts, budget)
     keep, p.exposures = _kept(result, members, only, opts.fill_min)
     if keep.size == 0:  # nothing worth an exposure: the model's targets, so that steps end
         keep = np.asarray(given, dtype=np.int64)
@@ -229,6 +243,28 @@ def commit(f: Field, todo: np.ndarray, given: np.ndarray, start: tuple[float, fl
         p.allocation = witness(result, members, keep, p.exposures, f.priority)
     p.members = keep
     return p
+
+
+def least_exposures(f: Field, p: Pointing, opts: FillOptions) -> int:
+    """The fewest exposures in which any allocation at ``p``'s centre and angle can observe
+    the members its witness observes: at least one per ``arms`` of them; by arm reach, the
+    b-matching bound of :func:`solvers.programme.reach.reach_least` over the arms that reach
+    each (within the park move limit and its lock, and the arm the witness gives it); by
+    crowding, the most of them in one crowding cell (:mod:`.crowding`: targets closer than
+    the exclusion distance never share an exposure). Each holds for every allocation, so a
+    witness that takes this many exposures is as short as any (the plan observes it as it is)."""
+    if p.allocation is None:
+        return 0
+    arm_of = {int(p.members[a.target_index]): a.arm for c in p.allocation.configurations[:p.exposures]
+              for a in c.assignments if a.target_index is not None}
+    seen = np.array(sorted(arm_of), dtype=np.int64)
+    if seen.size == 0:
+        return 0
+    x, y = sky_to_focal_mm(f.ra_deg[seen], f.dec_deg[seen], p.centre[0], p.centre[1], f.scale, p.pa_deg)
+    masks = opts.limited(arm_masks(f.inst, x, y, opts.park_move_limit_s), seen)
+    masks |= np.left_shift(1, np.array([arm_of[int(t)] for t in seen], np.int64))
+    cells = crowding_cells(np.column_stack([x, y]), exclusion_distance_mm(f.inst))
+    return max(-(-len(seen) // f.inst.n_arms), reach_least(masks, f.inst.n_arms), int(cells.size.max()))
 
 
 def observed_members(members: np.ndarray, result: AllocationResult) -> set[int]:

@@ -27,10 +27,10 @@ from solvers.programme.fill import (
     Field,
     FillOptions,
     Pointing,
-    allocate_pointing,
     observed_members,
     pointing_angle,
     recentre,
+    timed_allocation,
     within,
     witness,
 )
@@ -96,7 +96,7 @@ def _merged(f: Field, a: Pointing, b: Pointing, opts: FillOptions, budget: Budge
         return None
     pa, search = pointing_angle(f, members, centre, opts)
     one = Pointing(centre, pa, members, pa_search=search)
-    result = allocate_pointing(f, one, f.priority, opts, budget)
+    result, one.allocation_s = timed_allocation(f, one, f.priority, opts, budget)
     before = observed_members(a.members, a.allocation) | observed_members(b.members, b.allocation)
     if not before <= observed_members(members, result) or len(result.configurations) > a.exposures + b.exposures:
         return None

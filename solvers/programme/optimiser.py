@@ -33,7 +33,7 @@ programme, the options and the budget only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -57,6 +57,7 @@ from solvers.programme.fill import (
     FillOptions,
     Pointing,
     commit,
+    least_exposures,
     mark_only_here,
     recentre,
 )
@@ -133,6 +134,11 @@ class OptimisedPointing:
     only_here: tuple[int, ...] = ()
     allocation: AllocationResult | None = field(default=None, compare=False, repr=False)
     position_angle_search: AngleChoice | None = field(default=None, compare=False, repr=False)
+    #: the plan observes ``allocation`` as it is: it takes the fewest exposures any allocation
+    #: of what it observes can take here (:func:`solvers.programme.fill.least_exposures`)
+    allocation_final: bool = False
+    #: wall seconds of the allocation ``allocation`` was taken from
+    allocation_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -170,11 +176,7 @@ def optimise(inst: Instrument, ra_deg, dec_deg, priority, tangent: tuple[float, 
     variants_effort_s = clock.now() - t1 if len(tried) > 1 else 0.0
     pts = best.pointings
     mark_only_here(f, pts)
-    out = tuple(OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0,
-                                  tuple(int(i) for i in p.members), p.exposures,
-                                  tuple(int(i) for i in p.only_here),
-                                  p.allocation, p.pa_search)
-                for p in pts)
+    out = tuple(_optimised(f, p, options.fill) for p in pts)
     stats = {"candidates": len(cand), "candidates_complete": cand.complete, "steps": best.steps,
              "model_status": best.cover.status, "model_exposures": int(best.cover.exposures.sum()),
              "model_pointings": int(np.count_nonzero(best.cover.exposures)),
@@ -228,6 +230,28 @@ class _Searched:
         """Telescope time in exposures (each pointing its acquisition), then exposures."""
         used = sum(1 for p in self.pointings if len(p.members))
         return self.exposures + pointing_cost * used, self.exposures
+
+
+#: the reasons a member stays unobserved at any allocation of its pointing's placement
+GEOMETRIC = frozenset({"unreachable", "beyond_park_move_limit"})
+
+
+def _optimised(f: Field, p: Pointing, opts: FillOptions) -> OptimisedPointing:
+    """``p`` as the optimiser returns it. Its witness says, in its stats, the fewest
+    exposures any allocation at its placement can observe what it observes in
+    (``lower_bound_configurations_proven``, :func:`solvers.programme.fill.least_exposures`),
+    and the plan observes it as it is (``allocation_final``) when it takes no more and every
+    member it leaves unobserved no arm reaches (within the park move limit): the plan's own
+    allocation could not be better (the plan keeps a witness unless its own observes more
+    targets or as many in fewer exposures), so the pointing's share goes to its motion legs."""
+    allocation, final = p.allocation, False
+    if allocation is not None and p.exposures is not None:
+        least = least_exposures(f, p, opts)
+        allocation = replace(allocation, stats={**allocation.stats, "lower_bound_configurations_proven": least})
+        final = p.exposures <= least and all(u.reason in GEOMETRIC for u in allocation.unallocated)
+    return OptimisedPointing(p.centre[0] % 360.0, p.centre[1], p.pa_deg % 360.0, tuple(int(i) for i in p.members),
+                             p.exposures, tuple(int(i) for i in p.only_here), allocation, p.pa_search, final,
+                             p.allocation_s)
 
 
 def _counted(p: Pointing) -> int | None:

@@ -14,7 +14,7 @@ from models.instrument import Instrument
 from solvers.programme.candidates import Candidates
 from solvers.programme.model import ReachRows, greedy_cover
 
-__all__ = ["PER_TARGET_CANDIDATES", "arm_masks", "entry_masks", "reach_rows", "shortlist"]
+__all__ = ["PER_TARGET_CANDIDATES", "arm_masks", "entry_masks", "reach_least", "reach_rows", "shortlist"]
 
 #: the shortlist keeps, for every target, this many of its best-filled candidates
 PER_TARGET_CANDIDATES = 2
@@ -22,6 +22,9 @@ PER_TARGET_CANDIDATES = 2
 MAX_WINDOW = 4
 #: effort seconds charged per point whose reaching arms are computed (reference seconds)
 POINT_S = 20e-6
+#: :func:`reach_least` checks every set of arms up to this many arms (2^arms sets), and
+#: falls back to the targets over the arms beyond
+HALL_MAX_ARMS = 16
 
 
 def arm_masks(inst: Instrument, x_mm, y_mm, park_move_limit_s: float | None) -> np.ndarray:
@@ -34,6 +37,30 @@ def arm_masks(inst: Instrument, x_mm, y_mm, park_move_limit_s: float | None) -> 
     masks = np.zeros(len(x), dtype=np.int64)
     np.bitwise_or.at(masks, a.target[ok], np.left_shift(1, a.arm[ok].astype(np.int64)))
     return masks
+
+
+def reach_least(masks: np.ndarray, n_arms: int) -> int:
+    """The fewest exposures that can observe every target of ``masks`` (bit k: arm k reaches
+    it; targets no arm reaches are left out) when each arm observes at most one target per
+    exposure: Hall's condition for matching the targets to arms of capacity C holds exactly
+    when, for every set A of arms, the targets only A reaches number at most C |A|, so the
+    least C is the largest ceil(those targets / |A|). Collisions are ignored, so no exposure
+    count below it is possible. Beyond :data:`HALL_MAX_ARMS` arms: ceil(targets / arms)."""
+    m = np.asarray(masks, np.int64)
+    m = m[m != 0]
+    if m.size == 0:
+        return 0
+    if n_arms > HALL_MAX_ARMS:
+        return math.ceil(m.size / n_arms)
+    only = np.bincount(m, minlength=1 << n_arms).astype(np.int64)
+    sets = np.arange(1 << n_arms)
+    for k in range(n_arms):  # only[A]: the targets whose arms all lie in A (sum over subsets)
+        has = (sets >> k) & 1 == 1
+        only[has] += only[sets[has] ^ (1 << k)]
+    size = np.bitwise_count(sets.astype(np.uint64)).astype(np.int64) if hasattr(np, "bitwise_count") \
+        else np.array([bin(a).count("1") for a in sets], np.int64)
+    some = size > 0
+    return int(np.max(-(-only[some] // size[some])))
 
 
 def entry_masks(inst: Instrument, cand: Candidates, xy_mm: np.ndarray, position_angle_deg: float,

@@ -72,7 +72,7 @@ def segment_programme(inst: Instrument, ra_deg, dec_deg, priority, *, mode: str 
     opts = OptimiserOptions(fill=FillOptions(seed=int(seed)) if fill is None else fill)
     t0 = time.perf_counter()
     result = optimise(inst, ra, dec, prio, tangent, xy, opts, budget, variants_s)
-    seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0, inst.n_arms)
+    seg = _segmentation(result, ra, dec, tangent, R, scale, time.perf_counter() - t0)
     if opts.fill.angle_search is None:
         return seg
     return searched_angles(inst, seg, ra, dec, prio, opts.fill.angle_search, opts.fill.park_move_limit_s,
@@ -99,19 +99,7 @@ def searched_angles(inst: Instrument, seg: Segmentation, ra_deg, dec_deg, priori
     return replace(seg, pointings=tuple(pointings))
 
 
-def _final(p: OptimisedPointing, arms: int) -> bool:
-    """Whether the plan observes ``p``'s allocation (its witness) as it is: the witness
-    observes its targets in as few exposures as ``arms`` arms can (one exposure per ``arms``
-    targets), so no allocation of the pointing takes fewer. Other witnesses the plan keeps
-    only when its own allocation, on the pointing's larger share and with the repacking
-    post-pass, is not better: on crowded pointings it takes fewer (docs/programme.md)."""
-    if p.allocation is None:
-        return False
-    observed = sum(a.target_index is not None for c in p.allocation.configurations for a in c.assignments)
-    return len(p.allocation.configurations) <= -(-observed // arms)
-
-
-def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float, arms: int) -> Segmentation:
+def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: float) -> Segmentation:
     """The optimiser's pointings as a :class:`Segmentation`, after the guarantees every mode
     gives (:func:`solvers.segmentation.field.checked_pointings`)."""
     groups = [np.asarray(p.members, dtype=np.int64) for p in result.pointings]
@@ -119,7 +107,7 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
     pdec = np.array([p.dec_deg for p in result.pointings])
     extras = [{"position_angle_deg": _reported_angle(p), "exposures": p.exposures,
                "only_here": tuple(sorted(p.only_here)), "allocation": p.allocation,
-               "allocation_final": _final(p, arms),
+               "allocation_final": p.allocation_final,
                "position_angle_search": p.position_angle_search} for p in result.pointings]
     pointings = checked_pointings(groups, pra, pdec, ra, dec, tangent, R, scale, extras)
     b = result.bound
@@ -128,8 +116,18 @@ def _segmentation(result: ProgrammeResult, ra, dec, tangent, R, scale, wall_s: f
              "exposures_lower_bound": b.exposures,
              "bound": {"exposures": b.exposures, "trivial": b.trivial, "components": b.components,
                        "weight": b.weight, "method": b.method},
-             "optimiser": result.stats, "time_s": wall_s}
+             "optimiser": result.stats, "time_s": wall_s, **_time_split(result, wall_s)}
     return Segmentation(float(tangent[0]), float(tangent[1]), pointings, stats)
+
+
+def _time_split(result: ProgrammeResult, wall_s: float) -> dict[str, float]:
+    """The optimiser's wall seconds split: ``allocations_kept_s``, those of the allocations
+    the plan observes as they are (``allocation_final``: the plan allocates those pointings
+    no more, so this is the plan's allocation, done in the optimiser), and ``own_time_s``, the
+    rest (its model, bound, candidates, the allocations it did not keep or the plan allocates
+    again, its consolidation and merges)."""
+    kept_s = min(sum(p.allocation_s for p in result.pointings if p.allocation_final), wall_s)
+    return {"allocations_kept_s": kept_s, "own_time_s": wall_s - kept_s}
 
 
 def _reported_angle(p: OptimisedPointing) -> float:
