@@ -23,7 +23,7 @@ and the measured figures are in docs/programme.md.
    allocation of their members together takes no more exposures than the two apart.
 
 The allocation each pointing keeps (its witness) goes to the plan, which observes it as it is
-when it takes as few exposures as the arms allow (``allocation_final``: the pointing is
+when no allocation at its placement takes fewer exposures (``allocation_final``: the pointing is
 allocated once) and otherwise keeps it when its own allocation of the pointing is not better:
 the plan has no more exposures than the optimiser counted before its motion planner's changes.
 
