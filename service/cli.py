@@ -246,7 +246,8 @@ def exposures_summary(stats: Mapping[str, Any]) -> str:
 def _optimiser_parts(stats: Mapping[str, Any]) -> list[str]:
     """What the programme optimiser's search kept (``stats.segmentation.optimiser``), when it
     differs from its first search as the model gives it: another variant of its model (which,
-    and what the first's allocations took) and the pointings it merged."""
+    and what the first's allocations took) and the pointings it merged; then its time
+    (:func:`_optimiser_time`)."""
     o = (stats.get("segmentation") or {}).get("optimiser") or {}
     tried = o.get("model_variants") or []
     kept = next((i for i, v in enumerate(tried) if v.get("chosen")), 0)
@@ -262,7 +263,18 @@ def _optimiser_parts(stats: Mapping[str, Any]) -> list[str]:
     merged = int(o.get("pointings_merged") or 0)
     if merged:
         parts.append(f"{plural(merged, 'pointing')} merged into another that one field of view holds")
-    return parts
+    return parts + _optimiser_time(stats.get("segmentation") or {})
+
+
+def _optimiser_time(seg: Mapping[str, Any]) -> list[str]:
+    """The programme optimiser's wall time, split into its own and the allocations of the
+    pointings the plan observes as they are (``stats.segmentation``), when it allocated any."""
+    once = int(seg.get("pointings_allocated_once") or 0)
+    if not once or seg.get("own_time_s") is None:
+        return []
+    return [f"the programme optimiser took {float(seg['time_s']):.1f} s: {float(seg['own_time_s']):.1f} s "
+            f"its own and {float(seg['allocations_kept_s']):.1f} s allocating {plural(once, 'pointing')} "
+            "the plan observes as allocated there"]
 
 
 def changes_summary(stats: dict[str, Any]) -> str:

@@ -362,6 +362,17 @@ def test_the_cli_summary_counts_the_targets_another_exposure_could_take_and_why_
     assert "could" not in every and "stopped" not in every and "(only_here in plan.json)" in every
 
 
+def test_the_cli_summary_splits_the_optimisers_time() -> None:
+    from service.cli import exposures_summary
+
+    seg = {"time_s": 4.12, "own_time_s": 1.15, "allocations_kept_s": 2.97, "pointings_allocated_once": 6}
+    line = exposures_summary({"configurations": 32, "segmentation": seg})
+    assert line.endswith("; the programme optimiser took 4.1 s: 1.1 s its own and 3.0 s allocating 6 pointings "
+                         "the plan observes as allocated there")
+    alone = exposures_summary({"configurations": 32, "segmentation": {**seg, "pointings_allocated_once": 0}})
+    assert "optimiser" not in alone and "optimiser" not in exposures_summary({"configurations": 32})
+
+
 def test_only_programme_optimiser_plans_without_kept_configurations_are_consolidated() -> None:
     from planner.consolidation import applies
 

@@ -125,9 +125,11 @@ def _time_split(result: ProgrammeResult, wall_s: float) -> dict[str, float]:
     the plan observes as they are (``allocation_final``: the plan allocates those pointings
     no more, so this is the plan's allocation, done in the optimiser), and ``own_time_s``, the
     rest (its model, bound, candidates, the allocations it did not keep or the plan allocates
-    again, its consolidation and merges)."""
-    kept_s = min(sum(p.allocation_s for p in result.pointings if p.allocation_final), wall_s)
-    return {"allocations_kept_s": kept_s, "own_time_s": wall_s - kept_s}
+    again, its consolidation and merges); ``pointings_allocated_once``, the pointings the plan
+    does not allocate again."""
+    final = [p for p in result.pointings if p.allocation_final]
+    kept_s = min(sum(p.allocation_s for p in final), wall_s)
+    return {"allocations_kept_s": kept_s, "own_time_s": wall_s - kept_s, "pointings_allocated_once": len(final)}
 
 
 def _reported_angle(p: OptimisedPointing) -> float:
