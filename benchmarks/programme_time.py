@@ -236,8 +236,9 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
     # leave above it is theirs, the rest is placement and the bound's
     pointing_bounds = sum(pointing_bound(p) for p in plan["pointings"])
     tt = s.get("telescope_time")
-    seg_s = (s.get("segmentation") or {}).get("time_s")
-    own_s = (s.get("segmentation") or {}).get("own_time_s", seg_s)  # other modes: all of it
+    seg = s.get("segmentation") or {}
+    seg_s = seg.get("time_s")
+    own_s = seg.get("own_time_s", seg_s)  # other modes: all of it
     return {
         "exposures": exposures, "pointings": int(s["pointings"]),
         "exposures_lower_bound": bound,
@@ -257,7 +258,7 @@ def summarise(plan: dict[str, Any], wall_s: float) -> dict[str, Any]:
         "optimiser_own_s": None if own_s is None else round(float(own_s), 4),
         "optimiser_own_fraction": None if own_s is None else round(float(own_s) / wall_s, 4),
         # the optimiser's wall-clock guard ended it: its pointings depend on the machine
-        "optimiser_overran": bool(((s.get("segmentation") or {}).get("optimiser") or {}).get("overran", False)),
+        "optimiser_overran": bool((seg.get("optimiser") or {}).get("overran", False)),
         **small_exposures(plan),
     }
 

@@ -34,7 +34,7 @@ from solvers.programme.reach import arm_masks, reach_least
 from solvers.segmentation.field import local_fit
 from solvers.sequencing.options import SequenceOptions
 
-__all__ = ["ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
+__all__ = ["GEOMETRIC", "ONLY_HERE_BOOST", "POSITION_ANGLES_DEG", "RIM_MARGIN_MM", "Field", "FillOptions", "Pointing",
            "allocate_pointing", "commit", "least_exposures", "observed_members", "pointing_angle", "position_angle",
            "recentre", "timed_allocation", "within"]
 
@@ -46,8 +46,10 @@ POSITION_ANGLES_DEG = tuple(float(a) for a in range(0, 360, 5))
 RIM_MARGIN_MM = 0.5
 #: added to the priority of a target no other pointing holds, for the feedback allocation
 ONLY_HERE_BOOST = 1_000_000
+#: the reasons a member stays unobserved at any allocation of its pointing's placement
+GEOMETRIC = frozenset({"unreachable", "beyond_park_move_limit"})
 #: the reasons a target stays unobserved that no more time would change
-SETTLED = frozenset({"unreachable", "beyond_park_move_limit", "conflict"})
+SETTLED = GEOMETRIC | {"conflict"}
 
 
 @dataclass(frozen=True)

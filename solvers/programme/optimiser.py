@@ -53,6 +53,7 @@ from solvers.programme.crowding import (
     with_crowding,
 )
 from solvers.programme.fill import (
+    GEOMETRIC,
     Field,
     FillOptions,
     Pointing,
@@ -230,10 +231,6 @@ class _Searched:
         """Telescope time in exposures (each pointing its acquisition), then exposures."""
         used = sum(1 for p in self.pointings if len(p.members))
         return self.exposures + pointing_cost * used, self.exposures
-
-
-#: the reasons a member stays unobserved at any allocation of its pointing's placement
-GEOMETRIC = frozenset({"unreachable", "beyond_park_move_limit"})
 
 
 def _optimised(f: Field, p: Pointing, opts: FillOptions) -> OptimisedPointing:

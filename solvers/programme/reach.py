@@ -54,11 +54,11 @@ def reach_least(masks: np.ndarray, n_arms: int) -> int:
         return math.ceil(m.size / n_arms)
     only = np.bincount(m, minlength=1 << n_arms).astype(np.int64)
     sets = np.arange(1 << n_arms)
+    size = np.zeros(len(sets), np.int64)  # |A|
     for k in range(n_arms):  # only[A]: the targets whose arms all lie in A (sum over subsets)
         has = (sets >> k) & 1 == 1
         only[has] += only[sets[has] ^ (1 << k)]
-    size = np.bitwise_count(sets.astype(np.uint64)).astype(np.int64) if hasattr(np, "bitwise_count") \
-        else np.array([bin(a).count("1") for a in sets], np.int64)
+        size += has
     some = size > 0
     return int(np.max(-(-only[some] // size[some])))
 
